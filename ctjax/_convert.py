@@ -1,0 +1,55 @@
+"""Field converters and checks shared by every Module (lobes, lights, effects, camera).
+
+Checks run only on concrete values: inside `jit`/`vmap` the fields are tracers and the
+checks are skipped (the fitters keep parameters in their domain by reparametrisation).
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import ParameterError
+from ._typing import Array, Float
+
+
+def as_float(x) -> Float[Array, "..."]:
+    """`jnp.asarray`, promoting integers and bools to the default float dtype."""
+    x = jnp.asarray(x)
+    return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(float)
+
+
+def as_rgb(x) -> Float[Array, "3"]:
+    """A per-channel quantity: a scalar is broadcast to the three channels."""
+    x = as_float(x)
+    return jnp.broadcast_to(x, (3,)) if x.ndim == 0 else x
+
+
+def _concrete(x) -> np.ndarray | None:
+    if isinstance(x, jax.core.Tracer):
+        return None
+    try:
+        return np.asarray(x)
+    except Exception:  # e.g. abstract shape structs
+        return None
+
+
+def check_shape(owner: str, name: str, x, shape: tuple[int, ...]) -> None:
+    if jnp.shape(x) != shape:
+        raise ParameterError(f"{owner}.{name} must have shape {shape}, got {jnp.shape(x)}")
+
+
+def check_finite(owner: str, name: str, x) -> None:
+    value = _concrete(x)
+    if value is not None and not np.all(np.isfinite(value)):
+        raise ParameterError(f"{owner}.{name} must be finite, got {value}")
+
+
+def check_positive(owner: str, name: str, x, *, allow_zero: bool = False) -> None:
+    check_finite(owner, name, x)
+    value = _concrete(x)
+    if value is None:
+        return
+    bad = np.any(value < 0) if allow_zero else np.any(value <= 0)
+    if bad:
+        kind = "non-negative" if allow_zero else "positive"
+        raise ParameterError(f"{owner}.{name} must be {kind}, got {value}")

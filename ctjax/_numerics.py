@@ -1,0 +1,39 @@
+"""Guarded arithmetic: finite values *and* finite gradients at grazing angles.
+
+The pattern everywhere is the double `where`: replace the argument by a harmless value where
+the operation is undefined, then select the fallback, so neither branch produces NaN in the
+forward or the backward pass.
+"""
+
+import jax
+import jax.numpy as jnp
+
+from ._typing import Array, Scalar
+from ._vector import Vec3, where
+
+# Smallest cosine used in a denominator: 1e-6 from grazing is far below anything a camera
+# resolves, and 1/1e-6 leaves ample headroom in float32.
+COSINE_FLOOR = 1e-6
+
+
+def safe_norm(v: Vec3) -> Scalar:
+    """Euclidean norm with a zero gradient (not NaN) at v = 0."""
+    sq = v @ v
+    ok = sq > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1)), 0)
+
+
+def safe_normalize(v: Vec3, fallback: Vec3 | None = None) -> Vec3:
+    """`v / |v|`, or `fallback` (default +z) where v = 0; gradients stay finite."""
+    sq = v @ v
+    ok = sq > 0
+    unit = v * jax.lax.rsqrt(jnp.where(ok, sq, 1))
+    if fallback is None:
+        zero = jnp.zeros_like(sq)
+        fallback = Vec3(zero, zero, zero + 1)
+    return where(ok, unit, fallback)
+
+
+def positive_part(x: Array) -> Array:
+    """max(x, 0) written so that the gradient at and below zero is exactly 0."""
+    return jnp.where(x > 0, x, 0)

@@ -1,0 +1,23 @@
+"""jaxtyping aliases used across ctjax (named dimensions, one place)."""
+
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
+
+Scalar = Float[Array, ""]
+ScalarLike = Real[ArrayLike, ""] | float
+RGB = Float[Array, "3"]
+RGBLike = Real[ArrayLike, "3"]
+Pixel = tuple[Float[Array, ""], Float[Array, ""]]  # (u, v)
+
+__all__ = [
+    "RGB",
+    "Array",
+    "ArrayLike",
+    "Bool",
+    "Float",
+    "Int",
+    "Pixel",
+    "RGBLike",
+    "Real",
+    "Scalar",
+    "ScalarLike",
+]

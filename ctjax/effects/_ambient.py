@@ -1,0 +1,23 @@
+import equinox as eqx
+
+from .._convert import as_rgb, check_positive, check_shape
+from .._typing import RGB, Array, Float
+from ._effect import AbstractImageEffect
+
+
+class Ambient(AbstractImageEffect):
+    """A constant ambient (inter-reflected) radiance added to every pixel.
+
+    **Arguments:**
+
+    - `level`: per colour channel, >= 0, linear units (1.0 = 8-bit level 255).
+    """
+
+    level: Float[Array, "3"] = eqx.field(converter=as_rgb)
+
+    def __check_init__(self):
+        check_shape("Ambient", "level", self.level, (3,))
+        check_positive("Ambient", "level", self.level, allow_zero=True)
+
+    def __call__(self, rgb: RGB) -> RGB:
+        return rgb + self.level

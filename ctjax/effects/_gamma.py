@@ -1,0 +1,26 @@
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._convert import as_float, check_positive, check_shape
+from .._typing import RGB, Array, Float
+from ._effect import AbstractImageEffect
+
+
+class CameraGamma(AbstractImageEffect):
+    """A power-law camera response: `pixel = radiance^(1 / gamma)` (radiance clipped at 0).
+
+    **Arguments:**
+
+    - `gamma`: > 0; 1 is linear, about 2.2 for an sRGB-like response.
+    """
+
+    gamma: Float[Array, ""] = eqx.field(converter=as_float)
+
+    def __check_init__(self):
+        check_shape("CameraGamma", "gamma", self.gamma, ())
+        check_positive("CameraGamma", "gamma", self.gamma)
+
+    def __call__(self, rgb: RGB) -> RGB:
+        # x^(1/g) has an unbounded derivative at 0: below 1e-12 the pixel is black anyway.
+        lit = rgb > 1e-12
+        return jnp.where(lit, jnp.exp(jnp.log(jnp.where(lit, rgb, 1)) / self.gamma), 0)

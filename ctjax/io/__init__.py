@@ -1,0 +1,9 @@
+"""Files at the edges: the capture format, images."""
+
+from ._capture import Capture as Capture
+from ._capture import Frame as Frame
+from ._capture import load_capture as load_capture
+from ._capture import read_camera as read_camera
+from ._capture import write_capture as write_capture
+from ._images import read_rgb as read_rgb
+from ._images import write_rgb as write_rgb

@@ -1,0 +1,268 @@
+"""The capture format: the one input of every ctjax command.
+
+    CAPTURE/
+      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1 p2 k3)
+      images/NAME.png      8- or 16-bit RGB, read as linear intensity in [0, 1]
+      depth/NAME.npy       optional, float32 (H, W) camera-frame z in mm, NaN where unknown
+      normals/NAME.npy     optional, float32 (H, W, 3) unit normals, camera frame, facing the camera
+      poses.json           optional, {"NAME": 4x4 camera-to-world}
+      truth.json           optional, ground truth of synthetic captures
+
+Frames are the images, sorted by name; depth, normals and poses are matched by NAME.
+"""
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._camera import DISTORTION_KEYS, Camera
+from .._errors import CaptureError
+from .._geometry import normals_from_depth
+from ._atomic import atomic_write_json, atomic_write_npy
+from ._images import IMAGE_SUFFIXES, read_rgb, write_rgb
+
+# Normals further than this from unit length are rejected (float32 files are ~1e-7 off).
+_UNIT_TOLERANCE = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """One image of a capture and its optional geometry (NumPy arrays, camera frame)."""
+
+    name: str
+    image: np.ndarray  # float32 (H, W, 3), linear, [0, 1]
+    depth: np.ndarray | None = None  # float32 (H, W), mm, NaN where unknown
+    normals: np.ndarray | None = None  # float32 (H, W, 3), unit, facing the camera
+    pose: np.ndarray | None = None  # float64 (4, 4), camera-to-world
+
+    @property
+    def has_geometry(self) -> bool:
+        return self.normals is not None
+
+    @property
+    def geometry_mask(self) -> np.ndarray:
+        """Pixels with a finite normal and (where depth is known) a finite positive depth."""
+        if self.normals is None:
+            return np.zeros(self.image.shape[:2], bool)
+        mask = np.all(np.isfinite(self.normals), axis=-1)
+        if self.depth is not None:
+            mask &= np.isfinite(self.depth) & (self.depth > 0)
+        return mask
+
+
+@dataclasses.dataclass(frozen=True)
+class Capture:
+    """A loaded capture: camera (undistorted), frames sorted by name, optional ground truth."""
+
+    root: Path
+    camera: Camera
+    frames: tuple[Frame, ...]
+    truth: dict | None = None
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def has_geometry(self) -> bool:
+        return all(frame.has_geometry for frame in self.frames)
+
+
+def read_camera(path: Path) -> Camera:
+    """Parse and validate `camera.json`."""
+    path = Path(path)
+    if not path.is_file():
+        raise CaptureError(f"{path}: camera.json not found")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise CaptureError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise CaptureError(f"{path}: expected a JSON object with width, height, fx, fy, cx, cy")
+    missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy") if k not in data]
+    if missing:
+        raise CaptureError(f"{path}: missing key(s) {', '.join(missing)}")
+    values = {}
+    for key in ("width", "height", "fx", "fy", "cx", "cy", *DISTORTION_KEYS):
+        if key not in data:
+            continue
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CaptureError(f"{path}: {key} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise CaptureError(f"{path}: {key} must be finite, got {value!r}")
+        values[key] = float(value)
+    for key in ("width", "height"):
+        if values[key] != int(values[key]) or values[key] <= 0:
+            raise CaptureError(f"{path}: {key} must be a positive integer, got {data[key]!r}")
+    for key in ("fx", "fy"):
+        if values[key] <= 0:
+            raise CaptureError(f"{path}: {key} must be positive, got {data[key]!r}")
+    distortion = None
+    if any(k in values for k in DISTORTION_KEYS):
+        distortion = np.array([values.get(k, 0.0) for k in DISTORTION_KEYS])
+        if not np.any(distortion):
+            distortion = None
+    return Camera(
+        int(values["width"]),
+        int(values["height"]),
+        values["fx"],
+        values["fy"],
+        values["cx"],
+        values["cy"],
+        distortion=None if distortion is None else np.asarray(distortion, np.float64),
+    )
+
+
+def _load_npy(path: Path, shape: tuple[int, ...], what: str) -> np.ndarray:
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as error:
+        raise CaptureError(f"{path}: cannot read {what} ({error})") from None
+    if array.shape != shape:
+        raise CaptureError(f"{path}: {what} has shape {array.shape}, expected {shape}")
+    if not np.issubdtype(array.dtype, np.floating):
+        raise CaptureError(f"{path}: {what} must be floating point, got {array.dtype}")
+    return array.astype(np.float32)
+
+
+def _read_poses(path: Path) -> dict[str, np.ndarray]:
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise CaptureError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise CaptureError(f"{path}: expected {{NAME: 4x4 camera-to-world matrix}}")
+    poses = {}
+    for name, matrix in data.items():
+        try:
+            pose = np.asarray(matrix, dtype=np.float64)
+        except (ValueError, TypeError):
+            raise CaptureError(f"{path}: pose of {name!r} is not a 4x4 numeric matrix") from None
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise CaptureError(f"{path}: pose of {name!r} must be a finite 4x4 matrix")
+        poses[name] = pose
+    return poses
+
+
+def _undistort(camera: Camera, frame: Frame) -> Frame:
+    """Remap a frame of a distorted camera onto the ideal pinhole grid of the same K."""
+    k = np.asarray(camera.intrinsic_matrix, np.float64)
+    dist = np.asarray(camera.distortion, np.float64)
+    size = (camera.width, camera.height)
+    map_x, map_y = cv2.initUndistortRectifyMap(k, dist, None, k, size, cv2.CV_32FC1)
+
+    def remap(a, interpolation):
+        if a is None:
+            return None
+        out = cv2.remap(
+            a,
+            map_x,
+            map_y,
+            interpolation,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=np.nan if a is not frame.image else 0,
+        )
+        return out
+
+    return dataclasses.replace(
+        frame,
+        image=remap(frame.image, cv2.INTER_LINEAR),
+        depth=remap(frame.depth, cv2.INTER_NEAREST),
+        normals=remap(frame.normals, cv2.INTER_NEAREST),
+    )
+
+
+def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
+    """Load a capture folder (see the module docstring for the format).
+
+    Rejects bad input with one `CaptureError` naming the file: missing folder, missing or
+    malformed camera.json, unreadable image, sizes that disagree, normals that are not unit.
+    Normals are derived from depth where only depth is given. With distortion coefficients
+    in camera.json and `undistort=True`, images (and depth/normals) are undistorted and the
+    returned camera has none.
+    """
+    root = Path(path)
+    if not root.exists():
+        raise CaptureError(f"{root}: capture folder not found")
+    if not root.is_dir():
+        raise CaptureError(f"{root}: not a folder (a capture is a folder with camera.json)")
+    camera = read_camera(root / "camera.json")
+    image_dir = root / "images"
+    if not image_dir.is_dir():
+        raise CaptureError(f"{image_dir}: images folder not found")
+    image_paths = sorted(p for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not image_paths:
+        raise CaptureError(f"{image_dir}: no images (.png) in the capture")
+    poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
+    size = (camera.height, camera.width)
+    frames = []
+    for image_path in image_paths:
+        name = image_path.stem
+        image = read_rgb(image_path)
+        if image.shape[:2] != size:
+            raise CaptureError(
+                f"{image_path}: image is {image.shape[1]}x{image.shape[0]}, camera.json says "
+                f"{camera.width}x{camera.height}"
+            )
+        depth = normals = None
+        depth_path = root / "depth" / f"{name}.npy"
+        if depth_path.is_file():
+            depth = _load_npy(depth_path, size, "depth")
+            if not np.any(np.isfinite(depth) & (depth > 0)):
+                raise CaptureError(f"{depth_path}: no finite positive depth in the whole map")
+        normals_path = root / "normals" / f"{name}.npy"
+        if normals_path.is_file():
+            normals = _load_npy(normals_path, (*size, 3), "normals")
+            norm = np.linalg.norm(normals, axis=-1)
+            finite = np.isfinite(norm)
+            if np.any(np.abs(norm[finite] - 1) > _UNIT_TOLERANCE):
+                raise CaptureError(f"{normals_path}: normals are not unit vectors")
+        elif depth is not None:
+            normals = normals_from_depth(camera, depth)
+        frames.append(Frame(name, image, depth, normals, poses.get(name)))
+    truth = None
+    if (root / "truth.json").is_file():
+        try:
+            truth = json.loads((root / "truth.json").read_text())
+        except json.JSONDecodeError as error:
+            raise CaptureError(f"{root / 'truth.json'}: not valid JSON ({error})") from None
+    if undistort and camera.distortion is not None:
+        frames = [_undistort(camera, frame) for frame in frames]
+        camera = camera.without_distortion()
+    return Capture(root, camera, tuple(frames), truth)
+
+
+def write_capture(
+    path: str | Path,
+    camera: Camera,
+    frames: list[Frame] | tuple[Frame, ...],
+    truth: dict | None = None,
+    *,
+    bits: int = 8,
+) -> Path:
+    """Write frames in the capture format (atomically, file by file). Returns the folder.
+
+    Images are float RGB in [0, 1], clipped and quantised to `bits` (8 or 16).
+    """
+    root = Path(path)
+    root.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(root / "camera.json", camera.to_json())
+    poses = {}
+    for frame in frames:
+        write_rgb(root / "images" / f"{frame.name}.png", frame.image, bits=bits)
+        if frame.depth is not None:
+            atomic_write_npy(root / "depth" / f"{frame.name}.npy", frame.depth.astype(np.float32))
+        if frame.normals is not None:
+            normals = frame.normals.astype(np.float32)
+            atomic_write_npy(root / "normals" / f"{frame.name}.npy", normals)
+        if frame.pose is not None:
+            poses[frame.name] = np.asarray(frame.pose, np.float64).tolist()
+    if poses:
+        atomic_write_json(root / "poses.json", poses)
+    if truth is not None:
+        atomic_write_json(root / "truth.json", truth)
+    return root

@@ -1,0 +1,53 @@
+"""Reading and writing images: linear intensity in [0, 1], RGB order (OpenCV reads BGR)."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._errors import CaptureError
+from ._atomic import atomic_write_bytes
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """An 8- or 16-bit RGB image as float32 (H, W, 3) linear intensity in [0, 1]."""
+    path = Path(path)
+    if not path.is_file():
+        raise CaptureError(f"{path}: image file not found")
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.size == 0:
+        raise CaptureError(f"{path}: cannot read image (truncated or not an image file)")
+    if raw.ndim == 2 or (raw.ndim == 3 and raw.shape[2] == 1):
+        raise CaptureError(f"{path}: grayscale image; ctjax needs RGB (3 channels)")
+    if raw.shape[2] == 4:
+        raise CaptureError(f"{path}: RGBA image (4 channels); save it as RGB without alpha")
+    if raw.shape[2] != 3:
+        raise CaptureError(f"{path}: image has {raw.shape[2]} channels; expected 3 (RGB)")
+    if raw.dtype == np.uint8:
+        scale = 255.0
+    elif raw.dtype == np.uint16:
+        scale = 65535.0
+    else:
+        raise CaptureError(f"{path}: {raw.dtype} pixels; expected 8- or 16-bit integers")
+    return (raw[..., ::-1].astype(np.float32) / scale).copy()
+
+
+def write_rgb(path: Path, image: np.ndarray, bits: int = 8) -> None:
+    """Write float RGB in [0, 1] (clipped) as an 8- or 16-bit PNG, atomically."""
+    if bits not in (8, 16):
+        raise ValueError(f"bits must be 8 or 16, got {bits}")
+    top = 255 if bits == 8 else 65535
+    dtype = np.uint8 if bits == 8 else np.uint16
+    quantised = np.round(np.clip(np.asarray(image, np.float64), 0, 1) * top).astype(dtype)
+    write_quantised_rgb(path, quantised)
+
+
+def write_quantised_rgb(path: Path, image: np.ndarray) -> None:
+    """Write an already quantised uint8/uint16 RGB image as PNG, atomically."""
+    path = Path(path)
+    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
+    if not ok:
+        raise CaptureError(f"{path}: PNG encoding failed")
+    atomic_write_bytes(path, encoded.tobytes())

@@ -1,0 +1,29 @@
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._convert import as_float, check_positive, check_shape
+from .._typing import Array, Float, Scalar
+from .._vector import Vec3
+from ._light import AbstractFalloff
+
+
+class InverseSquare(AbstractFalloff):
+    """Inverse-square falloff of a point light, normalised at a reference distance.
+
+    `(reference_mm / d)^2`, so the light's intensity is its irradiance at `reference_mm`.
+    Finite at the light's position (d is floored at 1 micrometre).
+
+    **Arguments:**
+
+    - `reference_mm`: distance at which the factor is 1, mm (> 0).
+    """
+
+    reference_mm: Float[Array, ""] = eqx.field(converter=as_float, default=50.0)
+
+    def __check_init__(self):
+        check_shape("InverseSquare", "reference_mm", self.reference_mm, ())
+        check_positive("InverseSquare", "reference_mm", self.reference_mm)
+
+    def __call__(self, light_to_point: Vec3) -> Scalar:
+        distance2 = jnp.maximum(light_to_point @ light_to_point, 1e-6)
+        return self.reference_mm**2 / distance2

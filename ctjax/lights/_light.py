@@ -1,0 +1,27 @@
+import abc
+
+import equinox as eqx
+
+from .._typing import Pixel, Scalar
+from .._vector import Vec3
+
+
+class AbstractLight(eqx.Module):
+    """The laparoscope's light, in the camera frame (x right, y down, z forward, mm)."""
+
+    @abc.abstractmethod
+    def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
+        """Unit direction from `point` towards the light, and the irradiance factor there.
+
+        `view` is the unit direction from `point` to the camera centre; `pixel` the (u, v)
+        pixel the point is seen at (used by per-pixel light fields). The irradiance factor
+        multiplies every lobe; 1 for the paper's light.
+        """
+
+
+class AbstractFalloff(eqx.Module):
+    """A dimensionless irradiance factor of a light at a position (1 = no effect)."""
+
+    @abc.abstractmethod
+    def __call__(self, light_to_point: Vec3) -> Scalar:
+        """Factor for the vector from the light's position to the surface point (mm)."""

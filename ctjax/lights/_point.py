@@ -1,0 +1,63 @@
+import equinox as eqx
+
+from .._convert import as_float, check_finite, check_positive, check_shape
+from .._numerics import safe_normalize
+from .._typing import Array, Float, Pixel, Scalar
+from .._vector import Vec3
+from ._light import AbstractFalloff, AbstractLight
+
+
+def _irradiance(intensity: Scalar, falloff: tuple, light_to_point: Vec3) -> Scalar:
+    factor = intensity
+    for effect in falloff:
+        factor = factor * effect(light_to_point)
+    return factor
+
+
+class ColocatedLight(AbstractLight):
+    """The paper's light: a point light at the camera centre, so `L = V` at every pixel.
+
+    **Arguments:**
+
+    - `intensity`: irradiance factor (the paper absorbs it into rho_tilde and F_tilde: 1).
+    - `falloff`: irradiance factors of position (`InverseSquare`, `SpotFalloff`); the paper
+      uses none.
+    """
+
+    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0)
+    falloff: tuple[AbstractFalloff, ...] = ()
+
+    def __check_init__(self):
+        check_shape("ColocatedLight", "intensity", self.intensity, ())
+        check_positive("ColocatedLight", "intensity", self.intensity, allow_zero=True)
+
+    def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
+        # `view` itself, not a recomputed copy: lobes then know L = V exactly (`light is
+        # view`), and the specular half vector is V without another normalisation.
+        return view, _irradiance(self.intensity, self.falloff, point)
+
+
+class PointLight(AbstractLight):
+    """A point light at `position_mm` in the camera frame: the light guide offset from the lens.
+
+    **Arguments:**
+
+    - `position_mm`: the light's position (x right, y down, z forward), mm.
+    - `intensity`: irradiance factor (with `InverseSquare`, at its reference distance).
+    - `falloff`: irradiance factors of position (`InverseSquare`, `SpotFalloff`).
+    """
+
+    position_mm: Float[Array, "3"] = eqx.field(converter=as_float)
+    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0)
+    falloff: tuple[AbstractFalloff, ...] = ()
+
+    def __check_init__(self):
+        check_shape("PointLight", "position_mm", self.position_mm, (3,))
+        check_finite("PointLight", "position_mm", self.position_mm)
+        check_shape("PointLight", "intensity", self.intensity, ())
+        check_positive("PointLight", "intensity", self.intensity, allow_zero=True)
+
+    def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
+        light_to_point = point - Vec3.from_array(self.position_mm)
+        direction = safe_normalize(-light_to_point)
+        return direction, _irradiance(self.intensity, self.falloff, light_to_point)

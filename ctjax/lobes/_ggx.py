@@ -1,0 +1,30 @@
+import equinox as eqx
+
+from .._convert import as_float, check_positive, check_shape
+from .._typing import Array, Float, Scalar
+from ._distribution import AbstractDistribution
+
+
+class GGX(AbstractDistribution):
+    """GGX / Trowbridge-Reitz distribution, `a^2 / (cos^2 t (a^2 - 1) + 1)^2`.
+
+    Normalised like the paper's Beckmann (pi times the textbook density), so that both peak at
+    `1 / roughness^2` and are interchangeable inside `Specular`. GGX has much longer tails than
+    Beckmann: a "missing effect" the diagnostics can detect.
+
+    **Arguments:**
+
+    - `alpha`: GGX roughness, > 0 (comparable to Beckmann's sigma near the peak).
+    """
+
+    alpha: Float[Array, ""] = eqx.field(converter=as_float)
+
+    def __check_init__(self):
+        check_shape("GGX", "alpha", self.alpha, ())
+        check_positive("GGX", "alpha", self.alpha)
+
+    def __call__(self, cos_alpha: Scalar) -> Scalar:
+        a2 = self.alpha * self.alpha
+        # >= min(a2, 1) > 0 for cos in [0, 1]: no guard needed.
+        denominator = cos_alpha * cos_alpha * (a2 - 1) + 1
+        return a2 / (denominator * denominator)

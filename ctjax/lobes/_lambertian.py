@@ -1,0 +1,31 @@
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._convert import as_rgb, check_positive, check_shape
+from .._numerics import positive_part
+from .._typing import Array, Float, Scalar
+from .._vector import Vec3
+from ._lobe import AbstractLobe
+
+
+class Lambertian(AbstractLobe):
+    """Lambertian diffuse lobe: `rho_tilde / pi * (N.L)` (paper eq. 1, first term).
+
+    **Arguments:**
+
+    - `weight`: rho_tilde per colour channel (light intensity times albedo; linear units
+      where 1.0 is 8-bit level 255), >= 0.
+    """
+
+    weight: Float[Array, "3"] = eqx.field(converter=as_rgb)
+
+    def __check_init__(self):
+        check_shape("Lambertian", "weight", self.weight, (3,))
+        check_positive("Lambertian", "weight", self.weight, allow_zero=True)
+
+    def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
+        # Zero on back-facing surfaces (N.V <= 0) as well, like every lobe.
+        visible = jnp.where(normal @ view > 0, 1, 0)
+        return positive_part(normal @ light) * visible / math.pi

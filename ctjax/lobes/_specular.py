@@ -1,0 +1,55 @@
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._convert import as_rgb, check_positive, check_shape
+from .._numerics import COSINE_FLOOR, safe_normalize
+from .._typing import Array, Float, Scalar
+from .._vector import Vec3
+from ._distribution import AbstractDistribution
+from ._factor import AbstractSpecularFactor
+from ._lobe import AbstractLobe
+
+
+class Specular(AbstractLobe):
+    """The paper's specular term, eq. (1): `F_tilde * D / (pi (N.L)(N.V))`, times any factors.
+
+    With `Beckmann(sigma)` and no factors this is exactly the paper's model (constant F, no
+    geometric attenuation). Note that the paper's term has no `N.L` cosine in front of it,
+    so, read as a BRDF (`radiance / N.L`), it is not reciprocal; the term itself is symmetric
+    in light and view.
+
+    **Arguments:**
+
+    - `weight`: F_tilde per colour channel (light intensity times Fresnel coefficient), >= 0.
+    - `distribution`: the microfacet distribution D (`Beckmann`, `GGX`, `MultiScaleBeckmann`).
+    - `factors`: multiplicative factors (`SchlickFresnel`, `GeometricAttenuation`, ...).
+    """
+
+    weight: Float[Array, "3"] = eqx.field(converter=as_rgb)
+    distribution: AbstractDistribution
+    factors: tuple[AbstractSpecularFactor, ...] = ()
+    reciprocal: ClassVar[bool] = False
+
+    def __check_init__(self):
+        check_shape("Specular", "weight", self.weight, (3,))
+        check_positive("Specular", "weight", self.weight, allow_zero=True)
+
+    def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
+        n_dot_l = normal @ light
+        n_dot_v = normal @ view
+        lit = (n_dot_l > 0) & (n_dot_v > 0)
+        # A light co-located with the camera passes `view` itself: then H = V exactly.
+        half = view if light is view else safe_normalize(light + view)
+        # N.H > 0 wherever N.L > 0 and N.V > 0; the floors only matter at exact grazing.
+        cos_alpha = jnp.clip(normal @ half, COSINE_FLOOR, 1)
+        # The floors keep 1 / ((N.L)(N.V)) finite at grazing angles, where D -> 0 anyway.
+        denominator = (
+            math.pi * jnp.maximum(n_dot_l, COSINE_FLOOR) * jnp.maximum(n_dot_v, COSINE_FLOOR)
+        )
+        term = self.distribution(cos_alpha) / denominator
+        for factor in self.factors:
+            term = term * factor(normal, light, view, half)
+        return jnp.where(lit, term, 0)

@@ -1,0 +1,57 @@
+"""A procedural tissue albedo texture: mottling at several scales and a vessel network.
+
+Fine enough for SIFT at laparoscope distances (features of 0.5-3 mm), defined in world
+coordinates so that every view sees the same tissue. The map multiplies the diffuse weight
+per channel and has mean 1 over the organ, so `rho_tilde` stays the average albedo.
+"""
+
+import cv2
+import numpy as np
+
+EXTENT_MM = 110.0  # the texture covers [-EXTENT_MM, EXTENT_MM]^2 of the world (x, y) plane
+RESOLUTION = 2048
+
+
+def tissue_texture(rng: np.random.Generator) -> np.ndarray:
+    """(RESOLUTION, RESOLUTION, 3) float32 multiplier of the diffuse albedo, mean 1."""
+    size = RESOLUTION
+    mottling = np.zeros((size, size), np.float32)
+    for sigma_px, amplitude in ((40, 0.5), (12, 0.4), (4, 0.35), (1.5, 0.25)):
+        noise = rng.standard_normal((size, size)).astype(np.float32)
+        blurred = cv2.GaussianBlur(noise, (0, 0), sigma_px)
+        mottling += amplitude * blurred / (blurred.std() + 1e-12)
+    mottling /= mottling.std()
+    vessels = np.zeros((size, size), np.float32)
+    for _ in range(60):
+        points = [rng.uniform(0, size, 2)]
+        heading = rng.uniform(0, 2 * np.pi)
+        for _ in range(int(rng.integers(8, 30))):
+            heading += rng.normal(0, 0.35)
+            points.append(
+                points[-1] + rng.uniform(10, 30) * np.array([np.cos(heading), np.sin(heading)])
+            )
+        polyline = np.round(np.array(points)).astype(np.int32)[:, None, :]
+        cv2.polylines(
+            vessels,
+            [polyline],
+            False,
+            float(rng.uniform(0.5, 1.0)),
+            thickness=int(rng.integers(2, 7)),
+            lineType=cv2.LINE_AA,
+        )
+    vessels = cv2.GaussianBlur(vessels, (0, 0), 1.2)
+    # Reddish tissue: mottling modulates all channels, vessels darken green and blue most.
+    channel_mottling = np.array([0.10, 0.16, 0.16], np.float32)
+    channel_vessels = np.array([0.25, 0.45, 0.40], np.float32)
+    texture = 1 + mottling[..., None] * channel_mottling - vessels[..., None] * channel_vessels
+    texture = np.clip(texture, 0.3, 1.7)
+    return (texture / texture.mean(axis=(0, 1))).astype(np.float32)
+
+
+def sample_texture(texture: np.ndarray, points_world: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of the texture at world (x, y) points (H, W, 3); 1 where NaN."""
+    scale = (RESOLUTION - 1) / (2 * EXTENT_MM)
+    map_x = ((points_world[..., 0] + EXTENT_MM) * scale).astype(np.float32)
+    map_y = ((points_world[..., 1] + EXTENT_MM) * scale).astype(np.float32)
+    sampled = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return np.where(np.isfinite(points_world[..., :1]), sampled, 1.0).astype(np.float32)
