@@ -5,19 +5,26 @@ from .._convert import as_float, check_positive, check_shape
 from .._typing import Array, Float, Scalar
 from ._distribution import AbstractDistribution
 
+# Below this exponent D is exactly 0 for our purposes (e^-80 ~ 1e-35; float32 flushes near
+# e^-87). Cutting there keeps the backward pass free of 0 * inf.
+_UNDERFLOW_EXPONENT = -80.0
+
 
 def beckmann(cos_alpha: Scalar, sigma: Scalar) -> Scalar:
     """The paper's eq. (2), `exp(-tan^2 a / s^2) / (s^2 cos^4 a)`.
 
-    Written with one division per sample (this is the renderer's hot loop). For small sigma
-    the exponential underflows to exactly 0 (also in float64): the result is then 0, never
-    0 * inf, because the prefactor `1 / (s^2 cos^4 a)` stays finite for sigma >= 1e-9 and
-    cos a >= 1e-6. Estimators must still guard the resulting all-zero design columns.
+    Written with one division per sample (this is the renderer's hot loop). Where the
+    exponential underflows (small sigma, or alpha near 90 degrees) the result is exactly 0
+    with a zero gradient: without the cut, the huge prefactor `1 / (s^2 cos^4 a)` times the
+    caller's `1 / (N.L)(N.V)` overflows in the backward pass and meets the 0 as 0 * inf.
+    Estimators must still guard the resulting all-zero design columns.
     """
     inv_cos2 = 1 / (cos_alpha * cos_alpha)
     inv_sigma2 = 1 / (sigma * sigma)
-    tan2 = jnp.maximum(inv_cos2 - 1, 0)
-    return jnp.exp(-tan2 * inv_sigma2) * (inv_sigma2 * inv_cos2 * inv_cos2)
+    exponent = -jnp.maximum(inv_cos2 - 1, 0) * inv_sigma2
+    negligible = exponent < _UNDERFLOW_EXPONENT
+    density = jnp.exp(jnp.where(negligible, 0, exponent)) * (inv_sigma2 * inv_cos2 * inv_cos2)
+    return jnp.where(negligible, 0, density)
 
 
 class Beckmann(AbstractDistribution):

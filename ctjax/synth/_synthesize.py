@@ -35,7 +35,7 @@ from ._texture import sample_texture, tissue_texture
 from ._trajectory import exploration
 
 # Default tissue: reddish diffuse albedo, white highlights (F is the same in every channel).
-DEFAULT_RHO_TILDE = (1.55, 0.62, 0.5)
+DEFAULT_RHO_TILDE = (2.4, 1.1, 0.85)
 DEFAULT_F_TILDE = (0.3, 0.3, 0.3)
 DEFAULT_SIGMA = 0.2
 WORKING_DISTANCE_MM = 70.0

@@ -40,10 +40,24 @@ def tissue_texture(rng: np.random.Generator) -> np.ndarray:
             lineType=cv2.LINE_AA,
         )
     vessels = cv2.GaussianBlur(vessels, (0, 0), 1.2)
-    # Reddish tissue: mottling modulates all channels, vessels darken green and blue most.
-    channel_mottling = np.array([0.10, 0.16, 0.16], np.float32)
-    channel_vessels = np.array([0.25, 0.45, 0.40], np.float32)
-    texture = 1 + mottling[..., None] * channel_mottling - vessels[..., None] * channel_vessels
+    # Glands and pits: small dark and light spots, the blob-like features SIFT locks onto.
+    spots = np.zeros((size, size), np.float32)
+    for _ in range(9000):
+        centre = tuple(int(c) for c in rng.integers(0, size, 2))
+        radius = int(rng.integers(3, 13))
+        cv2.circle(spots, centre, radius, float(rng.choice([-1.0, 0.6])), -1, cv2.LINE_AA)
+    spots = cv2.GaussianBlur(spots, (0, 0), 1.5)
+    # Reddish tissue: mottling and spots modulate all channels, vessels darken green and
+    # blue most.
+    channel_mottling = np.array([0.14, 0.22, 0.22], np.float32)
+    channel_vessels = np.array([0.3, 0.5, 0.45], np.float32)
+    channel_spots = np.array([0.18, 0.3, 0.3], np.float32)
+    texture = (
+        1
+        + mottling[..., None] * channel_mottling
+        - vessels[..., None] * channel_vessels
+        + spots[..., None] * channel_spots
+    )
     texture = np.clip(texture, 0.3, 1.7)
     return (texture / texture.mean(axis=(0, 1))).astype(np.float32)
 

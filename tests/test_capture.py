@@ -1,0 +1,180 @@
+"""The capture format: write/read round trip, normals from depth, and every loader error."""
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from helpers import wavy_surface
+
+import ctjax
+from ctjax import Camera
+from ctjax.io import Frame, load_capture, write_capture
+
+CAMERA = Camera(40, 32, 38.0, 38.0, 19.5, 15.5)
+
+
+def _frames(n=2, seed=0):
+    rng = np.random.default_rng(seed)
+    depth, normals = wavy_surface(CAMERA, seed)
+    frames = []
+    for k in range(n):
+        image = np.round(rng.uniform(0, 1, (32, 40, 3)) * 255) / 255
+        pose = np.eye(4)
+        pose[:3, 3] = [k, 2 * k, 0.5]
+        frames.append(
+            Frame(
+                f"f{k}",
+                image.astype(np.float32),
+                depth.astype(np.float32),
+                normals.astype(np.float32),
+                pose,
+            )
+        )
+    return frames
+
+
+@pytest.fixture
+def capture_dir(tmp_path):
+    return write_capture(tmp_path / "cap", CAMERA, _frames(), truth={"sigma": 0.2})
+
+
+def test_round_trip(capture_dir):
+    capture = load_capture(capture_dir)
+    originals = _frames()
+    assert [f.name for f in capture.frames] == ["f0", "f1"]
+    assert capture.camera.to_json() == CAMERA.to_json()
+    assert capture.truth == {"sigma": 0.2}
+    for frame, original in zip(capture.frames, originals, strict=True):
+        np.testing.assert_array_equal(frame.image, original.image)
+        np.testing.assert_array_equal(frame.depth, original.depth)
+        np.testing.assert_array_equal(frame.normals, original.normals)
+        np.testing.assert_array_equal(frame.pose, original.pose)
+        assert frame.image.dtype == np.float32 and frame.image.shape == (32, 40, 3)
+
+
+def test_sixteen_bit_round_trip(tmp_path):
+    frames = _frames(1)
+    image = np.round(np.random.default_rng(1).uniform(0, 1, (32, 40, 3)) * 65535) / 65535
+    frames = [Frame("a", image.astype(np.float32))]
+    root = write_capture(tmp_path / "c16", CAMERA, frames, bits=16)
+    raw = cv2.imread(str(root / "images" / "a.png"), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16
+    np.testing.assert_allclose(load_capture(root).frames[0].image, image, atol=1e-7)
+
+
+def test_rgb_channel_order(tmp_path):
+    image = np.zeros((32, 40, 3), np.float32)
+    image[..., 0] = 1.0  # pure red
+    root = write_capture(tmp_path / "red", CAMERA, [Frame("r", image)])
+    raw = cv2.imread(str(root / "images" / "r.png"))
+    assert raw[0, 0].tolist() == [0, 0, 255]  # OpenCV stores BGR
+    assert load_capture(root).frames[0].image[0, 0].tolist() == [1.0, 0.0, 0.0]
+
+
+def test_normals_derived_from_depth(tmp_path):
+    depth, normals = wavy_surface(CAMERA)
+    root = write_capture(tmp_path / "d", CAMERA, [Frame("a", np.zeros((32, 40, 3)), depth)])
+    derived = load_capture(root).frames[0].normals
+    angle = np.degrees(np.arccos(np.clip(np.sum(derived * normals, -1), -1, 1)))
+    assert np.median(angle) < 0.5 and np.max(angle) < 5
+
+
+def test_normals_of_a_plane_from_depth_are_exact():
+    # A tilted plane: n . P = d.
+    n = np.array([0.2, -0.1, -1.0])
+    n /= np.linalg.norm(n)
+    u, v = np.meshgrid(np.arange(40.0), np.arange(32.0))
+    rays = np.stack([(u - 19.5) / 38, (v - 15.5) / 38, np.ones_like(u)], -1)
+    depth = -50.0 / (rays @ n)
+    derived = ctjax._geometry.normals_from_depth(CAMERA, depth)
+    np.testing.assert_allclose(derived, np.broadcast_to(n, derived.shape), atol=1e-5)
+
+
+def test_undistortion_on_load(tmp_path):
+    camera = Camera(40, 32, 38.0, 38.0, 19.5, 15.5, distortion=np.array([0.1, 0, 0, 0, 0]))
+    image = np.full((32, 40, 3), 0.5, np.float32)
+    root = write_capture(tmp_path / "dist", camera, [Frame("a", image)])
+    assert json.loads((root / "camera.json").read_text())["k1"] == 0.1
+    capture = load_capture(root)
+    assert capture.camera.distortion is None
+    assert capture.frames[0].image.shape == (32, 40, 3)
+    np.testing.assert_allclose(capture.frames[0].image[16, 20], 0.5, atol=1 / 255)
+
+
+def _break(root, how):
+    if how == "missing folder":
+        shutil.rmtree(root)
+    elif how == "missing camera.json":
+        (root / "camera.json").unlink()
+    elif how == "malformed camera.json":
+        (root / "camera.json").write_text("{width: 40")
+    elif how == "missing key":
+        (root / "camera.json").write_text(json.dumps({"width": 40, "height": 32, "fx": 38}))
+    elif how == "zero focal length":
+        data = json.loads((root / "camera.json").read_text())
+        data["fx"] = 0
+        (root / "camera.json").write_text(json.dumps(data))
+    elif how == "non-finite intrinsics":
+        (root / "camera.json").write_text(
+            '{"width": 40, "height": 32, "fx": NaN, "fy": 38, "cx": 19.5, "cy": 15.5}'
+        )
+    elif how == "string intrinsics":
+        data = json.loads((root / "camera.json").read_text())
+        data["cy"] = "15.5"
+        (root / "camera.json").write_text(json.dumps(data))
+    elif how == "image size mismatch":
+        cv2.imwrite(str(root / "images" / "f0.png"), np.zeros((10, 10, 3), np.uint8))
+    elif how == "depth size mismatch":
+        np.save(root / "depth" / "f0.npy", np.ones((31, 40), np.float32))
+    elif how == "truncated image":
+        data = (root / "images" / "f0.png").read_bytes()
+        (root / "images" / "f0.png").write_bytes(data[: len(data) // 3])
+    elif how == "grayscale image":
+        cv2.imwrite(str(root / "images" / "f0.png"), np.zeros((32, 40), np.uint8))
+    elif how == "rgba image":
+        cv2.imwrite(str(root / "images" / "f0.png"), np.zeros((32, 40, 4), np.uint8))
+    elif how == "empty images folder":
+        for p in (root / "images").iterdir():
+            p.unlink()
+    elif how == "normals not unit":
+        np.save(root / "normals" / "f0.npy", 2 * np.load(root / "normals" / "f0.npy"))
+    elif how == "depth all NaN":
+        np.save(root / "depth" / "f0.npy", np.full((32, 40), np.nan, np.float32))
+    elif how == "corrupt depth file":
+        (root / "depth" / "f0.npy").write_bytes(b"not numpy")
+    elif how == "malformed poses":
+        (root / "poses.json").write_text(json.dumps({"f0": [[1, 0], [0, 1]]}))
+    else:
+        raise AssertionError(how)
+
+
+BAD = {
+    "missing folder": "not found",
+    "missing camera.json": "camera.json not found",
+    "malformed camera.json": "not valid JSON",
+    "missing key": "missing key",
+    "zero focal length": "fx must be positive",
+    "non-finite intrinsics": "must be finite",
+    "string intrinsics": "must be a number",
+    "image size mismatch": "camera.json says",
+    "depth size mismatch": "depth has shape",
+    "truncated image": "cannot read image",
+    "grayscale image": "grayscale",
+    "rgba image": "RGBA",
+    "empty images folder": "no images",
+    "normals not unit": "not unit",
+    "depth all NaN": "no finite positive depth",
+    "corrupt depth file": "cannot read depth",
+    "malformed poses": "4x4",
+}
+
+
+@pytest.mark.parametrize("how", sorted(BAD), ids=sorted(BAD))
+def test_loader_rejects_bad_input_with_one_clear_error(capture_dir, how):
+    _break(capture_dir, how)
+    with pytest.raises(ctjax.CaptureError, match=BAD[how]) as info:
+        load_capture(capture_dir)
+    assert isinstance(info.value, ValueError)
+    assert "\n" not in str(info.value)
