@@ -53,3 +53,19 @@ def check_positive(owner: str, name: str, x, *, allow_zero: bool = False) -> Non
     if bad:
         kind = "non-negative" if allow_zero else "positive"
         raise ParameterError(f"{owner}.{name} must be {kind}, got {value}")
+
+
+def cast_floating(tree, dtype):
+    """Every floating-point array leaf of a pytree (a model, a camera...) cast to `dtype`.
+
+    The renderer computes in the dtype of the geometry it is given: float64 parameters
+    must not silently turn a float32 render into a float64 one (2x the memory traffic).
+    The cast is differentiable.
+    """
+
+    def leaf(x):
+        if isinstance(x, jax.Array | np.ndarray) and jnp.issubdtype(x.dtype, jnp.floating):
+            return jnp.asarray(x, dtype)
+        return x
+
+    return jax.tree_util.tree_map(leaf, tree)

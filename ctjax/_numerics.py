@@ -5,7 +5,6 @@ the operation is undefined, then select the fallback, so neither branch produces
 forward or the backward pass.
 """
 
-import jax
 import jax.numpy as jnp
 
 from ._typing import Array, Scalar
@@ -27,7 +26,7 @@ def safe_normalize(v: Vec3, fallback: Vec3 | None = None) -> Vec3:
     """`v / |v|`, or `fallback` (default +z) where v = 0; gradients stay finite."""
     sq = v @ v
     ok = sq > 0
-    unit = v * jax.lax.rsqrt(jnp.where(ok, sq, 1))
+    unit = v * (1 / jnp.sqrt(jnp.where(ok, sq, 1)))
     if fallback is None:
         zero = jnp.zeros_like(sq)
         fallback = Vec3(zero, zero, zero + 1)

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from ._camera import Camera
+from ._convert import cast_floating
 from ._errors import ParameterError
 from ._numerics import safe_normalize
 from ._typing import RGB, Array, Float, Pixel
@@ -48,8 +49,14 @@ def shade(
     pixel: Pixel,
     effects: tuple[AbstractImageEffect, ...] = (),
 ) -> RGB:
-    """One pixel's RGB value (linear units, 1.0 = 8-bit level 255): the physics of ctjax."""
-    return apply_effects(effects, shade_columns(brdf, light, point, normal, pixel) @ brdf.weights)
+    """One pixel's RGB value (linear units, 1.0 = 8-bit level 255): the physics of ctjax.
+
+    `point` is the surface point and `normal` its unit normal, camera frame (mm); `pixel`
+    the (u, v) it is seen at.
+    """
+    view = safe_normalize(-point)
+    direction, irradiance = light.illuminate(point, view, pixel)
+    return apply_effects(effects, irradiance * brdf.radiance(normal, direction, view))
 
 
 def _pixel_grid(camera: Camera, dtype) -> tuple[Float[Array, " P"], Float[Array, " P"]]:
@@ -115,9 +122,12 @@ def _geometry(camera: Camera, normals, depth, points) -> tuple[Vec3, Array | Non
     if (depth is None) == (points is None):
         raise ParameterError("give exactly one of depth (H, W) or points (H, W, 3)")
     normals = as_planar(normals, "normals", camera)
+    dtype = jnp.result_type(normals.x)
+    if not jnp.issubdtype(dtype, jnp.floating):
+        raise ParameterError(f"normals must be floating point, got {dtype}")
     if points is not None:
-        return normals, None, as_planar(points, "points", camera)
-    depth = jnp.asarray(depth)
+        return normals, None, cast_floating(as_planar(points, "points", camera), dtype)
+    depth = jnp.asarray(depth, dtype)
     if depth.shape != (camera.height, camera.width):
         raise ParameterError(
             f"depth must have shape {(camera.height, camera.width)}, got {depth.shape}"
@@ -155,6 +165,7 @@ def render(
     dtype follows the inputs (float32 or float64).
     """
     normals, depth, points = _geometry(camera, normals, depth, points)
+    brdf, light, camera, effects = cast_floating((brdf, light, camera, effects), normals.x.dtype)
 
     def per_pixel(point, normal, pixel):
         return shade(brdf, light, point, normal, pixel, effects)
@@ -178,6 +189,7 @@ def render_columns(
     `render(...) == render_columns(...) @ brdf.weights`.
     """
     normals, depth, points = _geometry(camera, normals, depth, points)
+    brdf, light, camera = cast_floating((brdf, light, camera), normals.x.dtype)
 
     def per_pixel(point, normal, pixel):
         return shade_columns(brdf, light, point, normal, pixel)

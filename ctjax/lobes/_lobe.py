@@ -71,4 +71,6 @@ class BRDF(eqx.Module):
 
     def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> RGB:
         """Reflected radiance per colour channel for unit irradiance (cosine included)."""
-        return self.columns(normal, light, view) @ self.weights
+        # An explicit sum, not `columns @ weights`: under vmap a K x 3 matmul becomes a
+        # batched dot that XLA on CPU does not fuse (measured 4x slower for the image).
+        return sum(lobe.weight * lobe.radiance(normal, light, view) for lobe in self.lobes)
