@@ -1,0 +1,19 @@
+"""Estimation: specular set and ring, closed-form NNLS, the BnB over the nonlinear
+parameters, and the BRDF fit (paper sections 4 and 6)."""
+
+from ._branch_and_bound import GridSearchResult as GridSearchResult
+from ._branch_and_bound import grid_search as grid_search
+from ._brdf import LAMBERTIAN as LAMBERTIAN
+from ._brdf import PAPER as PAPER
+from ._brdf import TWO_SCALES as TWO_SCALES
+from ._brdf import BRDFFamily as BRDFFamily
+from ._brdf import BRDFFit as BRDFFit
+from ._brdf import design_matrix as design_matrix
+from ._brdf import fit_brdf as fit_brdf
+from ._closed_form import nnls as nnls
+from ._closed_form import nnls_normal_equations as nnls_normal_equations
+from ._samples import ShadingSamples as ShadingSamples
+from ._samples import colocated_samples as colocated_samples
+from ._specular_set import SpecularSets as SpecularSets
+from ._specular_set import specular_mask as specular_mask
+from ._specular_set import specular_sets as specular_sets

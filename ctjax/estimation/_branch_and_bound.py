@@ -1,0 +1,109 @@
+"""The paper's branch-and-bound over the nonlinear parameters, as a batched zooming grid.
+
+The paper (section 4) splits the admissible interval of sigma into sub-intervals, solves
+the convex subproblem at each centre, keeps the best sub-interval and repeats until it is
+shorter than a threshold ([1e-5, 1] down to 1e-3). Here each level evaluates a whole grid of
+centres at once (`vmap`), keeps the best `candidates` sub-intervals (more than one, so that a
+second basin of the cost is not lost to a coarse first level), and zooms into each; the
+levels are unrolled inside one compiled function. Several nonlinear parameters (e.g. two
+roughness scales) use a tensor grid.
+"""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._typing import Array, Float, Scalar
+
+
+class GridSearchResult(eqx.Module):
+    """The best parameters found, their cost, and half the final grid spacing (the
+    uncertainty of the search itself, per parameter)."""
+
+    params: Float[Array, " D"]
+    cost: Scalar
+    half_width: Float[Array, " D"]
+    evaluations: int = eqx.field(static=True)
+
+
+def zoom_levels(lo, hi, tolerance: float, grid: int) -> tuple[int, float]:
+    """Levels until the grid spacing is below `tolerance`, and that final spacing.
+
+    Level 1 spaces `grid` centres over the whole box; each further level searches a box two
+    spacings wide around each kept centre, so the spacing shrinks by grid / 2 per level.
+    """
+    spacing = max(float(h) - float(l) for l, h in zip(lo, hi, strict=True)) / grid
+    levels = 1
+    while spacing > tolerance:
+        spacing *= 2 / grid
+        levels += 1
+    return levels, spacing
+
+
+def _local_minima(costs: Float[Array, "M G"], dims: int, grid: int):
+    """Grid points no worse than their neighbours along every axis, per candidate box."""
+    shaped = costs.reshape(costs.shape[0], *([grid] * dims))
+    minimum = jnp.ones(shaped.shape, bool)
+    for axis in range(1, dims + 1):
+        padded = jnp.pad(
+            shaped, [(0, 0)] * axis + [(1, 1)] + [(0, 0)] * (dims - axis), constant_values=jnp.inf
+        )
+        before = jax.lax.slice_in_dim(padded, 0, grid, axis=axis)
+        after = jax.lax.slice_in_dim(padded, 2, grid + 2, axis=axis)
+        minimum = minimum & (shaped <= before) & (shaped <= after)
+    return minimum.reshape(costs.shape)
+
+
+def grid_search(
+    cost: Callable[[Float[Array, " D"]], Scalar],
+    lo,
+    hi,
+    *,
+    tolerance: float = 1e-3,
+    grid: int = 32,
+    candidates: int = 4,
+) -> GridSearchResult:
+    """Minimise `cost(params)` over the box [lo, hi] by zooming grids (see module doc).
+
+    `cost` maps a (D,) parameter vector to a scalar and is `vmap`ped over the grid; it must
+    return finite values or +inf (non-finite values are treated as +inf). Each level keeps
+    the `candidates` best grid points, local minima first (one per basin before a second
+    point of the same basin), and searches two sub-intervals around each at the next level.
+    D = 1 or 2 in practice: a level costs `candidates * grid^D` evaluations.
+    """
+    # The box is configuration (it sets the number of levels): concrete, not traced.
+    lo = np.atleast_1d(np.asarray(lo, float))
+    hi = np.atleast_1d(np.asarray(hi, float))
+    dims = lo.shape[0]
+    levels, _ = zoom_levels(lo, hi, tolerance, grid)
+    offsets = (jnp.arange(grid) + 0.5) / grid  # sub-interval centres in [0, 1]
+    unit_grid = jnp.stack(jnp.meshgrid(*([offsets] * dims), indexing="ij"), -1).reshape(-1, dims)
+
+    def safe_cost(params):
+        value = cost(params)
+        return jnp.where(jnp.isfinite(value), value, jnp.inf)
+
+    starts = lo[None, :]  # (M, D) lower corners of the candidate boxes
+    widths = hi - lo  # (D,) size of every box at this level
+    evaluations = 0
+    best_params, best_cost = (lo + hi) / 2, jnp.asarray(jnp.inf)
+    spacing = widths / grid
+    for _ in range(levels):
+        spacing = widths / grid
+        centres = starts[:, None, :] + unit_grid[None, :, :] * widths  # (M, G^D, D)
+        costs = jax.vmap(jax.vmap(safe_cost))(centres)  # (M, G^D)
+        evaluations += centres.shape[0] * centres.shape[1]
+        flat_centres, flat_costs = centres.reshape(-1, dims), costs.reshape(-1)
+        is_minimum = _local_minima(costs, dims, grid).reshape(-1)
+        order = jnp.lexsort((flat_costs, ~is_minimum))[: min(candidates, flat_costs.shape[0])]
+        level_best = jnp.argmin(flat_costs)
+        improved = flat_costs[level_best] < best_cost
+        best_params = jnp.where(improved, flat_centres[level_best], best_params)
+        best_cost = jnp.where(improved, flat_costs[level_best], best_cost)
+        # Zoom: a box two sub-intervals wide around each kept centre, inside [lo, hi].
+        widths = 2 * widths / grid
+        starts = jnp.clip(flat_centres[order] - widths / 2, lo, hi - widths)
+    return GridSearchResult(best_params, best_cost, spacing / 2, evaluations)
