@@ -114,6 +114,91 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_mask_arguments(parser: argparse.ArgumentParser) -> None:
+    from .estimation._specular_set import (
+        DEFAULT_LIGHTNESS,
+        DEFAULT_MIN_SPECK_PX,
+        DEFAULT_RING_PX,
+        DEFAULT_SATURATION,
+    )
+
+    group = parser.add_argument_group("specular set S and ring S~")
+    group.add_argument(
+        "--lightness",
+        type=float,
+        default=DEFAULT_LIGHTNESS,
+        help="S: HLS lightness at least this (default 0.95)",
+    )
+    group.add_argument(
+        "--saturation",
+        type=float,
+        default=DEFAULT_SATURATION,
+        help="S: HLS saturation at most this (default 0.05)",
+    )
+    group.add_argument(
+        "--ring-px",
+        type=float,
+        default=DEFAULT_RING_PX,
+        help="S~: non-specular pixels within this distance of S (paper: 3)",
+    )
+    group.add_argument(
+        "--min-speck",
+        type=int,
+        default=DEFAULT_MIN_SPECK_PX,
+        help="drop specular specks smaller than this many pixels (0: keep all)",
+    )
+
+
+def _mask_options(args: argparse.Namespace):
+    from .estimation._capture_fit import MaskOptions
+
+    return MaskOptions(args.lightness, args.saturation, args.ring_px, args.min_speck)
+
+
+def _cmd_masks(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .estimation._capture_fit import capture_sets
+    from .io import load_capture
+    from .io._images import write_mask
+
+    capture = load_capture(args.capture)
+    sets = capture_sets(capture, _mask_options(args))
+    for frame, s in zip(capture.frames, sets, strict=True):
+        for kind in ("specular", "ring", "saturated"):
+            write_mask(args.out / kind / f"{frame.name}.png", getattr(s, kind))
+        print(
+            f"{frame.name}: {int(s.specular.sum())} specular, {int(s.ring.sum())} ring, "
+            f"{int(s.saturated.sum())} saturated pixels"
+        )
+    total = int(np.sum([s.ring.sum() for s in sets]))
+    print(f"wrote masks of {len(sets)} frame(s) to {args.out} ({total} ring pixels in all)")
+    return 0
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    import json
+
+    from .estimation import PAPER, TWO_SCALES
+    from .estimation._capture_fit import fit_capture
+    from .io import load_capture
+    from .io._atomic import atomic_write_json
+
+    capture = load_capture(args.capture)
+    family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
+    result = fit_capture(capture, _mask_options(args), family)
+    atomic_write_json(args.json, result)
+    summary = {k: result[k] for k in result if k in ("rho_tilde", "F_tilde", "sigma", "rgb_rmse")}
+    print(json.dumps(summary))
+    print(
+        f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; "
+        f"{result['n_ring_pixels']} ring pixels; wrote {args.json}"
+    )
+    for warning in result["warnings"]:
+        print(f"ctjax fit: warning: {warning}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ctjax",
@@ -126,6 +211,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_synth_arguments(synth, frames=5, texture=True)
     synth.set_defaults(run=_cmd_synth)
 
+    masks = commands.add_parser("masks", help="specular set S and ring S~ of every frame")
+    masks.add_argument("capture", type=Path, help="capture folder")
+    masks.add_argument("--out", type=Path, required=True, help="folder for the PNG masks")
+    _add_mask_arguments(masks)
+    masks.set_defaults(run=_cmd_masks)
+
+    fit = commands.add_parser("fit", help="estimate (rho_tilde, F_tilde, sigma) from a capture")
+    fit.add_argument("capture", type=Path, help="capture folder (with depth or normals)")
+    fit.add_argument("--json", type=Path, required=True, help="output JSON file")
+    fit.add_argument(
+        "--model",
+        choices=("paper", "two-scales"),
+        default="paper",
+        help="paper: one Beckmann lobe (eq. 2); two-scales: two (eq. 3)",
+    )
+    _add_mask_arguments(fit)
+    fit.set_defaults(run=_cmd_fit)
+
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
     demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")
     _add_synth_arguments(demo, frames=5, texture=False)
@@ -136,8 +239,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    import jax
+
     from ._performance import tune_malloc
 
+    # Estimation in double precision; renders stay in the dtype of their inputs.
+    jax.config.update("jax_enable_x64", True)
     tune_malloc()
     try:
         return args.run(args)

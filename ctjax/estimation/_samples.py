@@ -1,6 +1,7 @@
 """Shading samples: the measured RGB of pixels whose geometry and light are known."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -52,9 +53,14 @@ def view_directions(camera: Camera, rows: np.ndarray, cols: np.ndarray) -> np.nd
 
 
 def colocated_samples(
-    camera: Camera, image: np.ndarray, normals: np.ndarray, mask: np.ndarray, dtype=np.float64
+    camera: Camera, image: np.ndarray, normals: np.ndarray, mask: np.ndarray, dtype=None
 ) -> ShadingSamples:
-    """Samples of the pixels in `mask` under the paper's light: L = V, unit irradiance."""
+    """Samples of the pixels in `mask` under the paper's light: L = V, unit irradiance.
+
+    `dtype` defaults to JAX's default float (float64 when x64 is enabled, as the CLI does).
+    """
+    if dtype is None:
+        dtype = jax.dtypes.canonicalize_dtype(np.float64)
     rows, cols = np.nonzero(mask)
     view = view_directions(camera, rows.astype(float), cols.astype(float)).astype(dtype)
     normal = normals[rows, cols].astype(dtype)
@@ -69,6 +75,4 @@ def colocated_samples(
 
 
 def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
-    import jax
-
     return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *samples)

@@ -51,3 +51,12 @@ def write_quantised_rgb(path: Path, image: np.ndarray) -> None:
     if not ok:
         raise CaptureError(f"{path}: PNG encoding failed")
     atomic_write_bytes(path, encoded.tobytes())
+
+
+def write_mask(path: Path, mask: np.ndarray) -> None:
+    """A boolean mask as an 8-bit PNG (255 where set), atomically."""
+    path = Path(path)
+    ok, encoded = cv2.imencode(".png", np.where(mask, 255, 0).astype(np.uint8))
+    if not ok:
+        raise CaptureError(f"{path}: PNG encoding failed")
+    atomic_write_bytes(path, encoded.tobytes())
