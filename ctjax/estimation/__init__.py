@@ -14,6 +14,7 @@ from ._closed_form import nnls as nnls
 from ._closed_form import nnls_normal_equations as nnls_normal_equations
 from ._samples import ShadingSamples as ShadingSamples
 from ._samples import colocated_samples as colocated_samples
+from ._samples import paper_coefficients as paper_coefficients
 from ._specular_set import SpecularSets as SpecularSets
 from ._specular_set import specular_mask as specular_mask
 from ._specular_set import specular_sets as specular_sets

@@ -29,16 +29,16 @@ class GridSearchResult(eqx.Module):
     evaluations: int = eqx.field(static=True)
 
 
-def zoom_levels(lo, hi, tolerance: float, grid: int) -> tuple[int, float]:
+def zoom_levels(lo, hi, tolerance: float, grid: int, zoom: int = 2) -> tuple[int, float]:
     """Levels until the grid spacing is below `tolerance`, and that final spacing.
 
-    Level 1 spaces `grid` centres over the whole box; each further level searches a box two
-    spacings wide around each kept centre, so the spacing shrinks by grid / 2 per level.
+    Level 1 spaces `grid` centres over the whole box; each further level searches a box
+    `zoom` spacings wide around each kept centre, so the spacing shrinks by grid / zoom.
     """
     spacing = max(float(h) - float(l) for l, h in zip(lo, hi, strict=True)) / grid
     levels = 1
     while spacing > tolerance:
-        spacing *= 2 / grid
+        spacing *= zoom / grid
         levels += 1
     return levels, spacing
 
@@ -65,21 +65,26 @@ def grid_search(
     tolerance: float = 1e-3,
     grid: int = 32,
     candidates: int = 4,
+    zoom: int = 2,
+    dtype=None,
 ) -> GridSearchResult:
     """Minimise `cost(params)` over the box [lo, hi] by zooming grids (see module doc).
 
     `cost` maps a (D,) parameter vector to a scalar and is `vmap`ped over the grid; it must
     return finite values or +inf (non-finite values are treated as +inf). Each level keeps
     the `candidates` best grid points, local minima first (one per basin before a second
-    point of the same basin), and searches two sub-intervals around each at the next level.
-    D = 1 or 2 in practice: a level costs `candidates * grid^D` evaluations.
+    point of the same basin), and searches `zoom` sub-intervals around each at the next level
+    (`candidates=1, zoom=1` is exactly the paper's BnB, which zooms into the best
+    sub-interval). D = 1 or 2 in practice: a level costs `candidates * grid^D` evaluations.
     """
     # The box is configuration (it sets the number of levels): concrete, not traced.
     lo = np.atleast_1d(np.asarray(lo, float))
     hi = np.atleast_1d(np.asarray(hi, float))
     dims = lo.shape[0]
-    levels, _ = zoom_levels(lo, hi, tolerance, grid)
-    offsets = (jnp.arange(grid) + 0.5) / grid  # sub-interval centres in [0, 1]
+    levels, _ = zoom_levels(lo, hi, tolerance, grid, zoom)
+    dtype = jax.dtypes.canonicalize_dtype(float if dtype is None else dtype)
+    lo, hi = jnp.asarray(lo, dtype), jnp.asarray(hi, dtype)
+    offsets = (jnp.arange(grid, dtype=dtype) + 0.5) / grid  # sub-interval centres in [0, 1]
     unit_grid = jnp.stack(jnp.meshgrid(*([offsets] * dims), indexing="ij"), -1).reshape(-1, dims)
 
     def safe_cost(params):
@@ -103,7 +108,7 @@ def grid_search(
         improved = flat_costs[level_best] < best_cost
         best_params = jnp.where(improved, flat_centres[level_best], best_params)
         best_cost = jnp.where(improved, flat_costs[level_best], best_cost)
-        # Zoom: a box two sub-intervals wide around each kept centre, inside [lo, hi].
-        widths = 2 * widths / grid
+        # Zoom: a box `zoom` sub-intervals wide around each kept centre, inside [lo, hi].
+        widths = zoom * widths / grid
         starts = jnp.clip(flat_centres[order] - widths / 2, lo, hi - widths)
     return GridSearchResult(best_params, best_cost, spacing / 2, evaluations)

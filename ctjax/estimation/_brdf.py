@@ -104,13 +104,20 @@ def _standard_errors(family, params, weights, samples, cost):
 
 
 @eqx.filter_jit
-def _fit(samples, family, tolerance, grid, candidates):
+def _fit(samples, family, tolerance, grid, candidates, zoom):
     def cost(params):
         return nnls(design_matrix(family, params, samples), samples.values)[1]
 
     if family.names:
         search = grid_search(
-            cost, family.lo, family.hi, tolerance=tolerance, grid=grid, candidates=candidates
+            cost,
+            family.lo,
+            family.hi,
+            tolerance=tolerance,
+            grid=grid,
+            candidates=candidates,
+            zoom=zoom,
+            dtype=samples.values.dtype,
         )
         params, half_width = search.params, search.half_width
     else:
@@ -129,13 +136,15 @@ def fit_brdf(
     tolerance: float = 1e-3,
     grid: int = 32,
     candidates: int = 4,
+    zoom: int = 2,
 ) -> BRDFFit:
     """Estimate a BRDF from shading samples (paper eq. 5): the closed-form BnB.
 
     The linear weights are the exact nonnegative least-squares solution for each value of the
     nonlinear parameters (sigma, shared by the colour channels); the nonlinear parameters are
     found by a zooming grid over the family's box down to `tolerance` (paper: [1e-5, 1], 1e-3),
-    keeping `candidates` intervals per level. One compiled function.
+    keeping `candidates` intervals per level (see `grid_search`; `grid=10, candidates=1,
+    zoom=1` reproduces the paper's BnB centre for centre). One compiled function.
     """
     if len(samples) == 0:
         raise CtjaxError("no samples to fit the BRDF on (empty ring)")
@@ -148,6 +157,6 @@ def fit_brdf(
             f"{len(samples)} samples cannot determine {k * 3 + len(family.names)} parameters"
         )
     params, weights, cost, rmse, p_err, w_err, half_width = _fit(
-        samples, family, tolerance, grid, candidates
+        samples, family, tolerance, grid, candidates, zoom
     )
     return BRDFFit(params, weights, cost, rmse, p_err, w_err, half_width, len(samples), family)
