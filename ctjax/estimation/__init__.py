@@ -8,9 +8,11 @@ from ._brdf import PAPER as PAPER
 from ._brdf import TWO_SCALES as TWO_SCALES
 from ._brdf import BRDFFamily as BRDFFamily
 from ._brdf import BRDFFit as BRDFFit
+from ._brdf import design_columns as design_columns
 from ._brdf import design_matrix as design_matrix
 from ._brdf import fit_brdf as fit_brdf
 from ._closed_form import nnls as nnls
+from ._closed_form import nnls_columns as nnls_columns
 from ._closed_form import nnls_normal_equations as nnls_normal_equations
 from ._samples import ShadingSamples as ShadingSamples
 from ._samples import colocated_samples as colocated_samples

@@ -12,7 +12,7 @@ from .._errors import CtjaxError
 from .._typing import Array, Float, Scalar
 from ..lobes import BRDF, Beckmann, Lambertian, Specular, cook_torrance_brdf
 from ._branch_and_bound import grid_search
-from ._closed_form import nnls
+from ._closed_form import nnls_columns
 from ._samples import ShadingSamples
 
 
@@ -72,14 +72,21 @@ class BRDFFit(eqx.Module):
         return self.family.build(self.params).with_weights(self.weights)
 
 
-def design_matrix(family: BRDFFamily, params, samples: ShadingSamples) -> Float[Array, "N K"]:
-    """Each lobe's radiance at each sample for unit weight, times the irradiance."""
+def design_columns(family: BRDFFamily, params, samples: ShadingSamples) -> tuple[Array, ...]:
+    """Each lobe's radiance at each sample for unit weight, times the irradiance: K (N,)
+    arrays. Lobes that do not depend on `params` give columns that stay unbatched under a
+    `vmap` over `params` (computed once)."""
     brdf = family.build(params)
 
     def one(normal, light, view, irradiance):
-        return irradiance * brdf.columns(normal, light, view)
+        return tuple(irradiance * lobe.radiance(normal, light, view) for lobe in brdf.lobes)
 
     return jax.vmap(one)(samples.normal, samples.light, samples.view, samples.irradiance)
+
+
+def design_matrix(family: BRDFFamily, params, samples: ShadingSamples) -> Float[Array, "N K"]:
+    """`design_columns` stacked as an (N, K) matrix."""
+    return jnp.stack(design_columns(family, params, samples), axis=-1)
 
 
 def _standard_errors(family, params, weights, samples, cost):
@@ -106,7 +113,7 @@ def _standard_errors(family, params, weights, samples, cost):
 @eqx.filter_jit
 def _fit(samples, family, tolerance, grid, candidates, zoom):
     def cost(params):
-        return nnls(design_matrix(family, params, samples), samples.values)[1]
+        return nnls_columns(design_columns(family, params, samples), samples.values)[1]
 
     if family.names:
         search = grid_search(
@@ -123,7 +130,7 @@ def _fit(samples, family, tolerance, grid, candidates, zoom):
     else:
         params = jnp.zeros((0,), samples.values.dtype)
         half_width = params
-    weights, best_cost = nnls(design_matrix(family, params, samples), samples.values)
+    weights, best_cost = nnls_columns(design_columns(family, params, samples), samples.values)
     params_stderr, weights_stderr = _standard_errors(family, params, weights, samples, best_cost)
     rmse = 255 * jnp.sqrt(best_cost / samples.values.size)
     return params, weights, best_cost, rmse, params_stderr, weights_stderr, half_width
