@@ -225,3 +225,35 @@ def test_fit_bad_input_is_one_clear_error(tmp_path, case):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and expected in lines[0], result.stderr
     assert not (tmp_path / "o.json").exists()
+
+
+def test_specular_sets_of_a_full_hd_frame_take_well_under_a_second():
+    import time
+
+    rng = np.random.default_rng(0)
+    image = rng.uniform(0.2, 0.6, (1080, 1920, 3)).astype(np.float32)
+    for _ in range(40):  # highlights: white discs
+        r, c = rng.integers(50, 1030), rng.integers(50, 1870)
+        image[r - 8 : r + 8, c - 12 : c + 12] = 1.0
+    specular_sets(image)  # warm-up (OpenCV's first call)
+    start = time.perf_counter()
+    sets = specular_sets(image, ring_px=3)
+    elapsed = time.perf_counter() - start
+    assert sets.specular.sum() > 0 and sets.ring.sum() > 0
+    assert elapsed < 0.5, f"{elapsed:.2f} s"
+
+
+def test_ring_geometry():
+    image = np.full((60, 80, 3), 0.4, np.float32)
+    image[28:33, 38:43] = 1.0  # a 5x5 highlight
+    valid = np.ones((60, 80), bool)
+    valid[:, :10] = False
+    sets = specular_sets(image, valid, ring_px=3, min_speck_px=0)
+    assert sets.specular.sum() == 25
+    rows, cols = np.nonzero(sets.ring)
+    distance = np.hypot(np.maximum(np.abs(rows - 30) - 2, 0), np.maximum(np.abs(cols - 40) - 2, 0))
+    assert distance.max() <= 3 and distance.min() >= 1
+    assert not (sets.ring & sets.specular).any() and not sets.ring[:, :10].any()
+    # Specks below min_speck_px are not highlights.
+    image[5, 70] = 1.0
+    assert not specular_sets(image, ring_px=3, min_speck_px=3).specular[5, 70]
