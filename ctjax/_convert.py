@@ -69,3 +69,18 @@ def cast_floating(tree, dtype):
         return x
 
     return jax.tree_util.tree_map(leaf, tree)
+
+
+# Parameter domains, declared where each field is defined (`eqx.field(metadata=...)`), so
+# that the fitters keep every parameter physical by reparametrisation without a registry:
+# a new lobe or effect declares its own. Fields without a domain are free and unconstrained.
+def domain(lo: float = -float("inf"), hi: float = float("inf")) -> dict:
+    """Field metadata: the parameter lives in the open interval (lo, hi)."""
+    return {"domain": (float(lo), float(hi))}
+
+
+POSITIVE = domain(0.0)
+UNIT_INTERVAL = domain(0.0, 1.0)
+# Held fixed by the fitters (normalisations, directions, intensities the paper folds into
+# the weights).
+FIXED = {"domain": "fixed"}

@@ -1,6 +1,6 @@
 import equinox as eqx
 
-from .._convert import as_rgb, check_positive, check_shape
+from .._convert import POSITIVE, as_rgb, check_positive, check_shape
 from .._typing import RGB, Array, Float
 from ._effect import AbstractImageEffect
 
@@ -13,7 +13,7 @@ class Ambient(AbstractImageEffect):
     - `level`: per colour channel, >= 0, linear units (1.0 = 8-bit level 255).
     """
 
-    level: Float[Array, "3"] = eqx.field(converter=as_rgb)
+    level: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=POSITIVE)
 
     def __check_init__(self):
         check_shape("Ambient", "level", self.level, (3,))

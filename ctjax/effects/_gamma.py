@@ -1,7 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import as_float, check_positive, check_shape
+from .._convert import POSITIVE, as_float, check_positive, check_shape
 from .._typing import RGB, Array, Float
 from ._effect import AbstractImageEffect
 
@@ -14,7 +14,7 @@ class CameraGamma(AbstractImageEffect):
     - `gamma`: > 0; 1 is linear, about 2.2 for an sRGB-like response.
     """
 
-    gamma: Float[Array, ""] = eqx.field(converter=as_float)
+    gamma: Float[Array, ""] = eqx.field(converter=as_float, metadata=POSITIVE)
 
     def __check_init__(self):
         check_shape("CameraGamma", "gamma", self.gamma, ())

@@ -2,7 +2,7 @@ import equinox as eqx
 import interpax
 import jax.numpy as jnp
 
-from .._convert import as_float
+from .._convert import FIXED, as_float
 from .._errors import ParameterError
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
@@ -39,7 +39,7 @@ class LightField(AbstractLight):
     - `method`: interpax interpolation method between pixel centres (default "cubic").
     """
 
-    directions: Float[Array, "H W 3"] = eqx.field(converter=as_float)
+    directions: Float[Array, "H W 3"] = eqx.field(converter=as_float, metadata=FIXED)
     method: str = eqx.field(static=True, default="cubic")
 
     def __check_init__(self):

@@ -1,7 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import as_float, check_positive, check_shape
+from .._convert import FIXED, as_float, check_positive, check_shape
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
 from ._light import AbstractFalloff
@@ -18,7 +18,7 @@ class InverseSquare(AbstractFalloff):
     - `reference_mm`: distance at which the factor is 1, mm (> 0).
     """
 
-    reference_mm: Float[Array, ""] = eqx.field(converter=as_float, default=50.0)
+    reference_mm: Float[Array, ""] = eqx.field(converter=as_float, default=50.0, metadata=FIXED)
 
     def __check_init__(self):
         check_shape("InverseSquare", "reference_mm", self.reference_mm, ())

@@ -1,6 +1,6 @@
 import equinox as eqx
 
-from .._convert import as_float, check_finite, check_positive, check_shape
+from .._convert import FIXED, as_float, check_finite, check_positive, check_shape
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
 from .._vector import Vec3
@@ -24,7 +24,7 @@ class ColocatedLight(AbstractLight):
       uses none.
     """
 
-    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0)
+    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0, metadata=FIXED)
     falloff: tuple[AbstractFalloff, ...] = ()
 
     def __check_init__(self):
@@ -48,7 +48,7 @@ class PointLight(AbstractLight):
     """
 
     position_mm: Float[Array, "3"] = eqx.field(converter=as_float)
-    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0)
+    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0, metadata=FIXED)
     falloff: tuple[AbstractFalloff, ...] = ()
 
     def __check_init__(self):

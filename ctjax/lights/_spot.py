@@ -1,7 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import as_float, check_positive, check_shape
+from .._convert import FIXED, POSITIVE, as_float, check_positive, check_shape
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
@@ -17,8 +17,8 @@ class SpotFalloff(AbstractFalloff):
     - `axis`: the light guide's axis in the camera frame (default: the optical axis +z).
     """
 
-    exponent: Float[Array, ""] = eqx.field(converter=as_float)
-    axis: Float[Array, "3"] = eqx.field(converter=as_float, default=(0.0, 0.0, 1.0))
+    exponent: Float[Array, ""] = eqx.field(converter=as_float, metadata=POSITIVE)
+    axis: Float[Array, "3"] = eqx.field(converter=as_float, default=(0.0, 0.0, 1.0), metadata=FIXED)
 
     def __check_init__(self):
         check_shape("SpotFalloff", "exponent", self.exponent, ())

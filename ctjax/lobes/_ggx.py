@@ -1,6 +1,6 @@
 import equinox as eqx
 
-from .._convert import as_float, check_positive, check_shape
+from .._convert import POSITIVE, as_float, check_positive, check_shape
 from .._typing import Array, Float, Scalar
 from ._distribution import AbstractDistribution
 
@@ -17,7 +17,7 @@ class GGX(AbstractDistribution):
     - `alpha`: GGX roughness, > 0 (comparable to Beckmann's sigma near the peak).
     """
 
-    alpha: Float[Array, ""] = eqx.field(converter=as_float)
+    alpha: Float[Array, ""] = eqx.field(converter=as_float, metadata=POSITIVE)
 
     def __check_init__(self):
         check_shape("GGX", "alpha", self.alpha, ())

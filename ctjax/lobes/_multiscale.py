@@ -2,7 +2,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._convert import as_float, check_positive
+from .._convert import POSITIVE, as_float, check_positive
 from .._errors import ParameterError
 from .._typing import Array, Float, Scalar
 from ._beckmann import beckmann
@@ -22,8 +22,8 @@ class MultiScaleBeckmann(AbstractDistribution):
     - `mix`: mixing weight of each scale, >= 0, shape (P,).
     """
 
-    sigmas: Float[Array, " P"] = eqx.field(converter=as_float)
-    mix: Float[Array, " P"] = eqx.field(converter=as_float)
+    sigmas: Float[Array, " P"] = eqx.field(converter=as_float, metadata=POSITIVE)
+    mix: Float[Array, " P"] = eqx.field(converter=as_float, metadata=POSITIVE)
 
     def __check_init__(self):
         if self.sigmas.ndim != 1 or self.sigmas.shape != self.mix.shape:

@@ -1,7 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import as_float, check_positive, check_shape
+from .._convert import UNIT_INTERVAL, as_float, check_positive, check_shape
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
 from ._factor import AbstractSpecularFactor
@@ -20,7 +20,7 @@ class SchlickFresnel(AbstractSpecularFactor):
     - `f0`: Fresnel reflectance at normal incidence, in (0, 1] (water/tissue: about 0.02).
     """
 
-    f0: Float[Array, ""] = eqx.field(converter=as_float)
+    f0: Float[Array, ""] = eqx.field(converter=as_float, metadata=UNIT_INTERVAL)
 
     def __check_init__(self):
         check_shape("SchlickFresnel", "f0", self.f0, ())

@@ -4,7 +4,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import as_rgb, check_positive, check_shape
+from .._convert import POSITIVE, as_rgb, check_positive, check_shape
 from .._numerics import COSINE_FLOOR, safe_normalize
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
@@ -28,7 +28,7 @@ class Specular(AbstractLobe):
     - `factors`: multiplicative factors (`SchlickFresnel`, `GeometricAttenuation`, ...).
     """
 
-    weight: Float[Array, "3"] = eqx.field(converter=as_rgb)
+    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=POSITIVE)
     distribution: AbstractDistribution
     factors: tuple[AbstractSpecularFactor, ...] = ()
     reciprocal: ClassVar[bool] = False

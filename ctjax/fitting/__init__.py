@@ -1,0 +1,16 @@
+"""The general fitter: any BRDF + light + effects fitted to measurements."""
+
+from ._fit import FitResult as FitResult
+from ._fit import fit_model as fit_model
+from ._fit import pixel_columns as pixel_columns
+from ._fit import pixel_predict as pixel_predict
+from ._fit import predictions as predictions
+from ._fit import rmse_levels as rmse_levels
+from ._model import ShadingModel as ShadingModel
+from ._model import paper_model as paper_model
+from ._parameters import Parameter as Parameter
+from ._parameters import constrained as constrained
+from ._parameters import free_parameters as free_parameters
+from ._parameters import unconstrained as unconstrained
+from ._samples import PixelSamples as PixelSamples
+from ._samples import capture_samples as capture_samples

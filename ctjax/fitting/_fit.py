@@ -1,0 +1,146 @@
+"""The general fitter: any model fitted to measurements by Levenberg-Marquardt (optimistix)
+on autodiff Jacobians, linear weights initialised in closed form, parameters kept physical
+by reparametrisation, several starts."""
+
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .._typing import Array, Float, Scalar
+from ..estimation._closed_form import nnls
+from ._parameters import Parameter, constrained, free_parameters, unconstrained
+
+# Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
+# s.pixel)` for pixels of a capture, or a BRDF evaluated at (L, V) for measured BRDF data.
+Predict = Callable[[eqx.Module, eqx.Module], Float[Array, "3"]]
+
+
+class FitResult(eqx.Module):
+    """A fitted model, its cost (sum of squared residuals, linear units), RMSE in 8-bit
+    levels, the solver's status and the number of steps, the parameters that were free."""
+
+    model: eqx.Module
+    cost: Scalar
+    rmse: Scalar
+    status: str = eqx.field(static=True)
+    steps: int = eqx.field(static=True)
+    parameters: tuple[str, ...] = eqx.field(static=True)
+
+    @property
+    def converged(self) -> bool:
+        return self.status == "successful"
+
+
+def predictions(model, samples, predict: Predict) -> Float[Array, "N 3"]:
+    """The model's RGB at every sample."""
+    return jax.vmap(lambda s: predict(model, s))(samples)
+
+
+@eqx.filter_jit
+def rmse_levels(model, samples, predict: Predict) -> Scalar:
+    """Root-mean-square RGB error of `model` on `samples`, in 8-bit levels."""
+    residual = predictions(model, samples, predict) - samples.values
+    return 255 * jnp.sqrt(jnp.mean(residual * residual))
+
+
+def initial_weights(model, samples, columns: Callable) -> eqx.Module:
+    """`model` with its lobe weights set by closed-form NNLS on the linear design
+    `columns(model, sample) -> (K,)` (effects after the sum of lobes are ignored here)."""
+    design = jax.vmap(lambda s: columns(model, s))(samples)
+    weights, _ = nnls(design, samples.values)
+    return eqx.tree_at(lambda m: m.brdf, model, model.brdf.with_weights(weights))
+
+
+@eqx.filter_jit
+def _least_squares(model, samples, predict, names, max_steps, rtol, atol):
+    parameters = free_parameters(model, lambda name: name in names)
+
+    def residuals(u, _):
+        fitted = constrained(model, parameters, u)
+        # Residuals in 8-bit levels: tolerances then read in the user's units.
+        return 255 * (predictions(fitted, samples, predict) - samples.values).reshape(-1)
+
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    solution = optx.least_squares(
+        residuals, solver, unconstrained(model, parameters), max_steps=max_steps, throw=False
+    )
+    fitted = constrained(model, parameters, solution.value)
+    residual = predictions(fitted, samples, predict) - samples.values
+    cost = jnp.sum(residual * residual)
+    return fitted, cost, solution.result, solution.stats["num_steps"]
+
+
+def _status(result) -> str:
+    if result == optx.RESULTS.successful:
+        return "successful"
+    if result == optx.RESULTS.max_steps_reached:
+        return "max_steps_reached"
+    return "failed"
+
+
+def fit_model(
+    starts: eqx.Module | Sequence[eqx.Module],
+    samples,
+    predict: Predict,
+    *,
+    columns: Callable | None = None,
+    freeze: Sequence[str] = (),
+    max_steps: int = 100,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    refine: int = 1,
+) -> FitResult:
+    """Fit a model to `samples` (anything with `.values` (N, 3) that `predict` reads).
+
+    `starts` are one or several initial models of the same structure (e.g. different
+    roughness or light offsets). With `columns`, each start first gets its linear weights in
+    closed form (cheap), and LM then runs from the `refine` best starts; the best fit wins.
+    `freeze` names parameters held fixed (dotted names, see `free_parameters`).
+    Returns a `FitResult` whose `status` is "successful", "max_steps_reached" or "failed";
+    a failed fit is reported, never silently returned as a success.
+    """
+    if isinstance(starts, eqx.Module):
+        starts = [starts]
+    starts = list(starts)
+    names = tuple(freeze)
+    if columns is not None:
+        starts = [initial_weights(m, samples, columns) for m in starts]
+    if len(starts) > refine:
+        costs = [float(rmse_levels(m, samples, predict)) for m in starts]
+        starts = [starts[i] for i in np.argsort(costs)[:refine]]
+    best = None
+    for start in starts:
+        fitted, cost, result, steps = _least_squares(
+            start, samples, predict, names, max_steps, rtol, atol
+        )
+        cost = float(cost)
+        if not np.isfinite(cost):
+            continue
+        if best is None or cost < best[1]:
+            best = (fitted, cost, result, int(steps))
+    if best is None:
+        start = starts[0]
+        return FitResult(start, jnp.inf, jnp.inf, "failed", 0, ())
+    fitted, cost, result, steps = best
+    rmse = 255 * np.sqrt(cost / samples.values.size)
+    parameters = tuple(p.name for p in free_parameters(fitted, lambda n: n in names))
+    return FitResult(
+        fitted, jnp.asarray(cost), jnp.asarray(rmse), _status(result), steps, parameters
+    )
+
+
+def pixel_predict(model, sample) -> Float[Array, "3"]:
+    """`Predict` for `PixelSamples` and a `ShadingModel`."""
+    return model(sample.point, sample.normal, sample.pixel)
+
+
+def pixel_columns(model, sample) -> Float[Array, " K"]:
+    """Linear design row for `PixelSamples` and a `ShadingModel`."""
+    return model.columns(sample.point, sample.normal, sample.pixel)
+
+
+__all__ = ["FitResult", "Parameter", "fit_model", "pixel_columns", "pixel_predict"]

@@ -1,0 +1,29 @@
+import equinox as eqx
+
+from .._render import shade, shade_columns
+from .._typing import RGB
+from .._vector import Vec3
+from ..effects import AbstractImageEffect
+from ..lights import AbstractLight, ColocatedLight
+from ..lobes import BRDF, cook_torrance_brdf
+
+
+class ShadingModel(eqx.Module):
+    """Everything between the scene's geometry and a pixel value: BRDF, light, effects."""
+
+    brdf: BRDF
+    light: AbstractLight
+    effects: tuple[AbstractImageEffect, ...] = ()
+
+    def __call__(self, point: Vec3, normal: Vec3, pixel) -> RGB:
+        """The predicted RGB of one pixel (the renderer's `shade`)."""
+        return shade(self.brdf, self.light, point, normal, pixel, self.effects)
+
+    def columns(self, point: Vec3, normal: Vec3, pixel):
+        """Per-lobe radiance for unit weights (no effects): the linear design row."""
+        return shade_columns(self.brdf, self.light, point, normal, pixel)
+
+
+def paper_model(rho_tilde=1.0, F_tilde=0.3, sigma=0.2) -> ShadingModel:
+    """The paper's model: Lambertian + Beckmann specular, constant F, light at the camera."""
+    return ShadingModel(cook_torrance_brdf(rho_tilde, F_tilde, sigma), ColocatedLight())

@@ -1,0 +1,100 @@
+"""Every free parameter of a model, and a reparametrisation that keeps it physical.
+
+Parameters are the floating-point array fields of the model's equinox Modules, found by
+walking the pytree. Each field may declare its domain in its metadata (`POSITIVE`,
+`UNIT_INTERVAL`, `domain(lo, hi)`, `FIXED`; see `ctjax._convert`); the fitters then work on
+unconstrained values: `lo + softplus(u)` for (lo, inf), `lo + (hi - lo) sigmoid(u)` for a
+bounded interval, the identity otherwise. A lobe or effect written by a user is fitted the
+same way; without metadata its fields are free and unconstrained.
+"""
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+_EPS = 1e-9
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameter:
+    """One free array field: how to reach it in the model, its name and domain."""
+
+    get: Callable
+    name: str
+    domain: tuple[float, float]
+
+
+def _walk(node, get, name, out, freeze):
+    if isinstance(node, eqx.Module):
+        for field in dataclasses.fields(node):
+            if field.metadata.get("static", False):
+                continue
+            value = getattr(node, field.name)
+            child_get = (lambda g, n: lambda m: getattr(g(m), n))(get, field.name)
+            child_name = f"{name}.{field.name}" if name else field.name
+            declared = field.metadata.get("domain", (-math.inf, math.inf))
+            if declared == "fixed" or freeze(child_name):
+                continue
+            if eqx.is_array(value):
+                if jnp.issubdtype(value.dtype, jnp.floating):
+                    out.append(Parameter(child_get, child_name, declared))
+            else:
+                _walk(value, child_get, child_name, out, freeze)
+    elif isinstance(node, tuple | list):
+        for index, value in enumerate(node):
+            child_get = (lambda g, i: lambda m: g(m)[i])(get, index)
+            _walk(value, child_get, f"{name}[{index}]", out, freeze)
+
+
+def free_parameters(model, freeze: Callable[[str], bool] = lambda name: False) -> list[Parameter]:
+    """The free parameters of `model`, in a fixed order, with dotted names
+    (e.g. `brdf.lobes[1].distribution.sigma`). `freeze(name)` can hold more fixed."""
+    out: list[Parameter] = []
+    _walk(model, lambda m: m, "", out, freeze)
+    return out
+
+
+def _to_unconstrained(value, domain):
+    lo, hi = domain
+    if math.isfinite(lo) and math.isfinite(hi):
+        p = jnp.clip((value - lo) / (hi - lo), _EPS, 1 - _EPS)
+        return jnp.log(p) - jnp.log1p(-p)
+    if math.isfinite(lo):
+        excess = jnp.maximum(value - lo, _EPS)
+        # inverse softplus, stable for large values
+        return excess + jnp.log(-jnp.expm1(-excess))
+    if math.isfinite(hi):
+        deficit = jnp.maximum(hi - value, _EPS)
+        return -(deficit + jnp.log(-jnp.expm1(-deficit)))
+    return value
+
+
+def _from_unconstrained(u, domain):
+    lo, hi = domain
+    if math.isfinite(lo) and math.isfinite(hi):
+        return lo + (hi - lo) * jax.nn.sigmoid(u)
+    if math.isfinite(lo):
+        return lo + jax.nn.softplus(u)
+    if math.isfinite(hi):
+        return hi - jax.nn.softplus(-u)
+    return u
+
+
+def unconstrained(model, parameters: list[Parameter]) -> list:
+    """The unconstrained values of `parameters` in `model`."""
+    return [_to_unconstrained(p.get(model), p.domain) for p in parameters]
+
+
+def constrained(model, parameters: list[Parameter], values: list):
+    """`model` with `parameters` set from unconstrained `values`."""
+    if not parameters:
+        return model
+    return eqx.tree_at(
+        lambda m: [p.get(m) for p in parameters],
+        model,
+        [_from_unconstrained(v, p.domain) for v, p in zip(values, parameters, strict=True)],
+    )
