@@ -31,6 +31,7 @@ def _synth_options_from(args: argparse.Namespace):
         camera_gamma=args.gamma,
         ambient=_rgb(args.ambient),
         fresnel_f0=args.fresnel_schlick,
+        fresnel_cosine=args.fresnel_cosine,
         geometric_attenuation=args.geometric_attenuation,
         ggx=args.ggx,
         second_lobe=tuple(args.second_lobe) if args.second_lobe else None,
@@ -199,6 +200,30 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from .diagnostics import diagnose, diagnosis_plots
+    from .io import load_capture
+    from .io._atomic import atomic_write_json
+
+    capture = load_capture(args.capture)
+    diagnosis = diagnose(
+        capture,
+        calibration=args.calib,
+        add=tuple(args.add),
+        progress=lambda m: print(f"[ctjax diagnose] {m}", flush=True),
+    )
+    atomic_write_json(args.json, diagnosis.to_json())
+    if args.plots:
+        for path in diagnosis_plots(capture, diagnosis, args.plots):
+            print(f"wrote {path}")
+    print(
+        f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
+        f"noise floor {diagnosis.noise_floor:.2f}); wrote {args.json} "
+        f"in {diagnosis.seconds:.0f} s"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ctjax",
@@ -228,6 +253,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_mask_arguments(fit)
     fit.set_defaults(run=_cmd_fit)
+
+    diag = commands.add_parser(
+        "diagnose", help="where the model fails, and which physical effect is missing"
+    )
+    diag.add_argument("capture", type=Path, help="capture folder (with depth)")
+    diag.add_argument("--json", type=Path, required=True, help="output JSON file")
+    diag.add_argument("--plots", type=Path, help="folder for residual maps and binned residuals")
+    diag.add_argument(
+        "--add",
+        nargs="+",
+        default=[],
+        metavar="EFFECT",
+        help="effects to add to the base model first (e.g. light_offset)",
+    )
+    diag.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    diag.set_defaults(run=_cmd_diagnose)
 
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
     demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")

@@ -116,7 +116,8 @@ class FresnelSchlickCandidate(AbstractCandidate):
     name = "fresnel_schlick"
 
     def __call__(self, model, context):
-        return [_with_factor(model, SchlickFresnel(0.05))]
+        # Cook-Torrance's V.H, and the N.V shortcut that many renderers use.
+        return [_with_factor(model, SchlickFresnel(0.05, cosine)) for cosine in ("half", "normal")]
 
 
 class GeometricAttenuationCandidate(AbstractCandidate):

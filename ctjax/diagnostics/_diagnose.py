@@ -12,6 +12,8 @@ import dataclasses
 import math
 import time
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from .._errors import CtjaxError
@@ -136,9 +138,36 @@ def noise_floor_levels(capture: Capture, frames: list[int], model: ShadingModel)
     return float(1.4826 * mad / math.sqrt(2))
 
 
+# Roughness values every start is also tried with: an effect the base model lacked has
+# often bent its roughness (e.g. a camera gamma flattens the highlights), and the cost is
+# not convex in it. Cheap: each start only costs a closed-form solve for the weights.
+ROUGHNESS_STARTS = (0.1, 0.2, 0.35)
+
+
+def _roughness_variants(model) -> list:
+    """`model`, and copies with every scalar microfacet-distribution parameter set to each
+    of `ROUGHNESS_STARTS`."""
+    scalars = [
+        p
+        for p in free_parameters(model)
+        if ".distribution." in p.name and np.ndim(p.get(model)) == 0
+    ]
+    variants = [model]
+    for value in ROUGHNESS_STARTS if scalars else ():
+        variants.append(
+            eqx.tree_at(
+                lambda m: [p.get(m) for p in scalars],
+                model,
+                [jnp.asarray(value, p.get(model).dtype) for p in scalars],
+            )
+        )
+    return variants
+
+
 def _fit(starts, samples, max_steps):
+    starts = [variant for start in starts for variant in _roughness_variants(start)]
     return fit_model(
-        starts, samples, pixel_predict, columns=pixel_columns, max_steps=max_steps, refine=2
+        starts, samples, pixel_predict, columns=pixel_columns, max_steps=max_steps, refine=3
     )
 
 

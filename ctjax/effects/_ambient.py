@@ -21,3 +21,6 @@ class Ambient(AbstractImageEffect):
 
     def __call__(self, rgb: RGB) -> RGB:
         return rgb + self.level
+
+    def inverse(self, rgb: RGB) -> RGB:
+        return rgb - self.level

@@ -15,3 +15,8 @@ class AbstractImageEffect(eqx.Module):
     @abc.abstractmethod
     def __call__(self, rgb: RGB) -> RGB:
         """The pixel's RGB after the effect (linear units, 1.0 = 8-bit level 255)."""
+
+    def inverse(self, rgb: RGB) -> RGB:
+        """The radiance before the effect, where it can be undone (fitters use it to start
+        the linear weights in closed form). Not invertible by default: returns `rgb`."""
+        return rgb

@@ -24,3 +24,6 @@ class CameraGamma(AbstractImageEffect):
         # x^(1/g) has an unbounded derivative at 0: below 1e-12 the pixel is black anyway.
         lit = rgb > 1e-12
         return jnp.where(lit, jnp.exp(jnp.log(jnp.where(lit, rgb, 1)) / self.gamma), 0)
+
+    def inverse(self, rgb: RGB) -> RGB:
+        return jnp.maximum(rgb, 0) ** self.gamma

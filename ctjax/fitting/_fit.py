@@ -47,11 +47,22 @@ def rmse_levels(model, samples, predict: Predict) -> Scalar:
     return 255 * jnp.sqrt(jnp.mean(residual * residual))
 
 
+# Weights start at least this fraction of the largest: a weight that starts at exactly the
+# bound of its reparametrisation has no gradient and would stay there.
+_WEIGHT_FLOOR = 1e-2
+
+
+@eqx.filter_jit
 def initial_weights(model, samples, columns: Callable) -> eqx.Module:
     """`model` with its lobe weights set by closed-form NNLS on the linear design
-    `columns(model, sample) -> (K,)` (effects after the sum of lobes are ignored here)."""
+    `columns(model, sample) -> (K,)`, against the measurements with the model's image
+    effects undone where they can be (`AbstractImageEffect.inverse`)."""
     design = jax.vmap(lambda s: columns(model, s))(samples)
-    weights, _ = nnls(design, samples.values)
+    values = samples.values
+    for effect in reversed(getattr(model, "effects", ())):
+        values = jax.vmap(effect.inverse)(values)
+    weights, _ = nnls(design, values)
+    weights = jnp.maximum(weights, _WEIGHT_FLOOR * jnp.max(weights))
     return eqx.tree_at(lambda m: m.brdf, model, model.brdf.with_weights(weights))
 
 

@@ -2,6 +2,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._convert import UNIT_INTERVAL, as_float, check_positive, check_shape
+from .._errors import ParameterError
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
 from ._factor import AbstractSpecularFactor
@@ -18,14 +19,23 @@ class SchlickFresnel(AbstractSpecularFactor):
     **Arguments:**
 
     - `f0`: Fresnel reflectance at normal incidence, in (0, 1] (water/tissue: about 0.02).
+    - `cosine`: the angle Fresnel is taken at: "half" (V.H, the microfacet's incidence:
+      Cook-Torrance) or "normal" (N.V, a common shortcut in renderers, which darkens the
+      specular term away from grazing even with a co-located light).
     """
 
     f0: Float[Array, ""] = eqx.field(converter=as_float, metadata=UNIT_INTERVAL)
+    cosine: str = eqx.field(static=True, default="half")
 
     def __check_init__(self):
         check_shape("SchlickFresnel", "f0", self.f0, ())
         check_positive("SchlickFresnel", "f0", self.f0)
+        if self.cosine not in ("half", "normal"):
+            raise ParameterError(
+                f"SchlickFresnel.cosine must be 'half' or 'normal', got {self.cosine!r}"
+            )
 
     def __call__(self, normal: Vec3, light: Vec3, view: Vec3, half: Vec3) -> Scalar:
-        one_minus = jnp.clip(1 - view @ half, 0, 1)
+        cosine = view @ half if self.cosine == "half" else normal @ view
+        one_minus = jnp.clip(1 - cosine, 0, 1)
         return 1 + (1 / self.f0 - 1) * one_minus**5

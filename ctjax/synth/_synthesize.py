@@ -52,7 +52,8 @@ class SynthOptions:
     - `spot_exponent`: angular falloff cos^k around the optical axis.
     - `camera_gamma`: pixel = radiance^(1/gamma).
     - `ambient`: constant radiance added per channel.
-    - `fresnel_f0`: Schlick's Fresnel angle dependence with this F0.
+    - `fresnel_f0`: Schlick's Fresnel angle dependence with this F0, at the angle
+      `fresnel_cosine` ("half": V.H, Cook-Torrance; "normal": N.V).
     - `geometric_attenuation`: Cook-Torrance's G.
     - `ggx`: GGX instead of Beckmann, with alpha = sigma.
     - `second_lobe`: (sigma_2, fraction): a second Beckmann lobe with F_tilde * fraction.
@@ -75,6 +76,7 @@ class SynthOptions:
     camera_gamma: float | None = None
     ambient: tuple[float, float, float] | None = None
     fresnel_f0: float | None = None
+    fresnel_cosine: str = "half"
     geometric_attenuation: bool = False
     ggx: bool = False
     second_lobe: tuple[float, float] | None = None
@@ -113,7 +115,7 @@ class SynthOptions:
         if self.ambient is not None:
             out["ambient"] = {"level": list(map(float, self.ambient))}
         if self.fresnel_f0 is not None:
-            out["fresnel_schlick"] = {"f0": float(self.fresnel_f0)}
+            out["fresnel_schlick"] = {"f0": float(self.fresnel_f0), "cosine": self.fresnel_cosine}
         if self.geometric_attenuation:
             out["geometric_attenuation"] = {}
         if self.ggx:
@@ -131,7 +133,7 @@ def scene_model(options: SynthOptions):
     """(brdf, light, effects) of the synthetic scene: the paper's model plus the options."""
     factors = []
     if options.fresnel_f0 is not None:
-        factors.append(SchlickFresnel(options.fresnel_f0))
+        factors.append(SchlickFresnel(options.fresnel_f0, options.fresnel_cosine))
     if options.geometric_attenuation:
         factors.append(GeometricAttenuation())
     distribution = GGX(options.sigma) if options.ggx else Beckmann(options.sigma)

@@ -1,0 +1,116 @@
+"""Figures of a diagnosis: residual maps and binned residuals, before and after."""
+
+from pathlib import Path
+
+import numpy as np
+
+from .._render import render
+from ..fitting import capture_samples, pixel_predict, predictions
+from ..fitting._samples import usable_mask
+from ..io import Capture
+from ._variables import VARIABLES, binned, physical_variables
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def residual_map(capture: Capture, index: int, model) -> np.ndarray:
+    """Mean-RGB residual (model - image) of one frame in 8-bit levels; NaN where unusable."""
+    frame = capture.frames[index]
+    rendered = np.asarray(
+        render(
+            model.brdf,
+            model.light,
+            capture.camera,
+            frame.normals,
+            frame.depth,
+            effects=model.effects,
+        )
+    )
+    residual = (rendered - frame.image).mean(axis=-1) * 255
+    return np.where(usable_mask(frame), residual, np.nan)
+
+
+def plot_residual_maps(capture, index, models: dict, path: Path) -> Path:
+    plt = _pyplot()
+    fig, axes = plt.subplots(
+        1, len(models) + 1, figsize=(4.2 * (len(models) + 1), 3.4), constrained_layout=True
+    )
+    axes[0].imshow(np.clip(capture.frames[index].image, 0, 1))
+    axes[0].set_title(f"held-out frame {capture.frames[index].name}")
+    maps = {name: residual_map(capture, index, m) for name, m in models.items()}
+    limit = max(
+        3.0, float(np.nanpercentile(np.abs(np.concatenate([m.ravel() for m in maps.values()])), 99))
+    )
+    for ax, (name, data) in zip(axes[1:], maps.items(), strict=True):
+        shown = ax.imshow(data, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        rmse = np.sqrt(np.nanmean(data**2))
+        ax.set_title(f"{name}: residual (levels), RMS {rmse:.2f}")
+        fig.colorbar(shown, ax=ax, shrink=0.8)
+    for ax in axes:
+        ax.set_axis_off()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def plot_binned_residuals(capture, frames, models: dict, path: Path, max_samples=40_000) -> Path:
+    """Mean residual per channel against each physical variable, one curve per model."""
+    plt = _pyplot()
+    samples = capture_samples(capture, frames, max_samples=max_samples, seed=2)
+    names = list(VARIABLES)
+    fig, axes = plt.subplots(
+        2,
+        (len(names) + 1) // 2,
+        figsize=(4 * ((len(names) + 1) // 2), 6.5),
+        constrained_layout=True,
+    )
+    axes = axes.ravel()
+    colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
+    styles = ["-", "--", ":", "-."]
+    for style, (label, model) in zip(styles, models.items(), strict=False):
+        residual = 255 * (
+            np.asarray(predictions(model, samples, pixel_predict)) - np.asarray(samples.values)
+        )
+        variables = physical_variables(model, samples, capture.camera)
+        for ax, name in zip(axes, names, strict=False):
+            centres, means, _ = binned(np.asarray(variables[name]), residual)
+            for c, channel in enumerate("RGB"):
+                ax.plot(
+                    centres,
+                    means[:, c],
+                    style,
+                    color=colours[channel],
+                    label=f"{label} {channel}" if name == names[0] else None,
+                )
+            ax.axhline(0, color="k", lw=0.5)
+            ax.set_xlabel(VARIABLES[name])
+            ax.set_ylabel("mean residual (levels)")
+    for ax in axes[len(names) :]:
+        ax.set_axis_off()
+    fig.legend(loc="lower right", fontsize=8)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def diagnosis_plots(capture: Capture, diagnosis, out: Path) -> list[Path]:
+    """Residual maps and binned residuals of the base model and of the verdict's model."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    models = {"base": diagnosis.base.model}
+    if diagnosis.verdict != "none":
+        models[f"+ {diagnosis.verdict}"] = diagnosis.best_model
+    index = diagnosis.heldout_frames[0]
+    return [
+        plot_residual_maps(capture, index, models, out / "residual_maps.png"),
+        plot_binned_residuals(
+            capture, diagnosis.heldout_frames, models, out / "binned_residuals.png"
+        ),
+    ]
