@@ -29,6 +29,7 @@ from .lights import SpotFalloff as SpotFalloff
 from .lobes import BRDF as BRDF
 from .lobes import GGX as GGX
 from .lobes import Beckmann as Beckmann
+from .lobes import CookTorrance as CookTorrance
 from .lobes import GeometricAttenuation as GeometricAttenuation
 from .lobes import Lambertian as Lambertian
 from .lobes import MultiScaleBeckmann as MultiScaleBeckmann

@@ -86,6 +86,12 @@ def _add_synth_arguments(parser: argparse.ArgumentParser, *, frames: int, textur
         "--fresnel-schlick", type=float, metavar="F0", help="Schlick Fresnel with this F0"
     )
     effects.add_argument(
+        "--fresnel-cosine",
+        choices=("half", "normal"),
+        default="half",
+        help="Schlick at V.H (Cook-Torrance, default) or at N.V",
+    )
+    effects.add_argument(
         "--geometric-attenuation", action="store_true", help="Cook-Torrance geometric attenuation G"
     )
     effects.add_argument("--ggx", action="store_true", help="GGX instead of Beckmann")

@@ -25,6 +25,9 @@ LOBES = {
     "multiscale": lambda: Specular(0.3, MultiScaleBeckmann([0.1, 0.4], [0.7, 0.3])),
     "schlick": lambda: Specular(0.3, Beckmann(0.25), (SchlickFresnel(0.04),)),
     "geometric_attenuation": lambda: Specular(0.3, Beckmann(0.25), (GeometricAttenuation(),)),
+    "cook_torrance_1982": lambda: ctjax.CookTorrance(
+        0.3, Beckmann(0.25), (GeometricAttenuation(),)
+    ),
     "cook_torrance_full": lambda: Specular(
         0.3, GGX(0.3), (SchlickFresnel(0.02), GeometricAttenuation())
     ),

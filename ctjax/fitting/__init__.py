@@ -6,6 +6,10 @@ from ._fit import pixel_columns as pixel_columns
 from ._fit import pixel_predict as pixel_predict
 from ._fit import predictions as predictions
 from ._fit import rmse_levels as rmse_levels
+from ._measured import DirectionSamples as DirectionSamples
+from ._measured import brdf_columns as brdf_columns
+from ._measured import brdf_predict as brdf_predict
+from ._measured import measured_samples as measured_samples
 from ._model import ShadingModel as ShadingModel
 from ._model import paper_model as paper_model
 from ._parameters import Parameter as Parameter

@@ -12,6 +12,7 @@ import optimistix as optx
 
 from .._typing import Array, Float, Scalar
 from ..estimation._closed_form import nnls
+from ..lobes import BRDF
 from ._parameters import Parameter, constrained, free_parameters, unconstrained
 
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
@@ -41,10 +42,11 @@ def predictions(model, samples, predict: Predict) -> Float[Array, "N 3"]:
 
 
 @eqx.filter_jit
-def rmse_levels(model, samples, predict: Predict) -> Scalar:
-    """Root-mean-square RGB error of `model` on `samples`, in 8-bit levels."""
+def rmse_levels(model, samples, predict: Predict, scale: float = 255.0) -> Scalar:
+    """Root-mean-square error of `model` on `samples`, times `scale` (255: 8-bit levels
+    for images in linear units; 1 for measured BRDF data in their own units)."""
     residual = predictions(model, samples, predict) - samples.values
-    return 255 * jnp.sqrt(jnp.mean(residual * residual))
+    return scale * jnp.sqrt(jnp.mean(residual * residual))
 
 
 # Weights start at least this fraction of the largest: a weight that starts at exactly the
@@ -61,19 +63,23 @@ def initial_weights(model, samples, columns: Callable) -> eqx.Module:
     values = samples.values
     for effect in reversed(getattr(model, "effects", ())):
         values = jax.vmap(effect.inverse)(values)
+    if values.shape[-1] < 3:  # monochrome data: the same weight in every channel
+        values = jnp.broadcast_to(values[:, :1], (values.shape[0], 3))
     weights, _ = nnls(design, values)
     weights = jnp.maximum(weights, _WEIGHT_FLOOR * jnp.max(weights))
+    if isinstance(model, BRDF):
+        return model.with_weights(weights)
     return eqx.tree_at(lambda m: m.brdf, model, model.brdf.with_weights(weights))
 
 
 @eqx.filter_jit
-def _least_squares(model, samples, predict, names, max_steps, rtol, atol):
+def _least_squares(model, samples, predict, names, max_steps, rtol, atol, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
     def residuals(u, _):
         fitted = constrained(model, parameters, u)
-        # Residuals in 8-bit levels: tolerances then read in the user's units.
-        return 255 * (predictions(fitted, samples, predict) - samples.values).reshape(-1)
+        # Residuals in the user's units (8-bit levels for images): so are the tolerances.
+        return scale * (predictions(fitted, samples, predict) - samples.values).reshape(-1)
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     solution = optx.least_squares(
@@ -86,11 +92,12 @@ def _least_squares(model, samples, predict, names, max_steps, rtol, atol):
 
 
 def _status(result) -> str:
-    if result == optx.RESULTS.successful:
-        return "successful"
-    if result == optx.RESULTS.max_steps_reached:
-        return "max_steps_reached"
-    return "failed"
+    """The solver's result as a name: "successful", "max_steps_reached", "singular",
+    "nonlinear_divergence", "nonfinite", ... (optimistix's `RESULTS`)."""
+    for name in optx.RESULTS._name_to_item:
+        if result == getattr(optx.RESULTS, name):
+            return name
+    return "unknown"
 
 
 def fit_model(
@@ -104,15 +111,18 @@ def fit_model(
     rtol: float = 1e-6,
     atol: float = 1e-6,
     refine: int = 1,
+    scale: float = 255.0,
 ) -> FitResult:
     """Fit a model to `samples` (anything with `.values` (N, 3) that `predict` reads).
 
     `starts` are one or several initial models of the same structure (e.g. different
     roughness or light offsets). With `columns`, each start first gets its linear weights in
     closed form (cheap), and LM then runs from the `refine` best starts; the best fit wins.
-    `freeze` names parameters held fixed (dotted names, see `free_parameters`).
-    Returns a `FitResult` whose `status` is "successful", "max_steps_reached" or "failed";
-    a failed fit is reported, never silently returned as a success.
+    `freeze` names parameters held fixed (dotted names, see `free_parameters`). `scale`
+    converts residuals to the reported units (255: 8-bit levels; 1 for measured BRDFs).
+    Returns a `FitResult` whose `status` names the solver's result ("successful",
+    "max_steps_reached", "singular", "nonlinear_divergence", ...); a failed fit is reported,
+    never silently returned as a success.
     """
     if isinstance(starts, eqx.Module):
         starts = [starts]
@@ -121,12 +131,12 @@ def fit_model(
     if columns is not None:
         starts = [initial_weights(m, samples, columns) for m in starts]
     if len(starts) > refine:
-        costs = [float(rmse_levels(m, samples, predict)) for m in starts]
+        costs = [float(rmse_levels(m, samples, predict, scale)) for m in starts]
         starts = [starts[i] for i in np.argsort(costs)[:refine]]
     best = None
     for start in starts:
         fitted, cost, result, steps = _least_squares(
-            start, samples, predict, names, max_steps, rtol, atol
+            start, samples, predict, names, max_steps, rtol, atol, scale
         )
         cost = float(cost)
         if not np.isfinite(cost):
@@ -137,7 +147,7 @@ def fit_model(
         start = starts[0]
         return FitResult(start, jnp.inf, jnp.inf, "failed", 0, ())
     fitted, cost, result, steps = best
-    rmse = 255 * np.sqrt(cost / samples.values.size)
+    rmse = scale * np.sqrt(cost / samples.values.size)
     parameters = tuple(p.name for p in free_parameters(fitted, lambda n: n in names))
     return FitResult(
         fitted, jnp.asarray(cost), jnp.asarray(rmse), _status(result), steps, parameters

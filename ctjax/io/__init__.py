@@ -1,5 +1,7 @@
 """Files at the edges: the capture format, images."""
 
+from ._alta import MeasuredBRDF as MeasuredBRDF
+from ._alta import load_alta as load_alta
 from ._capture import Capture as Capture
 from ._capture import Frame as Frame
 from ._capture import load_capture as load_capture

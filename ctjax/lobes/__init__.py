@@ -1,6 +1,7 @@
 """Reflectance as composable lobes: a BRDF is a sum of lobes, each with a linear weight."""
 
 from ._beckmann import Beckmann as Beckmann
+from ._cook_torrance import CookTorrance as CookTorrance
 from ._distribution import AbstractDistribution as AbstractDistribution
 from ._factor import AbstractSpecularFactor as AbstractSpecularFactor
 from ._geometric_attenuation import GeometricAttenuation as GeometricAttenuation

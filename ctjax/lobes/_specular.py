@@ -38,18 +38,21 @@ class Specular(AbstractLobe):
         check_positive("Specular", "weight", self.weight, allow_zero=True)
 
     def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
-        n_dot_l = normal @ light
-        n_dot_v = normal @ view
-        lit = (n_dot_l > 0) & (n_dot_v > 0)
-        # A light co-located with the camera passes `view` itself: then H = V exactly.
-        half = view if light is view else safe_normalize(light + view)
-        # N.H > 0 wherever N.L > 0 and N.V > 0; the floors only matter at exact grazing.
-        cos_alpha = jnp.clip(normal @ half, COSINE_FLOOR, 1)
-        # The floors keep 1 / ((N.L)(N.V)) finite at grazing angles, where D -> 0 anyway.
-        denominator = (
-            math.pi * jnp.maximum(n_dot_l, COSINE_FLOOR) * jnp.maximum(n_dot_v, COSINE_FLOOR)
-        )
-        term = self.distribution(cos_alpha) / denominator
-        for factor in self.factors:
-            term = term * factor(normal, light, view, half)
-        return jnp.where(lit, term, 0)
+        return microfacet_term(self.distribution, self.factors, normal, light, view)
+
+
+def microfacet_term(distribution, factors, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
+    """`D * prod(factors) / (pi (N.L)(N.V))`, 0 unless N.L > 0 and N.V > 0."""
+    n_dot_l = normal @ light
+    n_dot_v = normal @ view
+    lit = (n_dot_l > 0) & (n_dot_v > 0)
+    # A light co-located with the camera passes `view` itself: then H = V exactly.
+    half = view if light is view else safe_normalize(light + view)
+    # N.H > 0 wherever N.L > 0 and N.V > 0; the floors only matter at exact grazing.
+    cos_alpha = jnp.clip(normal @ half, COSINE_FLOOR, 1)
+    # The floors keep 1 / ((N.L)(N.V)) finite at grazing angles, where D -> 0 anyway.
+    denominator = math.pi * jnp.maximum(n_dot_l, COSINE_FLOOR) * jnp.maximum(n_dot_v, COSINE_FLOOR)
+    term = distribution(cos_alpha) / denominator
+    for factor in factors:
+        term = term * factor(normal, light, view, half)
+    return jnp.where(lit, term, 0)
