@@ -108,11 +108,11 @@ def _new_parameters(base: ShadingModel, fitted: ShadingModel) -> dict:
 
 
 def noise_floor_levels(capture: Capture, frames: list[int], model: ShadingModel) -> float:
-    """Pixel noise (8-bit levels) from residual differences between horizontal neighbours.
+    """Pixel noise (8-bit levels) from second differences of residuals along rows and columns.
 
-    A smooth model error cancels in the difference of neighbouring residuals; independent
-    noise does not: its standard deviation is the differences' divided by sqrt(2). Robust
-    (median absolute deviation), so highlights' edges do not inflate it.
+    `r[i-1] - 2 r[i] + r[i+1]` cancels any residual that varies linearly over three pixels
+    (a smooth model error, even a large one), and has variance 6 sigma^2 for independent
+    noise. Robust (median absolute deviation), so highlights' edges do not inflate it.
     """
     differences = []
     for index in frames:
@@ -129,13 +129,15 @@ def noise_floor_levels(capture: Capture, frames: list[int], model: ShadingModel)
         )
         residual = (rendered - frame.image) * 255
         usable = usable_mask(frame)
-        both = usable[:, 1:] & usable[:, :-1]
-        differences.append((residual[:, 1:] - residual[:, :-1])[both].reshape(-1))
+        for r, u in ((residual, usable), (np.swapaxes(residual, 0, 1), usable.T)):
+            second = r[:-2] - 2 * r[1:-1] + r[2:]
+            both = u[:-2] & u[1:-1] & u[2:]
+            differences.append(second[both].reshape(-1))
     d = np.concatenate(differences)
     if d.size < 100:
         raise CtjaxError("too few usable neighbouring pixels to estimate the noise floor")
     mad = np.median(np.abs(d - np.median(d)))
-    return float(1.4826 * mad / math.sqrt(2))
+    return float(1.4826 * mad / math.sqrt(6))
 
 
 # Roughness values every start is also tried with: an effect the base model lacked has
@@ -198,7 +200,7 @@ def diagnose(
     base_starts = [paper_model(1.0, 0.3, s) for s in (0.08, 0.2, 0.45)]
     base = _fit(base_starts, train, max_steps)
     for extra in add:
-        effect = candidate(extra, candidates) if isinstance(extra, str) else extra
+        effect = candidate(extra, (*candidates, *CANDIDATES)) if isinstance(extra, str) else extra
         starts = effect(base.model, context)
         if not starts:
             raise CtjaxError(f"effect {effect.name} does not apply to this model")

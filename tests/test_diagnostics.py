@@ -1,0 +1,115 @@
+"""Diagnostics on captures with one hidden effect: the verdict must name it; with none,
+"none". Also: the JSON format, plots, and a user's own effect from Python."""
+
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ctjax.cli import main
+from ctjax.diagnostics import CANDIDATES, AbstractCandidate, diagnose
+from ctjax.effects import AbstractImageEffect
+from ctjax.io import load_capture
+from ctjax.synth import SynthOptions, synthesize
+
+SMALL = dict(width=128, height=96, frames=5, texture=False, seed=3)
+
+HIDDEN = {
+    "none": {},
+    "light_offset": dict(light_offset_mm=(0.0, -6.0, 0.0)),
+    "inverse_square": dict(inverse_square=True),
+    "spot_falloff": dict(spot_exponent=3.0),
+    "camera_gamma": dict(camera_gamma=1.8),
+    "ambient": dict(ambient=(0.03, 0.02, 0.02)),
+    "geometric_attenuation": dict(geometric_attenuation=True, sigma=0.6),
+    "ggx": dict(ggx=True),
+    "second_lobe": dict(second_lobe=(0.55, 0.6)),
+}
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hidden")
+    return {
+        name: load_capture(synthesize(root / name, SynthOptions(**SMALL, **options)))
+        for name, options in HIDDEN.items()
+    }
+
+
+@pytest.mark.parametrize("effect", list(HIDDEN))
+def test_verdict_names_the_hidden_effect(captures, effect):
+    diagnosis = diagnose(captures[effect])
+    assert diagnosis.verdict == effect, [(c.effect, c.heldout_rmse) for c in diagnosis.candidates]
+    # The noise floor is estimated from the data: 1 level of noise plus quantisation.
+    assert diagnosis.noise_floor == pytest.approx(np.sqrt(1 + 1 / 12), rel=0.2)
+    if effect == "none":
+        assert diagnosis.base_rmse < 1.1 * diagnosis.noise_floor
+    else:
+        best = diagnosis.candidates[0]
+        assert best.heldout_rmse <= 1.15 * diagnosis.noise_floor
+        assert best.improvement > 0
+
+
+def test_diagnose_command_json_and_plots(captures, tmp_path):
+    out = tmp_path / "diagnosis.json"
+    status = main(
+        [
+            "diagnose",
+            str(captures["light_offset"].root),
+            "--json",
+            str(out),
+            "--plots",
+            str(tmp_path / "plots"),
+        ]
+    )
+    assert status == 0
+    result = json.loads(out.read_text())
+    assert list(result) == ["base_rmse", "noise_floor", "candidates", "verdict"]
+    assert result["verdict"] == "light_offset"
+    for entry in result["candidates"]:
+        assert list(entry) == ["effect", "heldout_rmse", "improvement", "params"]
+    rmses = [c["heldout_rmse"] for c in result["candidates"]]
+    assert rmses == sorted(rmses)
+    offset = result["candidates"][0]["params"]["light.position_mm"]
+    np.testing.assert_allclose(offset, [0.0, -6.0, 0.0], atol=0.5)
+    for name in ("residual_maps.png", "binned_residuals.png"):
+        assert (tmp_path / "plots" / name).stat().st_size > 10_000
+
+
+def test_add_puts_the_effect_in_the_base_model(captures, tmp_path):
+    few = tuple(c for c in CANDIDATES if c.name in ("ambient", "spot_falloff"))
+    diagnosis = diagnose(captures["light_offset"], add=("light_offset",), candidates=few)
+    assert diagnosis.verdict == "none"
+    assert diagnosis.base_rmse < 1.15 * diagnosis.noise_floor
+    assert [c.effect for c in diagnosis.candidates] in (
+        ["ambient", "spot_falloff"],
+        ["spot_falloff", "ambient"],
+    )
+
+
+class Offset(AbstractImageEffect):
+    """A user's own image effect: a constant added to every channel."""
+
+    level: jax.Array
+
+    def __call__(self, rgb):
+        return rgb + self.level
+
+
+class OffsetCandidate(AbstractCandidate):
+    name = "my_offset"
+
+    def __call__(self, model, context):
+        return [
+            eqx.tree_at(lambda m: m.effects, model, (Offset(jnp.asarray(0.01)), *model.effects))
+        ]
+
+
+def test_a_users_own_effect_is_fitted_and_ranked(captures):
+    others = tuple(c for c in CANDIDATES if c.name != "ambient")
+    diagnosis = diagnose(captures["ambient"], candidates=(*others, OffsetCandidate()))
+    assert diagnosis.verdict == "my_offset"
+    assert diagnosis.candidates[0].params["effects[0].level"] == pytest.approx(0.023, abs=0.005)
