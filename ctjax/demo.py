@@ -31,15 +31,13 @@ def _rmse_levels(image, rendered, mask) -> float:
 
 
 def _save_figures(out: Path, image, rendered, lambertian, mask) -> dict[str, Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     residual = np.where(mask, (rendered - image).mean(axis=-1) * 255, np.nan)
     residual_lambertian = np.where(mask, (lambertian - image).mean(axis=-1) * 255, np.nan)
     paths = {}
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.4), constrained_layout=True)
+    fig = Figure(figsize=(16, 3.4), layout="constrained")
+    axes = fig.subplots(1, 4)
     axes[0].imshow(np.clip(image, 0, 1))
     axes[0].set_title("input frame")
     axes[1].imshow(np.clip(rendered, 0, 1))
@@ -56,7 +54,6 @@ def _save_figures(out: Path, image, rendered, lambertian, mask) -> dict[str, Pat
         ax.set_axis_off()
     paths["comparison"] = out / "comparison.png"
     fig.savefig(paths["comparison"], dpi=90)
-    plt.close(fig)
     return paths
 
 

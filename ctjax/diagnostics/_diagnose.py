@@ -233,6 +233,10 @@ def diagnose(
             + ("" if fit.converged else f" [{fit.status}]")
         )
     results.sort(key=lambda c: c.heldout_rmse)
+    if results and results[0].heldout_rmse < base_rmse:
+        # Every estimate of the noise is biased up by what the model misses: the best
+        # model gives the tightest one.
+        noise = min(noise, noise_floor_levels(capture, heldout, results[0].fit.model))
     verdict = "none"
     if (
         results

@@ -11,13 +11,12 @@ from ..io import Capture
 from ._variables import VARIABLES, binned, physical_variables
 
 
-def _pyplot():
-    import matplotlib
+def _figure(**kwargs):
+    # A bare Figure, not pyplot: no global backend switch (notebooks keep their inline
+    # display) and nothing left open.
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return Figure(layout="constrained", **kwargs)
 
 
 def residual_map(capture: Capture, index: int, model) -> np.ndarray:
@@ -38,10 +37,8 @@ def residual_map(capture: Capture, index: int, model) -> np.ndarray:
 
 
 def plot_residual_maps(capture, index, models: dict, path: Path) -> Path:
-    plt = _pyplot()
-    fig, axes = plt.subplots(
-        1, len(models) + 1, figsize=(4.2 * (len(models) + 1), 3.4), constrained_layout=True
-    )
+    fig = _figure(figsize=(4.2 * (len(models) + 1), 3.4))
+    axes = fig.subplots(1, len(models) + 1)
     axes[0].imshow(np.clip(capture.frames[index].image, 0, 1))
     axes[0].set_title(f"held-out frame {capture.frames[index].name}")
     maps = {name: residual_map(capture, index, m) for name, m in models.items()}
@@ -56,21 +53,16 @@ def plot_residual_maps(capture, index, models: dict, path: Path) -> Path:
     for ax in axes:
         ax.set_axis_off()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
 
 
 def plot_binned_residuals(capture, frames, models: dict, path: Path, max_samples=40_000) -> Path:
     """Mean residual per channel against each physical variable, one curve per model."""
-    plt = _pyplot()
     samples = capture_samples(capture, frames, max_samples=max_samples, seed=2)
     names = list(VARIABLES)
-    fig, axes = plt.subplots(
-        2,
-        (len(names) + 1) // 2,
-        figsize=(4 * ((len(names) + 1) // 2), 6.5),
-        constrained_layout=True,
-    )
+    columns = (len(names) + 1) // 2
+    fig = _figure(figsize=(4 * columns, 6.5))
+    axes = fig.subplots(2, columns)
     axes = axes.ravel()
     colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
     styles = ["-", "--", ":", "-."]
@@ -96,7 +88,6 @@ def plot_binned_residuals(capture, frames, models: dict, path: Path, max_samples
         ax.set_axis_off()
     fig.legend(loc="lower right", fontsize=8)
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
 
 
