@@ -17,7 +17,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import CtjaxError
-from .._render import render
 from ..fitting import (
     FitResult,
     ShadingModel,
@@ -117,16 +116,7 @@ def noise_floor_levels(capture: Capture, frames: list[int], model: ShadingModel)
     differences = []
     for index in frames:
         frame = capture.frames[index]
-        rendered = np.asarray(
-            render(
-                model.brdf,
-                model.light,
-                capture.camera,
-                frame.normals,
-                frame.depth,
-                effects=model.effects,
-            )
-        )
+        rendered = np.asarray(model.render(capture.camera, frame.normals, frame.depth))
         residual = (rendered - frame.image) * 255
         usable = usable_mask(frame)
         for r, u in ((residual, usable), (np.swapaxes(residual, 0, 1), usable.T)):

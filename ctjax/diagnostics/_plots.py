@@ -4,7 +4,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._render import render
 from ..fitting import capture_samples, pixel_predict, predictions
 from ..fitting._samples import usable_mask
 from ..io import Capture
@@ -22,16 +21,7 @@ def _figure(**kwargs):
 def residual_map(capture: Capture, index: int, model) -> np.ndarray:
     """Mean-RGB residual (model - image) of one frame in 8-bit levels; NaN where unusable."""
     frame = capture.frames[index]
-    rendered = np.asarray(
-        render(
-            model.brdf,
-            model.light,
-            capture.camera,
-            frame.normals,
-            frame.depth,
-            effects=model.effects,
-        )
-    )
+    rendered = np.asarray(model.render(capture.camera, frame.normals, frame.depth))
     residual = (rendered - frame.image).mean(axis=-1) * 255
     return np.where(usable_mask(frame), residual, np.nan)
 

@@ -1,6 +1,6 @@
 import equinox as eqx
 
-from .._render import shade, shade_columns
+from .._render import render, shade, shade_columns
 from .._typing import RGB
 from .._vector import Vec3
 from ..effects import AbstractImageEffect
@@ -18,6 +18,10 @@ class ShadingModel(eqx.Module):
     def __call__(self, point: Vec3, normal: Vec3, pixel) -> RGB:
         """The predicted RGB of one pixel (the renderer's `shade`)."""
         return shade(self.brdf, self.light, point, normal, pixel, self.effects)
+
+    def render(self, camera, normals, depth):
+        """The model's image of a surface (see `ctjax.render`): (H, W, 3)."""
+        return render(self.brdf, self.light, camera, normals, depth, effects=self.effects)
 
     def columns(self, point: Vec3, normal: Vec3, pixel):
         """Per-lobe radiance for unit weights (no effects): the linear design row."""
