@@ -230,6 +230,34 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate_light(args: argparse.Namespace) -> int:
+    from .calibration import calibrate_near_light
+    from .io import load_capture
+    from .io._atomic import atomic_write_json
+
+    if args.model == "field":
+        raise CtjaxError(
+            "the paper's per-pixel light field (eq. 7-8) is not implemented yet; "
+            "use --model near (a point light offset from the lens, with falloff)"
+        )
+    capture = load_capture(args.capture)
+    falloff = (
+        None if args.falloff == "auto" else tuple(f for f in args.falloff.split("+") if f != "none")
+    )
+    result = calibrate_near_light(capture, calibration=args.calib, falloff=falloff)
+    summary = result.to_json()
+    atomic_write_json(args.json, summary)
+    offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
+    print(
+        f"light offset ({offset}) mm, falloff {'+'.join(result.falloff) or 'none'}; "
+        f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
+        f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
+    )
+    if result.status != "successful":
+        print(f"ctjax calibrate-light: warning: solver status {result.status}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ctjax",
@@ -275,6 +303,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     diag.set_defaults(run=_cmd_diagnose)
+
+    light = commands.add_parser("calibrate-light", help="the laparoscope's light from images")
+    light.add_argument("capture", type=Path, help="capture folder (with depth)")
+    light.add_argument(
+        "--model",
+        choices=("near", "field"),
+        default="near",
+        help="near: point light offset from the lens (field: not yet)",
+    )
+    light.add_argument("--json", type=Path, required=True, help="output JSON file")
+    light.add_argument(
+        "--falloff",
+        default="auto",
+        choices=("auto", "none", "inverse_square", "spot", "inverse_square+spot"),
+        help="falloffs of the near light (auto: chosen on held-out frames)",
+    )
+    light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    light.set_defaults(run=_cmd_calibrate_light)
 
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
     demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")

@@ -12,8 +12,6 @@ import dataclasses
 import math
 import time
 
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._errors import CtjaxError
@@ -27,6 +25,7 @@ from ..fitting import (
     pixel_columns,
     pixel_predict,
     rmse_levels,
+    roughness_variants,
 )
 from ..fitting._samples import usable_mask
 from ..io import Capture
@@ -111,7 +110,9 @@ def noise_floor_levels(capture: Capture, frames: list[int], model: ShadingModel)
 
     `r[i-1] - 2 r[i] + r[i+1]` cancels any residual that varies linearly over three pixels
     (a smooth model error, even a large one), and has variance 6 sigma^2 for independent
-    noise. Robust (median absolute deviation), so highlights' edges do not inflate it.
+    noise. Outliers (highlights' edges) are clipped iteratively at 4 standard deviations;
+    not the median absolute deviation, which is biased here because the second difference
+    of a smooth image quantised to 8 bits takes nearly integer values.
     """
     differences = []
     for index in frames:
@@ -126,38 +127,16 @@ def noise_floor_levels(capture: Capture, frames: list[int], model: ShadingModel)
     d = np.concatenate(differences)
     if d.size < 100:
         raise CtjaxError("too few usable neighbouring pixels to estimate the noise floor")
-    mad = np.median(np.abs(d - np.median(d)))
-    return float(1.4826 * mad / math.sqrt(6))
-
-
-# Roughness values every start is also tried with: an effect the base model lacked has
-# often bent its roughness (e.g. a camera gamma flattens the highlights), and the cost is
-# not convex in it. Cheap: each start only costs a closed-form solve for the weights.
-ROUGHNESS_STARTS = (0.1, 0.2, 0.35)
-
-
-def _roughness_variants(model) -> list:
-    """`model`, and copies with every scalar microfacet-distribution parameter set to each
-    of `ROUGHNESS_STARTS`."""
-    scalars = [
-        p
-        for p in free_parameters(model)
-        if ".distribution." in p.name and np.ndim(p.get(model)) == 0
-    ]
-    variants = [model]
-    for value in ROUGHNESS_STARTS if scalars else ():
-        variants.append(
-            eqx.tree_at(
-                lambda m: [p.get(m) for p in scalars],
-                model,
-                [jnp.asarray(value, p.get(model).dtype) for p in scalars],
-            )
-        )
-    return variants
+    kept = d
+    for _ in range(5):
+        spread = np.std(kept)
+        kept = d[np.abs(d - np.mean(kept)) < 4 * spread]
+    # A Gaussian clipped at 4 sigma keeps 99.9% of its variance.
+    return float(np.std(kept) / math.sqrt(6))
 
 
 def _fit(starts, samples, max_steps):
-    starts = [variant for start in starts for variant in _roughness_variants(start)]
+    starts = [variant for start in starts for variant in roughness_variants(start)]
     return fit_model(
         starts, samples, pixel_predict, columns=pixel_columns, max_steps=max_steps, refine=3
     )

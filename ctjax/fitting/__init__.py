@@ -6,6 +6,7 @@ from ._fit import pixel_columns as pixel_columns
 from ._fit import pixel_predict as pixel_predict
 from ._fit import predictions as predictions
 from ._fit import rmse_levels as rmse_levels
+from ._fit import roughness_variants as roughness_variants
 from ._measured import DirectionSamples as DirectionSamples
 from ._measured import brdf_columns as brdf_columns
 from ._measured import brdf_predict as brdf_predict

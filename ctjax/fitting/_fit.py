@@ -154,6 +154,32 @@ def fit_model(
     )
 
 
+# Roughness values every start is also tried with: an effect the base model lacked has
+# often bent its roughness (e.g. a camera gamma flattens the highlights), and the cost is
+# not convex in it. Cheap: each start only costs a closed-form solve for the weights.
+ROUGHNESS_STARTS = (0.1, 0.2, 0.35)
+
+
+def roughness_variants(model) -> list:
+    """`model`, and copies with every scalar microfacet-distribution parameter set to each
+    of `ROUGHNESS_STARTS`."""
+    scalars = [
+        p
+        for p in free_parameters(model)
+        if ".distribution." in p.name and np.ndim(p.get(model)) == 0
+    ]
+    variants = [model]
+    for value in ROUGHNESS_STARTS if scalars else ():
+        variants.append(
+            eqx.tree_at(
+                lambda m: [p.get(m) for p in scalars],
+                model,
+                [jnp.asarray(value, p.get(model).dtype) for p in scalars],
+            )
+        )
+    return variants
+
+
 def pixel_predict(model, sample) -> Float[Array, "3"]:
     """`Predict` for `PixelSamples` and a `ShadingModel`."""
     return model(sample.point, sample.normal, sample.pixel)
@@ -164,4 +190,11 @@ def pixel_columns(model, sample) -> Float[Array, " K"]:
     return model.columns(sample.point, sample.normal, sample.pixel)
 
 
-__all__ = ["FitResult", "Parameter", "fit_model", "pixel_columns", "pixel_predict"]
+__all__ = [
+    "FitResult",
+    "Parameter",
+    "fit_model",
+    "pixel_columns",
+    "pixel_predict",
+    "roughness_variants",
+]
