@@ -21,8 +21,9 @@ Predict = Callable[[eqx.Module, eqx.Module], Float[Array, "3"]]
 
 
 class FitResult(eqx.Module):
-    """A fitted model, its cost (sum of squared residuals, linear units), RMSE in 8-bit
-    levels, the solver's status and the number of steps, the parameters that were free."""
+    """A fitted model, its cost (sum of squared residuals in the data's units), its RMSE
+    times the fit's `scale` (8-bit levels for images), the solver's status and number of
+    steps, and the names of the parameters that were free."""
 
     model: eqx.Module
     cost: Scalar
