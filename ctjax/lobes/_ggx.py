@@ -25,6 +25,11 @@ class GGX(AbstractDistribution):
 
     def __call__(self, cos_alpha: Scalar) -> Scalar:
         a2 = self.alpha * self.alpha
-        # >= min(a2, 1) > 0 for cos in [0, 1]: no guard needed.
-        denominator = cos_alpha * cos_alpha * (a2 - 1) + 1
-        return a2 / (denominator * denominator)
+        cos2 = cos_alpha * cos_alpha
+        # cos^2 (a^2 - 1) + 1 written as sin^2 + a^2 cos^2: no cancellation to 0 in float32
+        # at the peak of a sharp lobe, and >= a^2 cos^2 > 0.
+        denominator = (1 - cos2) + a2 * cos2
+        # (a / den)^2, not a^2 / den^2: den^2 of a sharp lobe's peak is ~a^4, which flushes
+        # to 0 in float32 (and its square in the backward pass too).
+        ratio = self.alpha / denominator
+        return ratio * ratio
