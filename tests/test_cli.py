@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from ctjax.cli import main
@@ -47,6 +48,9 @@ def test_demo_command_writes_report_and_summary(tmp_path):
     # The true model explains the images down to the noise floor; Lambertian does not.
     assert summary["rgb_rmse"] < 1.2 * summary["noise_floor"]
     assert summary["lambertian_rmse"] > 3 * summary["rgb_rmse"]
+    # The main job also estimates the BRDF from the images.
+    assert set(summary["brdf_fit"]) >= {"rho_tilde", "F_tilde", "sigma", "rgb_rmse"}
+    assert all(np.isfinite(summary["brdf_fit"]["rho_tilde"])) and summary["brdf_fit"]["sigma"] > 0
     page = (out / "report.html").read_text()
     assert "data:image/png;base64," in page and "Cook-Torrance" in page
 
