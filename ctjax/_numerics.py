@@ -7,19 +7,12 @@ forward or the backward pass.
 
 import jax.numpy as jnp
 
-from ._typing import Array, Scalar
+from ._typing import Array
 from ._vector import Vec3, where
 
 # Smallest cosine used in a denominator: 1e-6 from grazing is far below anything a camera
 # resolves, and 1/1e-6 leaves ample headroom in float32.
 COSINE_FLOOR = 1e-6
-
-
-def safe_norm(v: Vec3) -> Scalar:
-    """Euclidean norm with a zero gradient (not NaN) at v = 0."""
-    sq = v @ v
-    ok = sq > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1)), 0)
 
 
 def safe_normalize(v: Vec3, fallback: Vec3 | None = None) -> Vec3:
