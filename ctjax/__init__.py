@@ -11,6 +11,7 @@ from ._camera import Camera as Camera
 from ._errors import CaptureError as CaptureError
 from ._errors import CtjaxError as CtjaxError
 from ._errors import ParameterError as ParameterError
+from ._errors import ReconstructionError as ReconstructionError
 from ._performance import tune_malloc as tune_malloc
 from ._render import apply_effects as apply_effects
 from ._render import map_pixels as map_pixels

@@ -15,3 +15,7 @@ class CaptureError(CtjaxError):
 
 class ParameterError(CtjaxError):
     """A parameter passed from Python is out of its domain (wrong shape, NaN, negative...)."""
+
+
+class ReconstructionError(CtjaxError):
+    """Structure-from-motion could not recover the shape (too few features, no initial pair)."""

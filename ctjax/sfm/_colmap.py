@@ -1,0 +1,246 @@
+"""Rigid structure-from-motion with pycolmap (paper section 6, step 1): sparse points and poses.
+
+I/O at the edge: the (undistorted) frames are written to a scratch folder with masks that hide
+the specular highlights from SIFT (a highlight moves with the light, i.e. with the camera: its
+features match across views but not on the tissue, and would pull the poses and points off the
+surface). COLMAP's intrinsics are the capture's, held fixed.
+
+Pixel convention: ctjax puts the centre of pixel (i, j) at (u, v) = (j, i); COLMAP at
+(j + 0.5, i + 0.5). The principal point is shifted by 0.5 on the way in, and keypoints by -0.5
+on the way out.
+"""
+
+import contextlib
+import dataclasses
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._camera import Camera
+from .._errors import ReconstructionError
+from ..estimation._specular_set import specular_sets
+from ..io import Frame
+
+# Shorter sequences are matched exhaustively (every pair); longer ones as video, each frame
+# with its `_SEQUENTIAL_OVERLAP` successors.
+EXHAUSTIVE_MAX_FRAMES = 20
+_SEQUENTIAL_OVERLAP = 10
+# A frame with fewer SIFT keypoints than this cannot be registered reliably.
+MIN_KEYPOINTS = 100
+
+
+@dataclasses.dataclass(frozen=True)
+class SparseModel:
+    """What SfM recovered: poses of the registered frames and the sparse 3D points.
+
+    World frame: COLMAP's (arbitrary similarity). `cam_from_world[name]` maps world points
+    into that frame's camera frame (x right, y down, z forward), 4x4.
+    """
+
+    names: tuple[str, ...]  # every frame, sorted
+    registered: tuple[str, ...]
+    cam_from_world: dict[str, np.ndarray]
+    points: np.ndarray  # (N, 3) world
+    point_errors: np.ndarray  # (N,) mean reprojection error, px
+    track_lengths: np.ndarray  # (N,) number of frames observing each point
+    keypoints: dict[str, int]  # SIFT keypoints per frame (after masking)
+    matching: str  # "exhaustive" or "sequential"
+    mean_reprojection_error: float
+
+    @property
+    def unregistered(self) -> tuple[str, ...]:
+        return tuple(n for n in self.names if n not in self.registered)
+
+
+def highlight_mask(image: np.ndarray, dilate_px: int) -> np.ndarray:
+    """Pixels hidden from SIFT: the specular set S and saturated pixels, dilated."""
+    sets = specular_sets(image)
+    mask = (sets.specular | sets.saturated).astype(np.uint8)
+    if dilate_px > 0 and mask.any():
+        size = 2 * dilate_px + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        mask = cv2.dilate(mask, kernel)
+    return mask.astype(bool)
+
+
+def _write_workspace(folder: Path, frames, dilate_px: int) -> None:
+    (folder / "images").mkdir(parents=True)
+    (folder / "masks").mkdir()
+    for frame in frames:
+        rgb = np.round(np.clip(frame.image, 0, 1) * 255).astype(np.uint8)
+        cv2.imwrite(str(folder / "images" / f"{frame.name}.png"), rgb[..., ::-1])
+        hidden = highlight_mask(frame.image, dilate_px)
+        # COLMAP reads the mask of IMAGE.png from MASKS/IMAGE.png.png; 0 = no features.
+        cv2.imwrite(
+            str(folder / "masks" / f"{frame.name}.png.png"),
+            np.where(hidden, 0, 255).astype(np.uint8),
+        )
+
+
+@contextlib.contextmanager
+def _quiet_colmap(verbose: bool):
+    import pycolmap
+
+    previous = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = previous if verbose else 2
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = previous
+
+
+def sparse_reconstruction(
+    camera: Camera,
+    frames: list[Frame] | tuple[Frame, ...],
+    *,
+    peak_threshold: float = 0.002,
+    max_features: int = 16384,
+    highlight_dilate_px: int = 1,
+    init_min_tri_angle: float = 4.0,
+    seed: int = 0,
+    verbose: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> SparseModel:
+    """SIFT features (highlights masked), matching, incremental mapping with fixed intrinsics.
+
+    `camera` is the undistorted pinhole camera of `frames` (as `load_capture` returns them).
+    SIFT runs with a low peak threshold (`peak_threshold`, COLMAP's default is 1/150) so that
+    the weakly textured, dim parts of the tissue give points too: the dense surface fitted
+    afterwards is only as good as its support. The highlight mask is dilated by only
+    `highlight_dilate_px` (the blurred rim): the ring S~ around a highlight, where the BRDF
+    is estimated, needs points as close to it as possible. Raises `ReconstructionError`
+    when the frames have too few features or no initial pair can be found; a frame that does
+    not register is listed in `SparseModel.unregistered`.
+    """
+    import pycolmap
+
+    say = progress or (lambda message: None)
+    frames = sorted(frames, key=lambda f: f.name)
+    names = tuple(f.name for f in frames)
+    if len(frames) < 2:
+        raise ReconstructionError(
+            f"structure-from-motion needs at least 2 frames, the capture has {len(frames)}"
+        )
+    pycolmap.set_random_seed(seed)
+    with tempfile.TemporaryDirectory(prefix="ctjax-sfm-") as tmp, _quiet_colmap(verbose):
+        folder = Path(tmp)
+        _write_workspace(folder, frames, highlight_dilate_px)
+        database = folder / "database.db"
+
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = ",".join(
+            f"{value:.17g}"
+            for value in (
+                float(camera.fx),
+                float(camera.fy),
+                float(camera.cx) + 0.5,
+                float(camera.cy) + 0.5,
+            )
+        )
+        reader.mask_path = str(folder / "masks")
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.sift.peak_threshold = peak_threshold
+        extraction.sift.max_num_features = max_features
+        say(f"SIFT features in {len(frames)} frames (highlights masked)")
+        pycolmap.extract_features(
+            database,
+            folder / "images",
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+        keypoints = _keypoint_counts(database)
+        poor = {n: k for n, k in keypoints.items() if k < MIN_KEYPOINTS}
+        if len(keypoints) - len(poor) < 2:
+            listing = ", ".join(f"{n}: {k}" for n, k in sorted(keypoints.items())[:6])
+            raise ReconstructionError(
+                f"too few features for structure-from-motion ({listing} SIFT keypoints; at "
+                f"least {MIN_KEYPOINTS} per frame needed): the images look untextured"
+            )
+
+        matching = "exhaustive" if len(frames) <= EXHAUSTIVE_MAX_FRAMES else "sequential"
+        say(f"{matching} matching")
+        match_options = pycolmap.FeatureMatchingOptions()
+        if matching == "exhaustive":
+            pycolmap.match_exhaustive(
+                database, matching_options=match_options, device=pycolmap.Device.cpu
+            )
+        else:
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = _SEQUENTIAL_OVERLAP
+            pycolmap.match_sequential(
+                database,
+                matching_options=match_options,
+                pairing_options=pairing,
+                device=pycolmap.Device.cpu,
+            )
+
+        options = pycolmap.IncrementalPipelineOptions()
+        options.ba_refine_focal_length = False
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+        options.multiple_models = False
+        options.random_seed = seed
+        options.mapper.random_seed = seed
+        options.triangulation.random_seed = seed
+        # A laparoscope sweeps a few degrees: COLMAP's 16-degree default for the initial pair
+        # is rarely reached.
+        options.mapper.init_min_tri_angle = init_min_tri_angle
+        # Keep points seen in two frames only: short sequences have many, and the robust
+        # surface fit copes with the few bad ones.
+        options.triangulation.ignore_two_view_tracks = False
+        say("incremental mapping (intrinsics fixed)")
+        models = pycolmap.incremental_mapping(
+            database, folder / "images", folder / "sparse", options
+        )
+    if not models:
+        raise ReconstructionError(
+            f"structure-from-motion found no initial image pair among {len(frames)} frames "
+            f"({', '.join(f'{n}: {k}' for n, k in sorted(keypoints.items())[:6])} keypoints): "
+            "too little overlap, texture or parallax between the frames"
+        )
+    model = max(models.values(), key=lambda m: m.num_reg_images())
+    return _sparse_model(model, names, keypoints, matching)
+
+
+def _keypoint_counts(database: Path) -> dict[str, int]:
+    import pycolmap
+
+    db = pycolmap.Database.open(str(database))
+    try:
+        return {
+            Path(image.name).stem: int(db.num_keypoints_for_image(image.image_id))
+            for image in db.read_all_images()
+        }
+    finally:
+        db.close()
+
+
+def _sparse_model(model, names, keypoints, matching) -> SparseModel:
+    cam_from_world = {}
+    for image in model.images.values():
+        if not image.has_pose:
+            continue
+        matrix = np.eye(4)
+        matrix[:3] = image.cam_from_world().matrix()
+        cam_from_world[Path(image.name).stem] = matrix
+    points = model.points3D.values()
+    xyz = np.array([p.xyz for p in points], np.float64).reshape(-1, 3)
+    errors = np.array([p.error for p in points], np.float64)
+    tracks = np.array([p.track.length() for p in points], np.int64)
+    return SparseModel(
+        names=names,
+        registered=tuple(n for n in names if n in cam_from_world),
+        cam_from_world=cam_from_world,
+        points=xyz,
+        point_errors=errors,
+        track_lengths=tracks,
+        keypoints=keypoints,
+        matching=matching,
+        mean_reprojection_error=float(model.compute_mean_reprojection_error()),
+    )

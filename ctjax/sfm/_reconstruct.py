@@ -1,0 +1,355 @@
+"""`ctjax reconstruct`: the shape of the organ from images alone (paper section 6, step 1).
+
+Sparse rigid SfM (pycolmap, `_colmap.py`), then a dense smooth surface per registered view
+fitted to the points of all frames at once (`_surface.py`), giving depth and normals at every
+pixel inside the convex hull of the points' projections, and the poses.
+
+World frame of the output: the camera frame of the reference view (the first registered
+frame), so its pose is the identity. Length unit: SfM recovers shape up to scale; with
+`scale_mm` or `volume_mm3` the output is in mm, otherwise the unit is the median depth of the
+reference view (its median depth is 1) and the report says so.
+"""
+
+import dataclasses
+import math
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._camera import Camera
+from .._errors import CaptureError, ParameterError
+from ..io import Capture, load_capture
+from ..io._atomic import atomic_write_json, atomic_write_npy
+from ._colmap import SparseModel, sparse_reconstruction
+from ._surface import DepthSurface, fit_depth_surface
+
+# Fraction kept along each axis for the bounding box of `volume_mm3` (robust to stray points).
+_BOX_PERCENTILES = (0.5, 99.5)
+SURFACE_MODEL = (
+    "penalised cubic B-spline depth map per view (P-spline, thin-plate-like curvature "
+    "penalty chosen by block cross-validation, Tukey-robust), fitted to the points of all "
+    "frames; normals from its analytic derivatives"
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class ViewSurface:
+    """The reconstructed surface seen from one registered frame (camera frame, output unit)."""
+
+    name: str
+    surface: DepthSurface  # depth in the output unit (scale applied)
+    hull: np.ndarray  # (H, W) bool: inside the convex hull of the points' projections
+    pose: np.ndarray  # (4, 4) camera-to-world, world = reference camera frame
+    points: int  # sparse points supporting the fit
+
+    def depth_and_normals(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """float32 depth (H, W) and unit normals (H, W, 3) on the pixel grid; NaN outside."""
+        v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+        depth, normals = self.surface.geometry(camera, u, v)
+        depth[~self.hull] = np.nan
+        normals[~self.hull] = np.nan
+        return depth.astype(np.float32), normals.astype(np.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class Reconstruction:
+    """Registered views' surfaces, the sparse model and the JSON-ready report."""
+
+    camera: Camera
+    views: dict[str, ViewSurface]
+    sparse: SparseModel
+    report: dict
+
+
+def _check_scale(scale_mm, volume_mm3) -> None:
+    if scale_mm is not None and volume_mm3 is not None:
+        raise ParameterError("give scale_mm or volume_mm3, not both")
+    for name, value in (("scale_mm", scale_mm), ("volume_mm3", volume_mm3)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ParameterError(f"{name} must be a positive finite number, got {value}")
+
+
+def _to_camera(cam_from_world: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+
+
+def _project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    z = points[:, 2]
+    u = float(camera.fx) * points[:, 0] / z + float(camera.cx)
+    v = float(camera.fy) * points[:, 1] / z + float(camera.cy)
+    return u, v
+
+
+def _hull_mask(camera: Camera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    if len(u) >= 3:
+        # Fixed-point polygon (4 fractional bits) so the hull is not rounded to whole pixels.
+        shift = 4
+        corners = np.round(np.stack([u, v], -1) * (1 << shift)).astype(np.int32)
+        hull = cv2.convexHull(corners)
+        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=shift)
+    return mask.astype(bool)
+
+
+def reconstruct_capture(
+    capture: Capture,
+    *,
+    scale_mm: float | None = None,
+    volume_mm3: float | None = None,
+    knot_spacing_px: float | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Reconstruction:
+    """Rigid SfM and a dense surface per registered frame of a loaded (undistorted) capture.
+
+    `scale_mm`: the median depth (camera-frame z, mm) of the reconstructed surface over the
+    reference frame's covered pixels, i.e. the working distance of the first registered
+    frame. `volume_mm3`: the volume of the axis-aligned bounding box (reference camera axes)
+    of the sparse points, each axis trimmed to its 0.5-99.5 percentiles (the paper's known
+    size). Without either, depth is up to scale (median reference depth = 1).
+
+    Raises `ReconstructionError` (too few features, no initial pair); frames that do not
+    register are listed in the report and get no geometry.
+    """
+    _check_scale(scale_mm, volume_mm3)
+    say = progress or (lambda message: None)
+    camera = capture.camera
+    sparse = sparse_reconstruction(camera, capture.frames, progress=progress)
+    reference = sparse.registered[0]
+    ref_from_world = sparse.cam_from_world[reference]
+    points = _to_camera(ref_from_world, sparse.points)
+    # Unit: median depth of the points in front of the reference view = 1 (well-conditioned).
+    in_front = points[:, 2] > 0
+    unit = float(np.median(points[in_front, 2])) if in_front.any() else 1.0
+    points = points / unit
+    world_from_ref = np.linalg.inv(ref_from_world)
+    if knot_spacing_px is None:
+        knot_spacing_px = max(camera.width, camera.height) / 20
+    margin = knot_spacing_px
+
+    surfaces, hulls, counts, cams = {}, {}, {}, {}
+    for name in sparse.registered:
+        cam_from_ref = sparse.cam_from_world[name] @ world_from_ref
+        cam_from_ref[:3, 3] /= unit
+        local = _to_camera(cam_from_ref, points)
+        front = local[:, 2] > 1e-6
+        u, v = _project(camera, local[front])
+        inside = (
+            (u >= -margin)
+            & (u <= camera.width - 1 + margin)
+            & (v >= -margin)
+            & (v <= camera.height - 1 + margin)
+        )
+        u, v, z = u[inside], v[inside], local[front][inside, 2]
+        if len(z) < 16:
+            continue
+        say(f"surface of {name} from {len(z)} points")
+        surface = fit_depth_surface(
+            u,
+            v,
+            z,
+            (-margin, camera.width - 1 + margin, -margin, camera.height - 1 + margin),
+            knot_spacing_px=knot_spacing_px,
+        )
+        surfaces[name] = surface
+        hulls[name] = _hull_mask(camera, u[surface.inliers], v[surface.inliers])
+        counts[name] = int(surface.inliers.sum())
+        cams[name] = cam_from_ref
+
+    scale, scale_info = _scale(camera, surfaces.get(reference), hulls.get(reference), points)
+    if scale_mm is not None:
+        scale = scale_mm / scale_info["median_reference_depth"]
+        scale_info.update(metric=True, method="scale_mm", value=scale_mm)
+    elif volume_mm3 is not None:
+        scale = (volume_mm3 / scale_info["bounding_box_volume"]) ** (1 / 3)
+        scale_info.update(metric=True, method="volume_mm3", value=volume_mm3)
+    scale_info["factor"] = scale
+    scale_info["unit"] = "mm" if scale_info["metric"] else "median reference depth (up to scale)"
+
+    views = {}
+    for name, surface in surfaces.items():
+        pose = np.linalg.inv(cams[name])
+        pose[:3, 3] *= scale
+        scaled = dataclasses.replace(
+            surface,
+            coefficients=surface.coefficients * scale,
+            residual_rms=surface.residual_rms * scale,
+        )
+        views[name] = ViewSurface(name, scaled, hulls[name], pose, counts[name])
+
+    coverage = {name: float(view.hull.mean()) for name, view in views.items()}
+    unregistered = [n for n in sparse.names if n not in views]
+    warnings = [
+        f"frame {n} did not register (skipped; no depth or normals for it)" for n in unregistered
+    ]
+    if not scale_info["metric"]:
+        warnings.append(
+            "depth is up to scale (unit: median depth of the reference frame); give "
+            "scale_mm or volume_mm3 for millimetres"
+        )
+    report = {
+        "frames": len(sparse.names),
+        "registered": [n for n in sparse.names if n in views],
+        "unregistered": unregistered,
+        "reference_frame": reference,
+        "points": len(sparse.points),
+        "mean_reprojection_error_px": sparse.mean_reprojection_error,
+        "mean_track_length": float(np.mean(sparse.track_lengths)) if len(points) else 0.0,
+        "coverage": float(np.mean(list(coverage.values()))) if coverage else 0.0,
+        "coverage_per_frame": coverage,
+        "keypoints": sparse.keypoints,
+        "matching": sparse.matching,
+        "scale": scale_info,
+        "surface": {
+            "model": SURFACE_MODEL,
+            "knot_spacing_px": float(knot_spacing_px),
+            "points_per_frame": counts,
+            "residual_rms_per_frame": {n: v.surface.residual_rms for n, v in views.items()},
+        },
+        "world_frame": f"camera frame of {reference} (its pose is the identity)",
+        "warnings": warnings,
+    }
+    return Reconstruction(camera, views, sparse, report)
+
+
+def _scale(camera, surface, hull, points):
+    """Sizes of the unscaled reconstruction that `scale_mm` and `volume_mm3` refer to."""
+    median = float("nan")
+    if surface is not None and hull is not None and hull.any():
+        rows, cols = np.nonzero(hull)
+        depth, _ = surface.depth_and_gradient(cols.astype(float), rows.astype(float))[:2]
+        median = float(np.nanmedian(depth))
+    lo, hi = np.percentile(points, _BOX_PERCENTILES, axis=0)
+    volume = float(np.prod(hi - lo))
+    return 1.0, {
+        "metric": False,
+        "method": "none",
+        "median_reference_depth": median,
+        "bounding_box_volume": volume,
+        "definition": {
+            "scale_mm": "median depth (camera-frame z) of the reference frame's surface",
+            "volume_mm3": "volume of the sparse points' bounding box in reference camera "
+            "axes, each axis trimmed to its 0.5-99.5 percentiles",
+        },
+    }
+
+
+def _geometry_files(out: Path, names) -> list[Path]:
+    files = [out / "poses.json", out / "reconstruction.json"]
+    for name in names:
+        files += [out / "depth" / f"{name}.npy", out / "normals" / f"{name}.npy"]
+    return files
+
+
+def reconstruct(
+    capture_dir: str | Path,
+    out: str | Path | None = None,
+    *,
+    scale_mm: float | None = None,
+    volume_mm3: float | None = None,
+    force: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
+    """Reconstruct a capture's shape from its images and write it in the capture format.
+
+    Writes `depth/NAME.npy`, `normals/NAME.npy` (registered frames), `poses.json`
+    (camera-to-world, world = the reference camera frame) and `reconstruction.json` (the
+    report) into `out` (default: the capture folder). A different `out` becomes a complete
+    capture: camera.json, images/ (and truth.json if any) are copied. Existing files are
+    never overwritten unless `force=True` (else `CaptureError` naming the file). With a
+    distorted camera, depth and normals are evaluated at the undistorted position of every
+    pixel, so that `load_capture` (which undistorts them) reads them back on its grid.
+    Returns the report (see `reconstruct_capture`).
+    """
+    _check_scale(scale_mm, volume_mm3)
+    root = Path(capture_dir)
+    capture = load_capture(root)
+    out = root if out is None else Path(out)
+    names = [f.name for f in capture.frames]
+    copies = []
+    if out.resolve() != root.resolve():
+        image_files = sorted(p for p in (root / "images").iterdir() if p.is_file())
+        copies = [root / "camera.json", *image_files]
+        if (root / "truth.json").is_file():
+            copies.append(root / "truth.json")
+    targets = [out / p.relative_to(root) for p in copies] + _geometry_files(out, names)
+    if not force:
+        for target in targets:
+            if target.exists():
+                raise CaptureError(
+                    f"{target}: exists; not overwriting it (use force=True, or --force)"
+                )
+    result = reconstruct_capture(
+        capture, scale_mm=scale_mm, volume_mm3=volume_mm3, progress=progress
+    )
+    for source in copies:
+        target = out / source.relative_to(root)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source, target)
+    distorted = _distorted_pixels(root, capture.camera)
+    for name in names:
+        view = result.views.get(name)
+        depth_path, normals_path = out / "depth" / f"{name}.npy", out / "normals" / f"{name}.npy"
+        if view is None:
+            # A stale map of a frame that no longer registers would contradict the new poses.
+            depth_path.unlink(missing_ok=True)
+            normals_path.unlink(missing_ok=True)
+            continue
+        if distorted is None:
+            depth, normals = view.depth_and_normals(capture.camera)
+        else:
+            depth, normals = _on_distorted_grid(view, capture.camera, *distorted)
+        atomic_write_npy(depth_path, depth)
+        atomic_write_npy(normals_path, normals)
+    poses = {name: view.pose.tolist() for name, view in result.views.items()}
+    atomic_write_json(out / "poses.json", poses)
+    report = {**result.report, "capture": str(root), "out": str(out)}
+    atomic_write_json(out / "reconstruction.json", report)
+    return report
+
+
+def _distorted_pixels(root: Path, camera: Camera):
+    """Undistorted positions (u, v) of the pixels of a distorted camera, or None."""
+    from ..io import read_camera
+
+    raw = read_camera(root / "camera.json")
+    if raw.distortion is None:
+        return None
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+    k = np.asarray(raw.intrinsic_matrix, np.float64)
+    pixels = np.stack([u.ravel(), v.ravel()], -1)[:, None, :]
+    ideal = cv2.undistortPoints(pixels, k, np.asarray(raw.distortion, np.float64), P=k)
+    return ideal[:, 0, 0].reshape(u.shape), ideal[:, 0, 1].reshape(u.shape)
+
+
+def _on_distorted_grid(view: ViewSurface, camera: Camera, u: np.ndarray, v: np.ndarray):
+    depth, normals = view.surface.geometry(camera, u, v)
+    rows = np.clip(np.round(v).astype(int), 0, camera.height - 1)
+    cols = np.clip(np.round(u).astype(int), 0, camera.width - 1)
+    outside = ~view.hull[rows, cols] | (u < -0.5) | (u > camera.width - 0.5)
+    outside |= (v < -0.5) | (v > camera.height - 0.5)
+    depth[outside] = np.nan
+    normals[outside] = np.nan
+    return depth.astype(np.float32), normals.astype(np.float32)
+
+
+def with_reconstructed_shape(
+    capture: Capture, *, progress: Callable[[str], None] | None = None
+) -> tuple[Capture, dict]:
+    """The capture with SfM depth, normals and poses in memory (nothing is written).
+
+    For commands that need the shape of a capture that has only images (`ctjax fit`).
+    Frames that do not register are dropped (listed in the report's `unregistered`). Depth
+    is up to scale: the BRDF fit uses the normals and the view directions, which do not
+    depend on it.
+    """
+    result = reconstruct_capture(capture, progress=progress)
+    frames = []
+    for frame in capture.frames:
+        view = result.views.get(frame.name)
+        if view is not None:
+            depth, normals = view.depth_and_normals(capture.camera)
+            frames.append(dataclasses.replace(frame, depth=depth, normals=normals, pose=view.pose))
+    return dataclasses.replace(capture, frames=tuple(frames)), result.report
