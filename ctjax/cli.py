@@ -20,6 +20,7 @@ def _synth_options_from(args: argparse.Namespace):
         frames=args.frames,
         seed=args.seed,
         texture=not args.no_texture,
+        texture_contrast=args.texture_contrast,
         noise_levels=args.noise,
         bits=args.bits,
         rho_tilde=tuple(args.rho) if args.rho else SynthOptions.rho_tilde,
@@ -48,7 +49,9 @@ def _rgb(values):
     return tuple(values)
 
 
-def _add_synth_arguments(parser: argparse.ArgumentParser, *, frames: int, texture: bool) -> None:
+def _add_synth_arguments(
+    parser: argparse.ArgumentParser, *, frames: int, texture: bool, texture_contrast: float = 1.0
+) -> None:
     from .synth import SynthOptions
 
     size = parser.add_argument_group("capture")
@@ -60,6 +63,12 @@ def _add_synth_arguments(parser: argparse.ArgumentParser, *, frames: int, textur
         size.add_argument("--no-texture", action="store_true", help="uniform albedo")
     else:
         size.set_defaults(no_texture=True)
+    size.add_argument(
+        "--texture-contrast",
+        type=float,
+        default=texture_contrast,
+        help="scale of the albedo texture's contrast, 0-1 (default %(default)s)",
+    )
     size.add_argument("--noise", type=float, default=1.0, help="Gaussian noise, 8-bit levels")
     size.add_argument("--bits", type=int, default=8, choices=(8, 16), help="PNG bit depth")
     model = parser.add_argument_group("reflectance (linear units, 1.0 = 8-bit level 255)")
@@ -116,8 +125,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
     summary = run_demo(Path(args.out), _synth_options_from(args))
+    evaluation = summary["evaluation"]
     print(f"report: {Path(args.out) / 'report.html'}")
-    print(f"summary: {Path(args.out) / 'summary.json'} (RGB RMSE {summary['rgb_rmse']:.2f} levels)")
+    print(
+        f"summary: {Path(args.out) / 'summary.json'} (test-frame RGB RMSE: Cook-Torrance "
+        f"{evaluation['cook_torrance_rgb_rmse_test']:.2f}, Lambertian "
+        f"{evaluation['lambertian_rgb_rmse_test']:.2f} levels)"
+    )
     return 0
 
 
@@ -183,6 +197,33 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_reconstruct(args: argparse.Namespace) -> int:
+    from .io._atomic import atomic_write_json
+    from .sfm import reconstruct
+
+    report = reconstruct(
+        args.capture,
+        args.out,
+        scale_mm=args.scale_mm,
+        volume_mm3=args.volume_mm3,
+        force=args.force,
+        progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
+    )
+    if args.json is not None:
+        atomic_write_json(args.json, report)
+    scale = report["scale"]
+    unit = "mm" if scale["metric"] else "up to scale (unit: median depth of the first frame)"
+    print(
+        f"registered {len(report['registered'])}/{report['frames']} frames, "
+        f"{report['points']} points, mean reprojection error "
+        f"{report['mean_reprojection_error_px']:.2f} px, coverage {report['coverage']:.1%}; "
+        f"depth {unit}; wrote {report['out']}"
+    )
+    for warning in report["warnings"]:
+        print(f"ctjax reconstruct: warning: {warning}", file=sys.stderr)
+    return 0
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     import json
 
@@ -192,8 +233,22 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from .io._atomic import atomic_write_json
 
     capture = load_capture(args.capture)
+    shape = None
+    if not any(frame.has_geometry for frame in capture.frames):
+        from .sfm import with_reconstructed_shape
+
+        print(
+            f"ctjax fit: {args.capture} has images only; reconstructing its shape by SfM "
+            "first (in memory; `ctjax reconstruct` writes it to the capture)",
+            file=sys.stderr,
+        )
+        capture, shape = with_reconstructed_shape(capture)
+        for warning in shape["warnings"]:
+            print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
     result = fit_capture(capture, _mask_options(args), family)
+    if shape is not None:
+        result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, result)
     summary = {k: result[k] for k in result if k in ("rho_tilde", "F_tilde", "sigma", "rgb_rmse")}
     print(json.dumps(summary))
@@ -236,10 +291,7 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     from .io._atomic import atomic_write_json
 
     if args.model == "field":
-        raise CtjaxError(
-            "the paper's per-pixel light field (eq. 7-8) is not implemented yet; "
-            "use --model near (a point light offset from the lens, with falloff)"
-        )
+        return _calibrate_light_field(args)
     capture = load_capture(args.capture)
     falloff = (
         None if args.falloff == "auto" else tuple(f for f in args.falloff.split("+") if f != "none")
@@ -258,8 +310,76 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate_light_field(args: argparse.Namespace) -> int:
+    import io
+
+    import numpy as np
+
+    from .calibration import calibrate_light_field
+    from .io import load_capture
+    from .io._atomic import atomic_write_bytes, atomic_write_json
+
+    capture = load_capture(args.capture)
+    result = calibrate_light_field(capture, calibration=args.calib)
+    summary = result.to_json()
+    atomic_write_json(args.json, summary)
+    if args.npz is not None:
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **result.npz_arrays())
+        atomic_write_bytes(args.npz, buffer.getvalue())
+    counts = summary["solver_status"]
+    print(
+        f"light field over {summary['solved_pixels']} pixels (converged {counts['converged']}, "
+        f"max steps {counts['max_steps']}, failed {counts['failed']}), median "
+        f"{summary['median_angle_from_view_deg']:.2f} deg from the view direction; "
+        f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
+        f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
+        + (f" and {args.npz}" if args.npz is not None else "")
+    )
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluation import evaluate, evaluation_plots
+    from .io import load_capture
+    from .io._atomic import atomic_write_json
+
+    capture = load_capture(args.capture)
+    evaluation = evaluate(
+        capture,
+        calibration=args.calib,
+        light=args.light,
+        progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
+    )
+    summary = evaluation.to_json()
+    atomic_write_json(args.json, summary)
+    if args.plots:
+        for path in evaluation_plots(capture, evaluation, args.plots).values():
+            print(f"wrote {path}")
+    print(
+        "RGB RMSE (levels), calibration / test: Lambertian "
+        f"{summary['lambertian_rgb_rmse_calibration']:.2f} / "
+        f"{summary['lambertian_rgb_rmse_test']:.2f}, Cook-Torrance "
+        f"{summary['cook_torrance_rgb_rmse_calibration']:.2f} / "
+        f"{summary['cook_torrance_rgb_rmse_test']:.2f}"
+    )
+    if summary["lambertian_sfs_error_mm"] is not None:
+        print(
+            f"SfS 3D error (mean, mm): Lambertian {summary['lambertian_sfs_error_mm']:.2f}, "
+            f"Cook-Torrance {summary['cook_torrance_sfs_error_mm']:.2f}; wrote {args.json}"
+        )
+    return 0
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with bad options reported on one line (`ctjax fit: error: ...`), status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ctjax",
         description="Cook-Torrance reflectance and laparoscope light from images (JAX).",
     )
@@ -276,8 +396,32 @@ def build_parser() -> argparse.ArgumentParser:
     _add_mask_arguments(masks)
     masks.set_defaults(run=_cmd_masks)
 
+    recon = commands.add_parser(
+        "reconstruct", help="depth, normals and poses from the images (structure-from-motion)"
+    )
+    recon.add_argument("capture", type=Path, help="capture folder (images and camera.json)")
+    recon.add_argument("--out", type=Path, help="output capture folder (default: CAPTURE)")
+    scale = recon.add_mutually_exclusive_group()
+    scale.add_argument(
+        "--scale-mm",
+        type=float,
+        metavar="X",
+        help="median depth of the first registered frame, mm (else depth is up to scale)",
+    )
+    scale.add_argument(
+        "--volume-mm3",
+        type=float,
+        metavar="V",
+        help="bounding-box volume of the reconstructed points, mm^3 (the paper's known size)",
+    )
+    recon.add_argument("--force", action="store_true", help="overwrite depth, normals, poses")
+    recon.add_argument("--json", type=Path, help="write the report to this JSON file")
+    recon.set_defaults(run=_cmd_reconstruct)
+
     fit = commands.add_parser("fit", help="estimate (rho_tilde, F_tilde, sigma) from a capture")
-    fit.add_argument("capture", type=Path, help="capture folder (with depth or normals)")
+    fit.add_argument(
+        "capture", type=Path, help="capture folder (without depth or normals: reconstructed first)"
+    )
     fit.add_argument("--json", type=Path, required=True, help="output JSON file")
     fit.add_argument(
         "--model",
@@ -310,9 +454,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--model",
         choices=("near", "field"),
         default="near",
-        help="near: point light offset from the lens (field: not yet)",
+        help="near: point light offset from the lens; field: the paper's per-pixel "
+        "light directions (eq. 7-8)",
     )
     light.add_argument("--json", type=Path, required=True, help="output JSON file")
+    light.add_argument(
+        "--npz",
+        type=Path,
+        help="field: output NPZ with the (H, W, 3) light directions, theta, phi, status",
+    )
     light.add_argument(
         "--falloff",
         default="auto",
@@ -322,16 +472,36 @@ def build_parser() -> argparse.ArgumentParser:
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     light.set_defaults(run=_cmd_calibrate_light)
 
+    evaluate = commands.add_parser(
+        "evaluate", help="Lambertian vs Cook-Torrance: RGB error and shape from shading"
+    )
+    evaluate.add_argument("capture", type=Path, help="capture folder (with depth)")
+    evaluate.add_argument("--json", type=Path, required=True, help="output JSON file")
+    evaluate.add_argument("--plots", type=Path, help="folder for the paper's Fig. 4-7 plots")
+    evaluate.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    evaluate.add_argument(
+        "--light",
+        choices=("near", "colocated", "field"),
+        default="near",
+        help="Cook-Torrance's light: near (point light offset), colocated (paper's BRDF fit "
+        "with L = V) or field (the paper's per-pixel light field)",
+    )
+    evaluate.set_defaults(run=_cmd_evaluate)
+
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
     demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")
-    _add_synth_arguments(demo, frames=5, texture=False)
+    # texture contrast: ctjax.demo.DEMO_TEXTURE_CONTRAST (not imported here: it loads JAX)
+    _add_synth_arguments(demo, frames=5, texture=True, texture_contrast=0.3)
     demo.set_defaults(run=_cmd_demo)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit:  # bad options (status 2, one line), --help (status 0)
+        return exit.code if isinstance(exit.code, int) else 0
     import jax
 
     from ._performance import tune_malloc

@@ -1,87 +1,185 @@
-"""The main job, `ctjax demo`: a synthetic laparoscope capture, rendered and compared.
+"""The main job, `ctjax demo`: the whole pipeline on a built-in synthetic capture, from images.
 
-For now (the foundation): synthesise a capture, load it back through the capture format,
-re-render every frame with the true model from the stored geometry, and report how well
-the paper's Cook-Torrance model and a Lambertian model explain the images. Later stages
-of the pipeline (SfM, BRDF fit, light calibration, evaluation) extend this report.
+synth (a textured laparoscope capture, ground truth kept aside) -> reconstruct (SfM on the
+images alone) -> masks (S and S~) -> fit (rho_tilde, F_tilde, sigma; paper section 4) ->
+calibrate-light (the near-light model and the paper's light field; section 5) -> evaluate
+(Lambertian vs Cook-Torrance, RGB error and shape from shading; section 7). Writes
+`report.html` (one self-contained page) and `summary.json`.
 """
 
 import base64
 import html
 import json
+import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
-from ._render import render
-from .estimation._capture_fit import MaskOptions, fit_capture
+from .calibration import calibrate_light_field, calibrate_near_light
+from .estimation._capture_fit import MaskOptions, capture_sets, fit_capture
+from .evaluation import evaluate, evaluation_plots
 from .io import load_capture
-from .lobes import BRDF
-from .synth import SynthOptions, scene_model, synthesize
+from .sfm import reconstruct
+from .synth import SynthOptions, synthesize
 
 # The paper's 3 px ring is thin on bright tissue (highlights rimmed by saturated red).
 DEMO_RING_PX = 10
+# Enough albedo texture for SfM (SIFT), little enough for the paper's one-albedo model.
+DEMO_TEXTURE_CONTRAST = 0.3
 
 
 def _log(message: str) -> None:
     print(f"[ctjax demo] {message}", flush=True)
 
 
-def _rmse_levels(image, rendered, mask) -> float:
-    residual = (np.asarray(rendered) - image)[mask] * 255
-    return float(np.sqrt(np.mean(residual**2)))
+class _Steps:
+    """Runs the pipeline's steps, logging and timing each."""
+
+    def __init__(self, log: Callable[[str], None]):
+        self.log = log
+        self.seconds: dict[str, float] = {}
+
+    def __call__(self, name: str, message: str, function, *args, **kwargs):
+        self.log(message)
+        tic = time.perf_counter()
+        result = function(*args, **kwargs)
+        self.seconds[name] = round(time.perf_counter() - tic, 2)
+        self.log(f"  {name}: {self.seconds[name]:.1f} s")
+        return result
 
 
-def _save_figures(out: Path, image, rendered, lambertian, mask) -> dict[str, Path]:
+def _images_only(capture_dir: Path, out: Path) -> Path:
+    """A copy of the capture with its images and camera only (what a laparoscope gives)."""
+    if out.exists():
+        shutil.rmtree(out)
+    (out / "images").mkdir(parents=True)
+    shutil.copy2(capture_dir / "camera.json", out / "camera.json")
+    for image in sorted((capture_dir / "images").iterdir()):
+        shutil.copy2(image, out / "images" / image.name)
+    return out
+
+
+def _figure_inputs(capture, truth, sets, path: Path) -> Path:
     from matplotlib.figure import Figure
 
-    residual = np.where(mask, (rendered - image).mean(axis=-1) * 255, np.nan)
-    residual_lambertian = np.where(mask, (lambertian - image).mean(axis=-1) * 255, np.nan)
-    paths = {}
-    fig = Figure(figsize=(16, 3.4), layout="constrained")
+    frame, true_frame, s = capture.frames[0], truth.frames[0], sets[0]
+    fig = Figure(figsize=(16, 3.6), layout="constrained")
     axes = fig.subplots(1, 4)
-    axes[0].imshow(np.clip(image, 0, 1))
-    axes[0].set_title("input frame")
-    axes[1].imshow(np.clip(rendered, 0, 1))
-    axes[1].set_title("rendered: Cook-Torrance (truth)")
-    limit = 6
-    for ax, data, title in (
-        (axes[2], residual, "residual, Cook-Torrance (levels)"),
-        (axes[3], residual_lambertian, "residual, Lambertian only (levels)"),
-    ):
-        shown = ax.imshow(data, cmap="RdBu_r", vmin=-limit, vmax=limit)
-        ax.set_title(title)
-        fig.colorbar(shown, ax=ax, shrink=0.8)
+    axes[0].imshow(np.clip(frame.image, 0, 1))
+    axes[0].set_title(f"input {frame.name}")
+    overlay = np.clip(frame.image, 0, 1).copy()
+    overlay[s.ring] = (0.1, 0.8, 0.2)
+    overlay[s.specular] = (0.1, 0.3, 1.0)
+    axes[1].imshow(overlay)
+    axes[1].set_title("S (blue) and ring S~ (green)")
+    axes[2].imshow(np.where(frame.geometry_mask[..., None], 0.5 - 0.5 * frame.normals, 1.0))
+    axes[2].set_title("normals from SfM")
+    cosine = np.sum(frame.normals * true_frame.normals, axis=-1)
+    error = np.degrees(np.arccos(np.clip(cosine, -1, 1)))
+    shown = axes[3].imshow(np.where(frame.geometry_mask, error, np.nan), cmap="magma", vmax=10)
+    axes[3].set_title("SfM normal error vs truth (deg)")
+    fig.colorbar(shown, ax=axes[3], shrink=0.8)
     for ax in axes:
         ax.set_axis_off()
-    paths["comparison"] = out / "comparison.png"
-    fig.savefig(paths["comparison"], dpi=90)
-    return paths
+    fig.savefig(path, dpi=80)
+    return path
 
 
-def _rounded(value):
-    return [round(v, 4) for v in value] if isinstance(value, list) else round(value, 4)
+def _figure_light(field, near, capture, path: Path) -> Path:
+    from matplotlib.figure import Figure
+
+    frame = capture.frames[0]
+    fig = Figure(figsize=(11, 3.8), layout="constrained")
+    axes = fig.subplots(1, 2)
+    view = np.asarray(field.view)
+    angle = np.degrees(np.arccos(np.clip(np.sum(field.directions * view, axis=-1), -1, 1)))
+    shown = axes[0].imshow(np.where(frame.geometry_mask, angle, np.nan), cmap="viridis")
+    axes[0].set_title("light field: angle between L and V (deg)")
+    fig.colorbar(shown, ax=axes[0], shrink=0.8)
+    step = max(1, capture.camera.width // 24)
+    rows, cols = np.mgrid[
+        step // 2 : capture.camera.height : step, step // 2 : capture.camera.width : step
+    ]
+    directions = field.directions[rows, cols]
+    axes[1].imshow(np.clip(frame.image, 0, 1))
+    axes[1].quiver(cols, rows, directions[..., 0], directions[..., 1], color="w", angles="xy")
+    offset = ", ".join(f"{v:.1f}" for v in near["offset_mm"])
+    axes[1].set_title(f"field (x, y) components; near model: offset ({offset}) mm")
+    for ax in axes:
+        ax.set_axis_off()
+    fig.savefig(path, dpi=80)
+    return path
+
+
+def _table(rows: list[tuple]) -> str:
+    cells = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table>{cells}</table>"
+
+
+def _fmt(value) -> str:
+    if isinstance(value, list | tuple):
+        return "(" + ", ".join(_fmt(v) for v in value) + ")"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
 
 
 def _write_report(out: Path, summary: dict, figures: dict[str, Path]) -> Path:
-    rows = "".join(
-        f"<tr><td>{html.escape(k)}</td><td>{html.escape(json.dumps(v))}</td></tr>"
-        for k, v in summary.items()
-        if k not in ("frames",)
+    fit, truth, ev = summary["brdf_fit"], summary["truth"], summary["evaluation"]
+    sfm, near, field = summary["reconstruction"], summary["near_light"], summary["light_field"]
+    parameters = _table(
+        [("", "estimated from the images", "truth")]
+        + [(k, _fmt(fit[k]), _fmt(truth[k])) for k in ("rho_tilde", "F_tilde", "sigma")]
+        + [("light offset (mm), near model", _fmt(near["offset_mm"]), _fmt(truth["light_mm"]))]
     )
-    frame_rows = "".join(
-        f"<tr><td>{f['name']}</td><td>{f['rgb_rmse']:.2f}</td><td>{f['lambertian_rmse']:.2f}</td>"
-        f"<td>{f['pixels']}</td></tr>"
-        for f in summary["frames"]
+    errors = _table(
+        [("", "Lambertian", "Cook-Torrance")]
+        + [
+            (
+                label,
+                _fmt(ev[f"lambertian_{key}"]),
+                _fmt(ev[f"cook_torrance_{key}"]),
+            )
+            for label, key in (
+                ("RGB RMSE, calibration frames (levels)", "rgb_rmse_calibration"),
+                ("RGB RMSE, test frames (levels)", "rgb_rmse_test"),
+                ("SfS 3D error, mean (mm)", "sfs_error_mm"),
+                ("SfS 3D error, median (mm)", "sfs_error_median_mm"),
+                ("SfS 3D error near highlights, mean (mm)", "sfs_error_near_highlights_mm"),
+            )
+        ]
     )
-    fit, truth = summary["brdf_fit"], summary["truth"]
-    fit_rows = "".join(
-        f"<tr><td>{name}</td><td>{html.escape(json.dumps(_rounded(fit[name])))}</td>"
-        f"<td>{html.escape(json.dumps(truth[name]))}</td></tr>"
-        for name in ("rho_tilde", "F_tilde", "sigma")
+    light = _table(
+        [
+            ("model", "RGB RMSE calibration", "RGB RMSE held-out", "noise floor"),
+            (
+                "near light",
+                _fmt(near["rgb_rmse_calibration"]),
+                _fmt(near["rgb_rmse_heldout"]),
+                _fmt(near["noise_floor"]),
+            ),
+            (
+                "light field (paper)",
+                _fmt(field["rgb_rmse_calibration"]),
+                _fmt(field["rgb_rmse_heldout"]),
+                _fmt(field["noise_floor"]),
+            ),
+        ]
     )
+    shape = _table(
+        [
+            ("registered frames", f"{len(sfm['registered'])}/{sfm['frames']}"),
+            ("3D points", sfm["points"]),
+            ("mean reprojection error (px)", _fmt(sfm["mean_reprojection_error_px"])),
+            ("coverage", _fmt(sfm["coverage"])),
+            ("normal error vs truth, median / p90 (deg)", _fmt(summary["sfm_normal_error_deg"])),
+        ]
+    )
+    timings = _table([(k, f"{v:.1f} s") for k, v in summary["timings_s"].items()])
     images = "".join(
         f'<figure><img alt="{name}" src="data:image/png;base64,'
         f'{base64.b64encode(path.read_bytes()).decode()}"><figcaption>{name}</figcaption></figure>'
@@ -90,21 +188,24 @@ def _write_report(out: Path, summary: dict, figures: dict[str, Path]) -> Path:
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>ctjax demo</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;text-align:left}}
-img{{max-width:100%}}</style></head><body>
-<h1>ctjax demo: synthetic laparoscope capture</h1>
-<p>The capture was generated by <code>ctjax synth</code>, written in the capture format, loaded
-back, and every frame re-rendered from its stored geometry with the true model (the paper's
-Lambertian + Beckmann Cook-Torrance, light co-located with the camera). The RGB error is
-compared with the noise floor (Gaussian noise and 8-bit quantisation) and with a Lambertian
-model of the same albedo.</p>
-<h2>Estimated from the images (paper section 4, ring of {DEMO_RING_PX} px)</h2>
-<table><tr><th></th><th>estimated</th><th>truth</th></tr>{fit_rows}</table>
-<h2>Per frame (RGB RMSE, 8-bit levels, non-saturated pixels)</h2>
-<table><tr><th>frame</th><th>Cook-Torrance</th><th>Lambertian</th><th>pixels</th></tr>
-{frame_rows}</table>
+table{{border-collapse:collapse;margin:0.5em 0}}td{{border:1px solid #ccc;padding:4px 8px}}
+tr:first-child td{{font-weight:bold}}img{{max-width:100%}}</style></head><body>
+<h1>ctjax demo: a synthetic laparoscope capture, from images alone</h1>
+<p>{summary["frames"]} frames of {summary["size"]} were synthesised (textured tissue,
+Cook-Torrance reflectance, light at the tip, 1 level of noise, 8 bits); only the images and
+the camera's intrinsics went into the pipeline: structure-from-motion (pycolmap), the specular
+set S and its ring S~, the paper's BRDF estimate (branch-and-bound over sigma), the light
+(a near point light, and the paper's per-pixel light field) and the paper's evaluation of
+Lambertian against Cook-Torrance. The ground truth is used only to score.</p>
+<h2>Estimated parameters</h2>{parameters}
+<p>Note: the tissue texture multiplies the albedo per pixel; the paper's model (and ctjax's
+estimate) assumes one albedo, which biases F_tilde on textured tissue.</p>
+<h2>Shape from images (SfM)</h2>{shape}
+<h2>Light</h2>{light}
+<h2>Evaluation (paper section 7; calibration frames {ev["calibration_frames"]}, test frames
+{ev["test_frames"]})</h2>{errors}
 <h2>Figures</h2>{images}
-<h2>Summary</h2><table>{rows}</table>
+<h2>Timings</h2>{timings}
 </body></html>
 """
     path = out / "report.html"
@@ -112,95 +213,107 @@ model of the same albedo.</p>
     return path
 
 
-def _pooled_rmse(frames: list[dict], key: str) -> float:
-    pixels = np.array([f["pixels"] for f in frames])
-    squares = np.array([f[key] for f in frames]) ** 2
-    return float(np.sqrt(np.sum(pixels * squares) / pixels.sum()))
-
-
 def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
-    """Run the demo into folder `out`; returns the summary written to `out/summary.json`."""
-    options = SynthOptions(texture=False) if options is None else options
+    """Run the whole pipeline into folder `out`; returns the summary (`out/summary.json`)."""
+    options = SynthOptions(texture_contrast=DEMO_TEXTURE_CONTRAST) if options is None else options
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    timings = {}
+    step = _Steps(_log)
     started = time.perf_counter()
-    _log(f"synthesising {options.frames} frames at {options.width}x{options.height}...")
-    capture_dir = synthesize(out / "capture", options)
-    timings["synth_s"] = time.perf_counter() - started
-
-    started = time.perf_counter()
-    capture = load_capture(capture_dir)
-    timings["load_s"] = time.perf_counter() - started
-    if any(frame.depth is None for frame in capture.frames):
-        raise AssertionError("synthetic captures always carry depth")
-
-    started = time.perf_counter()
-    _log("estimating (rho_tilde, F_tilde, sigma) from the images (paper section 4)...")
-    fit = fit_capture(capture, MaskOptions(ring_px=DEMO_RING_PX))
-    timings["fit_s"] = time.perf_counter() - started
+    truth_dir = step(
+        "synth",
+        f"synthesising {options.frames} textured frames at {options.width}x{options.height}...",
+        synthesize,
+        out / "capture-truth",
+        options,
+    )
+    truth = load_capture(truth_dir)
+    images_dir = _images_only(truth_dir, out / "capture")
+    # The known size that fixes SfM's scale: the working distance (median depth, frame 0).
+    working_distance = float(np.nanmedian(truth.frames[0].depth[truth.frames[0].geometry_mask]))
+    sfm = step(
+        "reconstruct",
+        "structure-from-motion on the images alone (pycolmap)...",
+        reconstruct,
+        images_dir,
+        scale_mm=working_distance,
+    )
+    capture = load_capture(images_dir)
+    masks = MaskOptions(ring_px=DEMO_RING_PX)
+    sets = step("masks", "specular set S and ring S~...", capture_sets, capture, masks)
+    fit = step(
+        "fit", "BRDF (rho_tilde, F_tilde, sigma) on the ring...", fit_capture, capture, masks
+    )
     _log(
-        f"sigma {fit['sigma']:.4f} (truth {capture.truth['sigma']}), rho_tilde "
-        f"{np.round(fit['rho_tilde'], 3).tolist()} (truth {capture.truth['rho_tilde']}), "
-        f"F_tilde {np.round(fit['F_tilde'], 3).tolist()} (truth {capture.truth['F_tilde']})"
+        f"  sigma {fit['sigma']:.4f} (truth {truth.truth['sigma']}), rho_tilde "
+        f"{np.round(fit['rho_tilde'], 3).tolist()}, F_tilde {np.round(fit['F_tilde'], 3).tolist()}"
     )
-
-    brdf, light, effects = scene_model(options)
-    lambertian = BRDF(brdf.lobes[0])
-    _log("rendering every frame with the true model...")
-    frames = []
-    first = None
-    render_seconds = []
-    for frame in capture.frames:
-        normals, depth = jnp.asarray(frame.normals), jnp.asarray(frame.depth)
-        tic = time.perf_counter()
-        rendered = np.asarray(render(brdf, light, capture.camera, normals, depth, effects=effects))
-        render_seconds.append(time.perf_counter() - tic)
-        diffuse = np.asarray(render(lambertian, light, capture.camera, normals, depth))
-        unsaturated = np.all(frame.image < 1, axis=-1)
-        mask = frame.geometry_mask & unsaturated
-        frames.append(
-            {
-                "name": frame.name,
-                "rgb_rmse": _rmse_levels(frame.image, rendered, mask),
-                "lambertian_rmse": _rmse_levels(frame.image, diffuse, mask),
-                "pixels": int(mask.sum()),
-            }
-        )
-        if first is None:
-            first = (frame.image, rendered, diffuse, mask)
-    timings["render_s"] = float(sum(render_seconds))
-    pixels = np.array([f["pixels"] for f in frames])
-    rmse = float(
-        np.sqrt(np.sum(pixels * np.array([f["rgb_rmse"] for f in frames]) ** 2) / pixels.sum())
+    near = step(
+        "calibrate_light_near",
+        "near-light model (LM, all frames)...",
+        calibrate_near_light,
+        capture,
     )
-    lambertian_rmse = float(
-        np.sqrt(
-            np.sum(pixels * np.array([f["lambertian_rmse"] for f in frames]) ** 2) / pixels.sum()
-        )
+    field = step(
+        "calibrate_light_field",
+        "the paper's per-pixel light field (LM per pixel, B-spline)...",
+        calibrate_light_field,
+        capture,
+        brdf_rounds=1,
+        max_steps=12,
     )
-    # Gaussian noise plus uniform quantisation error (1/12 level^2).
-    noise_floor = float(np.sqrt(options.noise_levels**2 + 1 / 12))
-    figures = _save_figures(out, *first)
-    steady = render_seconds[1:] or render_seconds
+    evaluation = step(
+        "evaluate",
+        "evaluation: Lambertian vs Cook-Torrance, RGB error and shape from shading...",
+        evaluate,
+        capture,
+        light="near",
+        cook_torrance=near.model,
+        reference=truth,
+        progress=lambda m: _log(f"  {m}"),
+    )
+    cosine = [
+        np.sum(f.normals * t.normals, axis=-1)[f.geometry_mask]
+        for f, t in zip(capture.frames, truth.frames, strict=True)
+    ]
+    angles = np.degrees(np.arccos(np.clip(np.concatenate(cosine), -1, 1)))
+    figures_dir = out / "figures"
+    figures_dir.mkdir(exist_ok=True)
+    figures = {"inputs": _figure_inputs(capture, truth, sets, figures_dir / "inputs.png")}
+    near_json = near.to_json()
+    figures["light"] = _figure_light(field, near_json, capture, figures_dir / "light.png")
+    figures.update(evaluation_plots(capture, evaluation, figures_dir))
+    light_truth = truth.truth.get("light", {}).get("position_mm", [0.0, 0.0, 0.0])
     summary = {
-        "capture": str(capture_dir),
-        "truth": {k: capture.truth[k] for k in ("rho_tilde", "F_tilde", "sigma", "effects")},
+        "capture": str(images_dir),
+        "ground_truth": str(truth_dir),
+        "frames": options.frames,
+        "size": f"{options.width}x{options.height}",
+        "truth": {
+            **{k: truth.truth[k] for k in ("rho_tilde", "F_tilde", "sigma")},
+            "light_mm": light_truth,
+        },
+        "reconstruction": sfm,
+        "sfm_normal_error_deg": [
+            round(float(np.median(angles)), 3),
+            round(float(np.percentile(angles, 90)), 3),
+        ],
         "brdf_fit": {
             k: fit[k]
             for k in ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "n_ring_pixels", "warnings")
         },
-        "rgb_rmse": rmse,
-        "lambertian_rmse": lambertian_rmse,
-        "noise_floor": noise_floor,
-        "frames": frames,
-        "render_mpixel_per_s": capture.camera.width * capture.camera.height / min(steady) / 1e6,
-        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "near_light": near_json,
+        "light_field": field.to_json(),
+        "evaluation": evaluation.to_json(),
+        "timings_s": {**step.seconds, "total": round(time.perf_counter() - started, 2)},
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default) + "\n")
     _write_report(out, summary, figures)
-    _log(
-        f"RGB RMSE {rmse:.2f} levels (noise floor {noise_floor:.2f}); "
-        f"Lambertian {lambertian_rmse:.2f} levels"
-    )
+    _log(f"done in {summary['timings_s']['total']:.0f} s")
     return summary
+
+
+def _json_default(value):
+    if isinstance(value, np.generic | np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

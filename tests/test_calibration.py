@@ -39,5 +39,3 @@ def test_calibrate_light_command_with_falloffs(tmp_path):
     assert result["falloff"]["spot"]["exponent"] == pytest.approx(3.0, rel=0.1)
     assert result["status"] == "successful"
     assert result["rgb_rmse_heldout"] <= 1.15 * NOISE_FLOOR
-    # The per-pixel field model is not there yet: a clear error, status 2.
-    assert main(["calibrate-light", str(root), "--model", "field", "--json", str(out)]) == 2

@@ -215,7 +215,7 @@ def test_fit_bad_input_is_one_clear_error(tmp_path, case):
                 cv2.imwrite(
                     str(root / "images" / f"{name}.png"), np.full((48, 64, 3), 255, np.uint8)
                 )
-                expected = "ring S~ is empty"
+                expected = "every pixel is saturated"
             else:
                 np.save(root / "depth" / f"{name}.npy", np.full((48, 64), np.nan, np.float32))
                 (root / "normals" / f"{name}.npy").unlink()

@@ -104,7 +104,12 @@ def test_capture_contents(plain_capture):
 def test_same_seed_same_bytes(tmp_path):
     options = SynthOptions(width=64, height=48, frames=2, seed=3)
     a, b = synthesize(tmp_path / "a", options), synthesize(tmp_path / "b", options)
-    for name in ("images/frame_001.png", "depth/frame_001.npy", "normals/frame_000.npy"):
+    for name in (
+        "images/frame_001.png",
+        "depth/frame_001.npy",
+        "normals/frame_000.npy",
+        "truth.json",
+    ):
         assert (a / name).read_bytes() == (b / name).read_bytes()
     c = synthesize(tmp_path / "c", SynthOptions(width=64, height=48, frames=2, seed=4))
     assert (a / "images/frame_001.png").read_bytes() != (c / "images/frame_001.png").read_bytes()

@@ -109,7 +109,7 @@ def calibrate_near_light(
     """
     if any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
-    calib, heldout = split_frames(len(capture), calibration)
+    calib, heldout = split_frames(len(capture), calibration, source=capture.root)
     train = capture_samples(capture, calib, max_samples=max_samples, seed=seed)
     test = capture_samples(capture, heldout, max_samples=heldout_samples, seed=seed + 1)
     depth = np.concatenate([capture.frames[i].depth[usable_mask(capture.frames[i])] for i in calib])

@@ -81,16 +81,25 @@ class Diagnosis:
         return self.base.model
 
 
-def split_frames(count: int, calibration: int | None = None) -> tuple[list[int], list[int]]:
-    """The first frames calibrate, the rest are held out (default: 60% / 40%)."""
+def split_frames(
+    count: int, calibration: int | None = None, *, source=None
+) -> tuple[list[int], list[int]]:
+    """The first frames calibrate, the rest are held out (default: 60% / 40%).
+
+    `source` (the capture's folder) names the capture in the errors.
+    """
+    where = f"{source}: " if source is not None else ""
     if count < 2:
         raise CtjaxError(
-            f"diagnose needs at least 2 frames (calibration and held-out), the capture has {count}"
+            f"{where}needs at least 2 frames (calibration and held-out), the capture has {count}"
         )
     if calibration is None:
         calibration = min(count - 1, max(1, math.ceil(0.6 * count)))
     if not 1 <= calibration < count:
-        raise CtjaxError(f"--calib must be between 1 and {count - 1}, got {calibration}")
+        raise CtjaxError(
+            f"{where}--calib (calibration frames) must be between 1 and {count - 1} for "
+            f"{count} frames, got {calibration}"
+        )
     return list(range(calibration)), list(range(calibration, count))
 
 
@@ -159,7 +168,7 @@ def diagnose(
     say = progress or (lambda message: None)
     if not capture.has_geometry or any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: diagnose needs depth for every frame (depth/NAME.npy)")
-    calib, heldout = split_frames(len(capture), calibration)
+    calib, heldout = split_frames(len(capture), calibration, source=capture.root)
     train = capture_samples(capture, calib, max_samples=max_samples, seed=seed)
     test = capture_samples(capture, heldout, max_samples=heldout_samples, seed=seed + 1)
     depth = np.concatenate([capture.frames[i].depth[usable_mask(capture.frames[i])] for i in calib])

@@ -30,7 +30,16 @@ class MaskOptions:
 
 
 def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list[SpecularSets]:
-    """S, S~ and the saturated pixels of every frame (pixels without a normal excluded)."""
+    """S, S~ and the saturated pixels of every frame (pixels without a normal excluded).
+
+    Raises `CtjaxError` for a frame whose every pixel is saturated (nothing to fit).
+    """
+    for frame in capture.frames:
+        if np.all(np.max(frame.image, axis=-1) >= 1.0):
+            raise CtjaxError(
+                f"{capture.root}: frame {frame.name}: every pixel is saturated (at full scale); "
+                "an over-exposed image carries no shading"
+            )
     return [
         specular_sets(
             frame.image,

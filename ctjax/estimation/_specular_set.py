@@ -50,6 +50,8 @@ def specular_mask(
         raise ParameterError(
             f"lightness and saturation thresholds must be in [0, 1], got {lightness}, {saturation}"
         )
+    if int(min_speck_px) != min_speck_px or min_speck_px < 0:
+        raise ParameterError(f"min_speck_px must be a non-negative integer, got {min_speck_px}")
     hls = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2HLS)
     mask = (hls[..., 1] >= lightness) & (hls[..., 2] <= saturation)
     if min_speck_px > 1 and mask.any():

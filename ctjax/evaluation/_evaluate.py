@@ -195,9 +195,10 @@ def frame_shapes(
     lambertian: ShadingModel,
     cook_torrance: ShadingModel,
     max_width: int = SFS_MAX_WIDTH,
+    reference: Capture | None = None,
 ) -> FrameShape:
-    """Both SfS of one frame against its depth, at reduced resolution."""
-    frame = capture.frames[index]
+    """Both SfS of one frame against its depth (or `reference`'s), at reduced resolution."""
+    frame = (reference or capture).frames[index]
     if frame.depth is None:
         raise CtjaxError(f"frame {frame.name}: SfS is compared with depth; the frame has none")
     factor = max(1, math.ceil(capture.camera.width / max_width))
@@ -222,10 +223,16 @@ def evaluate(
     calibration: int | None = None,
     light: str = "near",
     sfs: bool = True,
+    cook_torrance: ShadingModel | None = None,
+    reference: Capture | None = None,
     progress: Callable[[str], None] = lambda message: None,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance (+ `light`: "near", "colocated" or "field") on the
-    calibration frames and evaluate both on the test frames (RGB error and SfS)."""
+    calibration frames and evaluate both on the test frames (RGB error and SfS).
+
+    `cook_torrance`: an already fitted model (its light named by `light`), used as is.
+    `reference`: the capture whose depth the SfS is compared with (default: `capture`'s own;
+    e.g. ground truth when `capture`'s shape came from structure-from-motion)."""
     if light not in LIGHTS:
         raise CtjaxError(f"unknown light model {light!r}; known: {', '.join(LIGHTS)}")
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
@@ -234,15 +241,16 @@ def evaluate(
             f"{capture.root}: evaluate needs depth and normals for every frame (missing for "
             f"{', '.join(missing[:5])}); run `ctjax reconstruct` first"
         )
-    calib, test = split_frames(len(capture), calibration)
+    calib, test = split_frames(len(capture), calibration, source=capture.root)
     timings = {}
     tic = time.perf_counter()
     progress(f"fitting the Lambertian model on frames {calib}...")
     lambertian = fit_lambertian(capture, calib)
     timings["lambertian_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    progress(f"fitting Cook-Torrance with the {light} light on frames {calib}...")
-    cook_torrance = fit_cook_torrance(capture, len(calib), light)
+    if cook_torrance is None:
+        progress(f"fitting Cook-Torrance with the {light} light on frames {calib}...")
+        cook_torrance = fit_cook_torrance(capture, len(calib), light)
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     rgb = {}
@@ -257,7 +265,9 @@ def evaluate(
         tic = time.perf_counter()
         for index in test:
             progress(f"shape from shading of test frame {capture.frames[index].name}...")
-            shapes.append(frame_shapes(capture, index, lambertian.model, cook_torrance))
+            shapes.append(
+                frame_shapes(capture, index, lambertian.model, cook_torrance, reference=reference)
+            )
         timings["sfs"] = time.perf_counter() - tic
     notes = []
     if lambertian.status != "successful":

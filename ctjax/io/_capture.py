@@ -129,6 +129,19 @@ def _load_npy(path: Path, shape: tuple[int, ...], what: str) -> np.ndarray:
     return array.astype(np.float32)
 
 
+def _mostly_facing_away(camera: Camera, normals: np.ndarray) -> bool:
+    """More than half of the finite normals point away from the camera (N . ray > 0)."""
+    h, w = normals.shape[:2]
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    ray = np.stack(
+        [(u - float(camera.cx)) / float(camera.fx), (v - float(camera.cy)) / float(camera.fy)],
+        axis=-1,
+    )
+    facing = normals[..., 0] * ray[..., 0] + normals[..., 1] * ray[..., 1] + normals[..., 2]
+    finite = np.isfinite(facing)
+    return bool(finite.any() and np.mean(facing[finite] > 0) > 0.5)
+
+
 def _read_poses(path: Path) -> dict[str, np.ndarray]:
     try:
         data = json.loads(path.read_text())
@@ -180,7 +193,8 @@ def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
     """Load a capture folder (see the module docstring for the format).
 
     Rejects bad input with one `CaptureError` naming the file: missing folder, missing or
-    malformed camera.json, unreadable image, sizes that disagree, normals that are not unit.
+    malformed camera.json, unreadable image, sizes that disagree, normals that are not unit
+    or that face away from the camera.
     Normals are derived from depth where only depth is given. With distortion coefficients
     in camera.json and `undistort=True`, images (and depth/normals) are undistorted and the
     returned camera has none.
@@ -221,6 +235,11 @@ def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
             finite = np.isfinite(norm)
             if np.any(np.abs(norm[finite] - 1) > _UNIT_TOLERANCE):
                 raise CaptureError(f"{normals_path}: normals are not unit vectors")
+            if _mostly_facing_away(camera, normals):
+                raise CaptureError(
+                    f"{normals_path}: normals face away from the camera (they must point "
+                    "towards it: flip their sign)"
+                )
         elif depth is not None:
             normals = normals_from_depth(camera, depth)
         frames.append(Frame(name, image, depth, normals, poses.get(name)))

@@ -7,7 +7,7 @@ from .._errors import ParameterError
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
 from .._vector import Vec3
-from ._light import AbstractLight
+from ._light import AbstractFalloff, AbstractLight
 
 
 def direction_from_angles(theta, phi):
@@ -37,10 +37,14 @@ class LightField(AbstractLight):
 
     - `directions`: unit light directions, shape (H, W, 3), camera frame.
     - `method`: interpax interpolation method between pixel centres (default "cubic").
+    - `falloff`: irradiance factors of the surface point's position seen from the camera
+      centre (e.g. `InverseSquare`; the light is taken to be near the lens for them, as
+      `ColocatedLight` does); default none, the paper's unit irradiance.
     """
 
     directions: Float[Array, "H W 3"] = eqx.field(converter=as_float, metadata=FIXED)
     method: str = eqx.field(static=True, default="cubic")
+    falloff: tuple[AbstractFalloff, ...] = ()
 
     def __check_init__(self):
         if self.directions.ndim != 3 or self.directions.shape[-1] != 3:
@@ -49,12 +53,14 @@ class LightField(AbstractLight):
             )
 
     @classmethod
-    def from_angles(cls, theta, phi, method: str = "cubic") -> "LightField":
+    def from_angles(cls, theta, phi, method: str = "cubic", falloff=()) -> "LightField":
         """A field from the paper's tilt `theta` and slant `phi` maps, each (H, W)."""
-        return cls(direction_from_angles(as_float(theta), as_float(phi)), method=method)
+        return cls(
+            direction_from_angles(as_float(theta), as_float(phi)), method=method, falloff=falloff
+        )
 
     def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
-        del point, view
+        del view
         height, width, _ = self.directions.shape
         rows = jnp.arange(height, dtype=self.directions.dtype)
         cols = jnp.arange(width, dtype=self.directions.dtype)
@@ -69,4 +75,7 @@ class LightField(AbstractLight):
             extrap=True,
             even_spacing=True,
         )[0]
-        return safe_normalize(Vec3.from_array(value)), jnp.ones((), self.directions.dtype)
+        irradiance = jnp.ones((), self.directions.dtype)
+        for effect in self.falloff:
+            irradiance = irradiance * effect(point)
+        return safe_normalize(Vec3.from_array(value)), irradiance

@@ -1,7 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import UNIT_INTERVAL, as_float, check_positive, check_shape
+from .._convert import UNIT_INTERVAL, _concrete, as_float, check_positive, check_shape
 from .._errors import ParameterError
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
@@ -30,6 +30,9 @@ class SchlickFresnel(AbstractSpecularFactor):
     def __check_init__(self):
         check_shape("SchlickFresnel", "f0", self.f0, ())
         check_positive("SchlickFresnel", "f0", self.f0)
+        value = _concrete(self.f0)
+        if value is not None and value > 1:
+            raise ParameterError(f"SchlickFresnel.f0 must be in (0, 1], got {float(value)}")
         if self.cosine not in ("half", "normal"):
             raise ParameterError(
                 f"SchlickFresnel.cosine must be 'half' or 'normal', got {self.cosine!r}"

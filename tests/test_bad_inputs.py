@@ -1,0 +1,520 @@
+"""The bad-input table (issue 8): every bad input, the error the user gets, nothing changed.
+
+Each row breaks a copy of one tiny synthetic capture (or passes a bad option or parameter)
+and checks both faces of the error: the Python API raises a `CtjaxError` (a `ValueError`)
+whose one-line message names the problem, and every `ctjax` command that reads the input
+exits with status 2 and prints one line, `ctjax COMMAND: error: ...`, with no traceback,
+leaving the capture's files byte-identical. Loader cases complementary to these (string
+intrinsics, corrupt depth files, malformed poses...) are in tests/test_capture.py.
+"""
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+import ctjax
+from ctjax import Camera
+from ctjax._errors import CtjaxError
+from ctjax.cli import main
+from ctjax.estimation._capture_fit import capture_sets, fit_capture
+from ctjax.estimation._specular_set import specular_sets
+from ctjax.io import load_alta, load_capture
+from ctjax.synth import SynthOptions, synthesize
+
+ALTA_SAMPLE = Path("/work/shared/data/retro-gray-tape.dat")
+BLANK = np.zeros((8, 8, 3), np.float32)
+CAPTURE_COMMANDS = ("masks", "fit", "diagnose", "calibrate-light", "evaluate", "reconstruct")
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A 64x48, two-frame synthetic capture with depth, normals and poses."""
+    root = tmp_path_factory.mktemp("tiny") / "capture"
+    return synthesize(root, SynthOptions(width=64, height=48, frames=2, seed=3))
+
+
+def _snapshot(root: Path) -> dict:
+    if not root.exists():
+        return {}
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def _argv(command: str, root: Path, out: Path) -> list[str]:
+    if command == "masks":
+        return ["masks", str(root), "--out", str(out / "masks")]
+    if command == "reconstruct":
+        return ["reconstruct", str(root), "--out", str(out / "reconstructed")]
+    return [command, str(root), "--json", str(out / f"{command}.json")]
+
+
+def _cli(argv, capsys) -> tuple[int, list[str]]:
+    capsys.readouterr()
+    status = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    return status, captured.err.strip().splitlines()
+
+
+def _assert_one_line_error(status, lines, command, message):
+    assert status == 2, lines
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"ctjax {command}: error: "), lines[0]
+    assert message in lines[0], lines[0]
+
+
+# ---------------------------------------------------------------------------------------
+# Breakers: each edits a copy of the tiny capture in place.
+
+
+def _camera(root, **changes):
+    data = json.loads((root / "camera.json").read_text())
+    data.update(changes)
+    (root / "camera.json").write_text(json.dumps(data))
+
+
+def _images(root):
+    return sorted((root / "images").glob("*.png"))
+
+
+def _rewrite_image(root, image):
+    cv2.imwrite(str(_images(root)[0]), image)
+
+
+def _scale_all_images(root, factor):
+    for path in _images(root):
+        cv2.imwrite(str(path), (cv2.imread(str(path)) * factor).astype(np.uint8))
+
+
+def _depth(root, fill):
+    path = sorted((root / "depth").glob("*.npy"))[0]
+    np.save(path, np.full(np.load(path).shape, fill, np.float32))
+
+
+def _normals(root, factor):
+    path = sorted((root / "normals").glob("*.npy"))[0]
+    np.save(path, (factor * np.load(path)).astype(np.float32))
+
+
+def _one_frame(root):
+    for path in root.glob("*/frame_001.*"):
+        path.unlink()
+
+
+def _truncate(root):
+    path = _images(root)[0]
+    path.write_bytes(path.read_bytes()[:200])
+
+
+# (breaker, Python call on the capture folder, commands that must reject it, message)
+LOAD = load_capture
+
+
+def _fit(root):
+    return fit_capture(load_capture(root))
+
+
+def _needs_two(root):
+    from ctjax.diagnostics._diagnose import split_frames
+
+    capture = load_capture(root)
+    return split_frames(len(capture), source=capture.root)
+
+
+CAPTURE_CASES = [
+    pytest.param(
+        shutil.rmtree, LOAD, CAPTURE_COMMANDS, "capture folder not found", id="missing-folder"
+    ),
+    pytest.param(
+        lambda r: (r / "camera.json").unlink(),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "camera.json not found",
+        id="missing-camera-json",
+    ),
+    pytest.param(
+        lambda r: (r / "camera.json").write_text("{width: 64"),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "camera.json: not valid JSON",
+        id="malformed-camera-json",
+    ),
+    pytest.param(
+        lambda r: _camera(r, fx=0),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "fx must be positive",
+        id="zero-focal-length",
+    ),
+    pytest.param(
+        lambda r: _camera(r, fy=-50.0),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "fy must be positive",
+        id="negative-focal-length",
+    ),
+    pytest.param(
+        lambda r: _rewrite_image(r, np.zeros((10, 10, 3), np.uint8)),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "camera.json says 64x48",
+        id="image-size-mismatch",
+    ),
+    pytest.param(
+        lambda r: np.save(sorted((r / "depth").glob("*.npy"))[0], np.ones((47, 64), np.float32)),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "depth has shape (47, 64), expected (48, 64)",
+        id="depth-size-mismatch",
+    ),
+    pytest.param(_truncate, LOAD, CAPTURE_COMMANDS, "cannot read image", id="truncated-png"),
+    pytest.param(
+        lambda r: _rewrite_image(r, np.zeros((48, 64), np.uint8)),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "grayscale image",
+        id="grayscale-image",
+    ),
+    pytest.param(
+        lambda r: _rewrite_image(r, np.zeros((48, 64, 4), np.uint8)),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "RGBA image",
+        id="rgba-image",
+    ),
+    pytest.param(
+        lambda r: _depth(r, np.nan),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "no finite positive depth",
+        id="depth-all-nan",
+    ),
+    pytest.param(
+        lambda r: _depth(r, -70.0),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "no finite positive depth",
+        id="depth-negative",
+    ),
+    pytest.param(
+        lambda r: _normals(r, 2.0),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "normals are not unit vectors",
+        id="normals-not-unit",
+    ),
+    pytest.param(
+        lambda r: _normals(r, -1.0),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "normals face away from the camera",
+        id="normals-facing-away",
+    ),
+    pytest.param(
+        _one_frame,
+        _needs_two,
+        ("diagnose", "calibrate-light", "evaluate"),
+        "needs at least 2 frames",
+        id="one-frame",
+    ),
+    pytest.param(
+        lambda r: _scale_all_images(r, 0.5),
+        _fit,
+        ("fit",),
+        "no specular pixels",
+        id="no-specular-pixels",
+    ),
+    pytest.param(
+        lambda r: _rewrite_image(r, np.full((48, 64, 3), 255, np.uint8)),
+        lambda r: capture_sets(load_capture(r)),
+        ("masks", "fit"),
+        "every pixel is saturated",
+        id="all-saturated-image",
+    ),
+]
+
+
+@pytest.mark.parametrize("breaker, python_call, commands, message", CAPTURE_CASES)
+def test_bad_capture(tiny, tmp_path, capsys, breaker, python_call, commands, message):
+    root = shutil.copytree(tiny, tmp_path / "capture")
+    breaker(root)
+    before = _snapshot(root)
+    with pytest.raises(CtjaxError) as info:
+        python_call(root)
+    assert isinstance(info.value, ValueError)
+    assert message in str(info.value) and "\n" not in str(info.value)
+    if root.exists():  # the message names the file or the capture folder
+        assert str(root) in str(info.value)
+    for command in commands:
+        status, lines = _cli(_argv(command, root, tmp_path / "out"), capsys)
+        _assert_one_line_error(status, lines, command, message)
+        assert _snapshot(root) == before, f"ctjax {command} changed the capture"
+
+
+def test_sixteen_bit_capture_is_supported(tmp_path, capsys):
+    """16-bit PNGs are documented input: they load (1.0 = 65535) and the commands accept them."""
+    root = synthesize(
+        tmp_path / "c16", SynthOptions(width=64, height=48, frames=2, seed=3, bits=16)
+    )
+    raw = cv2.imread(str(_images(root)[0]), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16
+    image = load_capture(root).frames[0].image
+    np.testing.assert_array_equal(image, raw[..., ::-1].astype(np.float32) / 65535)
+    status, _ = _cli(["masks", root, "--out", tmp_path / "masks"], capsys)
+    assert status == 0
+
+
+# ---------------------------------------------------------------------------------------
+# Command-line options: each command, a bad option, one line, status 2, nothing written.
+
+OPTION_CASES = [
+    pytest.param(["synth", "{out}/s", "--width", "0"], "image size 0x", id="synth-width-0"),
+    pytest.param(["synth", "{out}/s", "--frames", "-2"], "frames=-2", id="synth-negative-frames"),
+    pytest.param(["synth", "{out}/s", "--sigma", "nan"], "sigma=nan", id="synth-sigma-nan"),
+    pytest.param(
+        ["synth", "{out}/s", "--noise", "-1"], "noise_levels=-1", id="synth-negative-noise"
+    ),
+    pytest.param(["synth", "{out}/s", "--bits", "12"], "invalid choice: 12", id="synth-bits-12"),
+    pytest.param(
+        ["synth", "{out}/s", "--fresnel-schlick", "2"],
+        "f0 must be in (0, 1]",
+        id="synth-fresnel-f0-2",
+    ),
+    pytest.param(
+        ["synth", "{out}/s", "--width", "abc"],
+        "invalid int value: 'abc'",
+        id="synth-width-not-a-number",
+    ),
+    pytest.param(["demo", "--out", "{out}/d", "--width", "0"], "image size 0x", id="demo-width-0"),
+    pytest.param(
+        ["masks", "{cap}", "--out", "{out}/m", "--ring-px", "-1"],
+        "ring_px must be positive",
+        id="masks-negative-ring",
+    ),
+    pytest.param(
+        ["masks", "{cap}", "--out", "{out}/m", "--lightness", "nan"],
+        "thresholds must be in [0, 1]",
+        id="masks-lightness-nan",
+    ),
+    pytest.param(
+        ["masks", "{cap}", "--out", "{out}/m", "--min-speck", "-3"],
+        "min_speck_px must be a non-negative integer",
+        id="masks-negative-speck",
+    ),
+    pytest.param(
+        ["masks", "{cap}"], "the following arguments are required: --out", id="masks-no-out"
+    ),
+    pytest.param(
+        ["fit", "{cap}", "--json", "{out}/f.json", "--ring-px", "0"],
+        "ring_px must be positive",
+        id="fit-ring-0",
+    ),
+    pytest.param(
+        ["fit", "{cap}", "--json", "{out}/f.json", "--model", "bogus"],
+        "invalid choice: 'bogus'",
+        id="fit-unknown-model",
+    ),
+    pytest.param(
+        ["fit", "{cap}"], "the following arguments are required: --json", id="fit-no-json"
+    ),
+    pytest.param(
+        ["diagnose", "{cap}", "--json", "{out}/d.json", "--calib", "0"],
+        "--calib (calibration frames) must be between 1 and 1",
+        id="diagnose-calib-0",
+    ),
+    pytest.param(
+        ["calibrate-light", "{cap}", "--json", "{out}/c.json", "--calib", "5"],
+        "--calib (calibration frames) must be between 1 and 1",
+        id="calibrate-light-calib-5",
+    ),
+    pytest.param(
+        ["calibrate-light", "{cap}", "--json", "{out}/c.json", "--falloff", "cubic"],
+        "invalid choice: 'cubic'",
+        id="calibrate-light-unknown-falloff",
+    ),
+    pytest.param(
+        ["evaluate", "{cap}", "--json", "{out}/e.json", "--calib", "-1"],
+        "must be between 1 and 1",
+        id="evaluate-calib-negative",
+    ),
+    pytest.param(
+        ["evaluate", "{cap}", "--json", "{out}/e.json", "--light", "sun"],
+        "invalid choice: 'sun'",
+        id="evaluate-unknown-light",
+    ),
+    pytest.param(
+        ["reconstruct", "{cap}", "--out", "{out}/r", "--scale-mm", "-1"],
+        "scale_mm",
+        id="reconstruct-negative-scale",
+    ),
+    pytest.param(
+        ["reconstruct", "{cap}", "--scale-mm", "70", "--volume-mm3", "1e4"],
+        "not allowed with argument",
+        id="reconstruct-two-scales",
+    ),
+    pytest.param(["reconstruct", "{cap}"], "poses.json: exists", id="reconstruct-would-overwrite"),
+]
+
+
+@pytest.mark.parametrize("argv, message", OPTION_CASES)
+def test_bad_option(tiny, tmp_path, capsys, argv, message):
+    before = _snapshot(tiny)
+    out = tmp_path / "out"
+    argv = [a.replace("{cap}", str(tiny)).replace("{out}", str(out)) for a in argv]
+    status, lines = _cli(argv, capsys)
+    _assert_one_line_error(status, lines, argv[0], message)
+    assert _snapshot(tiny) == before
+    assert not (out / "s").exists() and not (out / "d").exists()  # synth/demo wrote nothing
+
+
+def test_unknown_command_is_one_line(capsys):
+    status, lines = _cli(["bogus"], capsys)
+    assert status == 2 and len(lines) == 1 and lines[0].startswith("ctjax: error: ")
+
+
+# ---------------------------------------------------------------------------------------
+# Python API: NaN and nonsense parameters are rejected where they are passed.
+
+PARAMETER_CASES = [
+    pytest.param(
+        lambda: ctjax.lobes.Lambertian(float("nan")), "Lambertian.weight", id="lambertian-nan"
+    ),
+    pytest.param(
+        lambda: ctjax.lobes.Lambertian(-1.0), "Lambertian.weight", id="lambertian-negative"
+    ),
+    pytest.param(lambda: ctjax.Beckmann(float("nan")), "Beckmann.sigma", id="beckmann-nan"),
+    pytest.param(lambda: ctjax.SchlickFresnel(1.5), "SchlickFresnel.f0", id="schlick-f0-above-1"),
+    pytest.param(
+        lambda: Camera(64, 48, math.nan, 50.0, 31.5, 23.5), "Camera.fx", id="camera-fx-nan"
+    ),
+    pytest.param(lambda: Camera(64, 48, 50.0, 0.0, 31.5, 23.5), "Camera.fy", id="camera-fy-zero"),
+    pytest.param(
+        lambda: Camera(0, 48, 50.0, 50.0, 31.5, 23.5), "width and height", id="camera-width-0"
+    ),
+    pytest.param(lambda: SynthOptions(width=0), "image size", id="synth-options-width-0"),
+    pytest.param(
+        lambda: SynthOptions(sigma=float("nan")), "sigma=nan", id="synth-options-sigma-nan"
+    ),
+    pytest.param(
+        lambda: SynthOptions(rho_tilde=(1.0, -1.0, 1.0)),
+        "rho_tilde",
+        id="synth-options-negative-rho",
+    ),
+    pytest.param(lambda: SynthOptions(bits=12), "bits=12", id="synth-options-bits-12"),
+    pytest.param(
+        lambda: ctjax.PointLight([math.nan, 0.0, 0.0]), "position_mm", id="point-light-nan"
+    ),
+    pytest.param(
+        lambda: specular_sets(BLANK, np.ones((8, 8), bool), ring_px=-1.0),
+        "ring_px",
+        id="specular-sets-negative-ring",
+    ),
+    pytest.param(
+        lambda: specular_sets(BLANK * np.nan, np.ones((8, 8), bool)),
+        "non-finite",
+        id="specular-sets-nan-image",
+    ),
+]
+
+
+@pytest.mark.parametrize("call, message", PARAMETER_CASES)
+def test_bad_parameter(call, message):
+    with pytest.raises(CtjaxError) as info:
+        call()
+    assert isinstance(info.value, ValueError)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+# ---------------------------------------------------------------------------------------
+# ALTA files.
+
+
+def _alta(tmp_path, header, data="0.1 0.2 0.3 0.5\n"):
+    path = tmp_path / "bad.dat"
+    path.write_text(header + data)
+    return path
+
+
+ALTA_CASES = [
+    pytest.param(
+        "#DIM 3 1\n#PARAM_IN SPHERICAL_NONSENSE\n",
+        "0.1 0.2 0.3 0.5\n",
+        "unknown or missing #PARAM_IN SPHERICAL_NONSENSE",
+        id="unknown-param-in",
+    ),
+    pytest.param(
+        "#DIM 3 1\n",
+        "0.1 0.2 0.3 0.5\n",
+        "unknown or missing #PARAM_IN (none)",
+        id="missing-param-in",
+    ),
+    pytest.param(
+        "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n",
+        "0.1 0.2 abc 0.5\n",
+        "bad.dat:3: non-numeric data line",
+        id="non-numeric-line",
+    ),
+    pytest.param(
+        "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n#PARAM_OUT RGB_COLOR\n",
+        "0.1 0.2 0.3 0.5\n",
+        "unsupported #PARAM_OUT RGB_COLOR",
+        id="unknown-param-out",
+    ),
+    pytest.param(
+        "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n",
+        "0.1 0.2 0.3\n",
+        "data lines must have 4 numbers",
+        id="short-line",
+    ),
+    pytest.param(
+        "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n",
+        "0.1 0.2 nan 0.5\n",
+        "non-finite numbers",
+        id="nan-value",
+    ),
+    pytest.param(
+        "#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n",
+        "0.1 0.2 0.3 0.5\n",
+        "missing #DIM",
+        id="missing-dim",
+    ),
+]
+
+
+@pytest.mark.parametrize("header, data, message", ALTA_CASES)
+def test_bad_alta_file(tmp_path, header, data, message):
+    path = _alta(tmp_path, header, data)
+    with pytest.raises(CtjaxError) as info:
+        load_alta(path)
+    assert message in str(info.value) and str(path) in str(info.value)
+
+
+def test_alta_missing_file(tmp_path):
+    with pytest.raises(CtjaxError, match="ALTA file not found"):
+        load_alta(tmp_path / "nothing.dat")
+
+
+@pytest.mark.skipif(not ALTA_SAMPLE.is_file(), reason="sample ALTA data not available")
+def test_alta_sample_loads():
+    brdf = load_alta(ALTA_SAMPLE)
+    assert len(brdf) > 0 and np.all(np.isfinite(brdf.values))
+
+
+# ---------------------------------------------------------------------------------------
+# Determinism: the same command on the same input gives the same bytes.
+
+
+def test_fit_and_masks_are_deterministic(tiny, tmp_path, capsys):
+    outputs = []
+    for run in ("a", "b"):
+        assert main(["fit", str(tiny), "--json", str(tmp_path / f"{run}.json")]) == 0
+        assert main(["masks", str(tiny), "--out", str(tmp_path / f"masks-{run}")]) == 0
+        outputs.append(
+            ((tmp_path / f"{run}.json").read_bytes(), _snapshot(tmp_path / f"masks-{run}"))
+        )
+    assert outputs[0][0] == outputs[1][0]
+    assert outputs[0][1] == outputs[1][1] and len(outputs[0][1]) == 6
