@@ -35,12 +35,11 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
-from ctjax._vector import Vec3  # noqa: E402
+from ctjax._vector import Vec3, tangent_direction  # noqa: E402
 from ctjax.calibration._light_field import (  # noqa: E402
     PixelProblem,
     pixel_residuals,
     solve_pixels,
-    tangent_direction,
 )
 from ctjax.lobes import cook_torrance_brdf  # noqa: E402
 

@@ -60,3 +60,23 @@ class Vec3(eqx.Module):
 def where(condition, a: Vec3, b: Vec3) -> Vec3:
     """Component-wise `jnp.where` for Vec3."""
     return jax.tree_util.tree_map(lambda p, q: jnp.where(condition, p, q), a, b)
+
+
+def tangent_basis(axis: Vec3) -> tuple[Vec3, Vec3]:
+    """Two unit vectors orthogonal to the unit `axis` and to each other."""
+    # Any vector not parallel to the axis will do: x, unless the axis is close to it.
+    use_x = jnp.abs(axis.x) < 0.9
+    zero, one = jnp.zeros_like(axis.x), jnp.ones_like(axis.x)
+    helper = Vec3(jnp.where(use_x, one, zero), jnp.where(use_x, zero, one), zero)
+    first = helper - axis * (helper @ axis)
+    first = first / jnp.sqrt(first @ first)
+    return first, axis.cross(first)
+
+
+def tangent_direction(start: Vec3, y) -> Vec3:
+    """The unit direction at tangent-plane coordinates `y` (2,) around the unit `start`
+    (y = 0: `start`; |y| is the tangent of the angle to it). A chart without the poles of
+    spherical angles, for fitting a direction (a light, a normal) near a starting one."""
+    first, second = tangent_basis(start)
+    direction = start + first * y[0] + second * y[1]
+    return direction / jnp.sqrt(direction @ direction)

@@ -51,7 +51,7 @@ from scipy import ndimage
 from .._errors import CtjaxError
 from .._geometry import points_from_depth
 from .._typing import Array, Float
-from .._vector import Vec3
+from .._vector import Vec3, tangent_direction
 from ..diagnostics._diagnose import noise_floor_levels, split_frames
 from ..estimation._capture_fit import MaskOptions, capture_sets
 from ..estimation._samples import view_directions
@@ -114,25 +114,6 @@ class PixelProblem(eqx.Module):
     irradiance: Float[Array, " F"]
     start: Vec3
     prior: Vec3
-
-
-def tangent_basis(axis: Vec3) -> tuple[Vec3, Vec3]:
-    """Two unit vectors orthogonal to the unit `axis` and to each other."""
-    # Any vector not parallel to the axis will do: x, unless the axis is close to it.
-    use_x = jnp.abs(axis.x) < 0.9
-    zero, one = jnp.zeros_like(axis.x), jnp.ones_like(axis.x)
-    helper = Vec3(jnp.where(use_x, one, zero), jnp.where(use_x, zero, one), zero)
-    first = helper - axis * (helper @ axis)
-    first = first / jnp.sqrt(first @ first)
-    return first, axis.cross(first)
-
-
-def tangent_direction(start: Vec3, y: Float[Array, "2"]) -> Vec3:
-    """The unit direction at tangent-plane coordinates `y` around the unit `start` (y = 0:
-    `start`; |y| is the tangent of the angle to it)."""
-    first, second = tangent_basis(start)
-    direction = start + first * y[0] + second * y[1]
-    return direction / jnp.sqrt(direction @ direction)
 
 
 def pixel_residuals(y, problem: PixelProblem, brdf: BRDF, prior_scale) -> Float[Array, " R"]:

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting import capture_samples, pixel_predict, predictions
+from ..diagnostics._plots import plot_residual_maps
 from ..io import Capture
 
 _COLOURS = {"lambertian": "#9e9e9e", "cook_torrance": "#c0392b"}
@@ -94,27 +94,9 @@ def plot_shapes(shape, path: Path) -> Path:
 
 
 def plot_rgb_residuals(capture: Capture, evaluation, path: Path) -> Path:
-    """RGB residual maps (mean over channels, levels) of both models on the first test frame."""
-    index = evaluation.test_frames[0]
-    frame = capture.frames[index]
-    samples = capture_samples(capture, [index])
-    rows, cols = np.asarray(samples.row), np.asarray(samples.col)
-    fig = _figure(figsize=(11, 3.6))
-    axes = fig.subplots(1, 3)
-    axes[0].imshow(np.clip(frame.image, 0, 1))
-    axes[0].set_title(f"test frame {frame.name}")
-    limit = 8.0
-    for ax, model in zip(axes[1:], ("lambertian", "cook_torrance"), strict=True):
-        predicted = np.asarray(predictions(getattr(evaluation, model), samples, pixel_predict))
-        residual = np.full(frame.image.shape[:2], np.nan)
-        residual[rows, cols] = 255 * (predicted - np.asarray(samples.values)).mean(axis=-1)
-        shown = ax.imshow(residual, cmap="RdBu_r", vmin=-limit, vmax=limit)
-        ax.set_title(f"residual, {_LABELS[model]} (levels)")
-        fig.colorbar(shown, ax=ax, shrink=0.8)
-    for ax in axes:
-        ax.set_axis_off()
-    fig.savefig(path, dpi=80)
-    return path
+    """RGB residual maps of both models on the first test frame (diagnostics' figure)."""
+    models = {_LABELS[m]: getattr(evaluation, m) for m in ("lambertian", "cook_torrance")}
+    return plot_residual_maps(capture, evaluation.test_frames[0], models, path)
 
 
 def evaluation_plots(capture: Capture, evaluation, out: Path) -> dict[str, Path]:

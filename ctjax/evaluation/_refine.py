@@ -14,9 +14,8 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._numerics import safe_normalize
 from .._typing import Array, Float, Int
-from .._vector import Vec3
+from .._vector import Vec3, tangent_direction
 
 # Prior weight towards the starting normal, in 8-bit levels per radian of tilt.
 PRIOR_LEVELS_PER_RADIAN = 2.0
@@ -33,27 +32,13 @@ class NormalRefinement(eqx.Module):
     rmse_after: Float[Array, " N"]
 
 
-def _tangents(normal: Vec3) -> tuple[Vec3, Vec3]:
-    """Two unit vectors orthogonal to `normal` and to each other (no singular direction for a
-    normal facing the camera: the helper axis is x unless the normal is close to it)."""
-    helper = jnp.where(jnp.abs(normal.x) < 0.9, 1.0, 0.0)
-    axis = Vec3(helper, 1.0 - helper, jnp.zeros_like(helper))
-    first = safe_normalize(axis.cross(normal))
-    return first, normal.cross(first)
-
-
-def _tilted(normal: Vec3, delta) -> Vec3:
-    first, second = _tangents(normal)
-    return safe_normalize(normal + delta[0] * first + delta[1] * second)
-
-
 def refine_normal(model, point: Vec3, normal: Vec3, pixel, values, max_steps: int, prior: float):
     """One pixel: the normal near `normal` whose predicted RGB (clipped at 1, the sensor's
     saturation, so that a saturated pixel asks only for "at least this bright") best
     matches `values` (linear RGB)."""
 
     def residuals(delta, _):
-        predicted = jnp.minimum(model(point, _tilted(normal, delta), pixel), 1.0)
+        predicted = jnp.minimum(model(point, tangent_direction(normal, delta), pixel), 1.0)
         return jnp.concatenate([255.0 * (predicted - values), prior * delta])
 
     start = jnp.zeros(2, values.dtype)
@@ -64,7 +49,7 @@ def refine_normal(model, point: Vec3, normal: Vec3, pixel, values, max_steps: in
         max_steps=max_steps,
         throw=False,
     )
-    refined = _tilted(normal, solution.value)
+    refined = tangent_direction(normal, solution.value)
     before = residuals(start, None)[:3]
     after = residuals(solution.value, None)[:3]
     rms = lambda r: jnp.sqrt(jnp.mean(r * r))  # noqa: E731
