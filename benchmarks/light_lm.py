@@ -13,8 +13,9 @@ so L is shared), data noise-free and with 1 level of noise; the start is the tru
   several (rtol, atol, max_steps); under vmap every pixel runs until the slowest stops.
 - scipy-lm: `scipy.optimize.least_squares(method="lm")` per pixel on a sample, with the
   residuals and the Jacobian jitted in JAX (what a careful user writes).
-- closed-form-lm: a batched hand-written LM in JAX, a fixed number of iterations, the
-  Jacobian by `jax.jacfwd`, the 2x2 damped normal equations solved by the explicit formula.
+- closed-form-lm: ctjax's `solve_pixels_closed_form` (`engine="closed-form"`), a batched LM
+  written out in JAX, a fixed number of iterations, the Jacobian by `jax.jacfwd`, the 2x2
+  damped normal equations solved by the explicit formula.
 
 Compile time is reported separately (first call minus a warm call); pixels per second and
 frame time are for warm calls (best of `--repeats`). Accuracy: median and 90th percentile
@@ -40,6 +41,7 @@ from ctjax.calibration._light_field import (  # noqa: E402
     PixelProblem,
     pixel_residuals,
     solve_pixels,
+    solve_pixels_closed_form,
 )
 from ctjax.lobes import cook_torrance_brdf  # noqa: E402
 
@@ -99,43 +101,6 @@ def problems(width, height, frames, noise, seed=0, dtype=np.float64):
 
 def angle_deg(a, b):
     return np.degrees(np.arccos(np.clip(np.sum(np.asarray(a) * b, axis=-1), -1, 1)))
-
-
-def _closed_form_lm(problem, prior_scale, iterations):
-    """Batched LM, 2 unknowns per pixel: J by jacfwd, the 2x2 system by its explicit inverse."""
-
-    def one(problem):
-        def residual(y):
-            return pixel_residuals(y, problem, BRDF, prior_scale)
-
-        def step(_, carry):
-            y, damping = carry
-            r = residual(y)
-            jac = jax.jacfwd(residual)(y)
-            a, b, d = jac[:, 0] @ jac[:, 0], jac[:, 0] @ jac[:, 1], jac[:, 1] @ jac[:, 1]
-            g0, g1 = jac[:, 0] @ r, jac[:, 1] @ r
-            # Marquardt's scaling: damping relative to the diagonal.
-            a2, d2 = a * (1 + damping), d * (1 + damping)
-            det = a2 * d2 - b * b
-            safe = jnp.where(det > 0, det, 1)
-            dy = -jnp.stack([d2 * g0 - b * g1, a2 * g1 - b * g0]) / safe
-            dy = jnp.where(det > 0, dy, 0)
-            better = jnp.sum(residual(y + dy) ** 2) < r @ r
-            return (
-                jnp.where(better, y + dy, y),
-                jnp.where(better, damping / 3, damping * 4),
-            )
-
-        dtype = problem.values.dtype
-        y, _ = jax.lax.fori_loop(
-            0, iterations, step, (jnp.zeros(2, dtype), jnp.asarray(1e-3, dtype))
-        )
-        return tangent_direction(problem.start, y).to_array()
-
-    return jax.vmap(one)(problem)
-
-
-closed_form_lm = jax.jit(_closed_form_lm, static_argnums=2)
 
 
 def timed(fn, repeats):
@@ -205,23 +170,26 @@ def main():
                     seconds,
                     compile_s,
                     angle_deg(out.direction, truth),
-                    f"steps median {np.median(steps_taken):.0f} max {steps_taken.max()}",
+                    f"steps median {np.median(steps_taken):.0f} max {steps_taken.max()}, "
+                    f"converged {100 * np.mean(np.asarray(out.result) == 0):.0f}%",
                 )
             )
-        for iterations in (5, 8, 12):
+        for iterations in (5, 8, 10, 12):  # 10: calibrate_light_field's default
             out, seconds, compile_s = timed(
-                lambda iterations=iterations, problem=problem: closed_form_lm(
-                    problem, 0.0, iterations
+                lambda iterations=iterations, problem=problem: solve_pixels_closed_form(
+                    problem, BRDF, 0.0, iterations
                 ),
                 args.repeats,
             )
+            converged = np.mean(np.asarray(out.result) == 0)
             rows.append(
                 (
                     f"closed-form-lm iterations={iterations}",
                     noise,
                     seconds,
                     compile_s,
-                    angle_deg(out, truth),
+                    angle_deg(out.direction, truth),
+                    f"converged {100 * converged:.0f}%",
                 )
             )
         tick = time.perf_counter()

@@ -253,6 +253,8 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         "near-light model (LM, all frames)...",
         calibrate_near_light,
         capture,
+        max_samples=8000,
+        heldout_samples=20_000,
     )
     field = step(
         "calibrate_light_field",
@@ -260,7 +262,7 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         calibrate_light_field,
         capture,
         brdf_rounds=1,
-        max_steps=12,
+        engine="closed-form",
     )
     evaluation = step(
         "evaluate",

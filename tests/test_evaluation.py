@@ -16,13 +16,15 @@ from ctjax.evaluation import (
     scale_to_volume,
     sfs_tsai_shah,
 )
+from ctjax.evaluation._evaluate import _near_highlight
 from ctjax.evaluation._perspective import (
     backward_gradients,
     gradients_from_normal,
     normal_from_gradients,
     normals_from_log_depth,
 )
-from ctjax.evaluation._tsai_shah import initial_log_depth
+from ctjax.evaluation._sfs import ReflectanceResiduals, sfs_cook_torrance
+from ctjax.evaluation._tsai_shah import initial_log_depth, solve_log_depth
 from ctjax.fitting import paper_model
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
@@ -102,6 +104,66 @@ def test_tsai_shah_recovers_a_lambertian_surface(capture):
     assert np.median(error) < 0.5 * np.median(np.abs(dome - frame.depth)[mask])
 
 
+def test_cook_torrance_sfs_beats_tsai_shah_around_highlights(capture):
+    """The paper's section 7 result on a specular organ: shape from shading under the
+    Cook-Torrance model (Tsai-Shah's formulation with its reflectance map, coarse to fine)
+    recovers the depth far better than Lambertian Tsai-Shah, most of all near highlights.
+    Measured on this 96x80 frame: Tsai-Shah 4.50 mm mean (2.30 near highlights),
+    Cook-Torrance 0.17 mm (0.11), final RMS 1.11 levels (noise 1)."""
+    frame = capture.frames[0]
+    mask = frame.geometry_mask
+    truth = capture.truth
+    model = paper_model(truth["rho_tilde"], truth["F_tilde"], truth["sigma"])
+    volume = bounding_box_volume(frame.depth, mask, capture.camera)
+    near = _near_highlight(frame.image, mask) & mask
+    assert near.sum() > 100
+    lambertian, _ = sfs_tsai_shah(frame.image, mask, capture.camera, truth["rho_tilde"], volume)
+    cook_torrance, _ = sfs_cook_torrance(frame.image, mask, capture.camera, model, volume)
+    error_lambertian = np.abs(lambertian.depth - frame.depth)
+    error_cook_torrance = np.abs(cook_torrance.depth - frame.depth)
+    assert np.mean(error_cook_torrance[mask]) < 1.0
+    assert np.mean(error_cook_torrance[near]) < 1.0
+    assert np.mean(error_cook_torrance[mask]) < 0.5 * np.mean(error_lambertian[mask])
+    assert np.mean(error_cook_torrance[near]) < 0.5 * np.mean(error_lambertian[near])
+    assert cook_torrance.rms_levels < 2.0
+    assert np.all(np.isfinite(cook_torrance.depth[mask]))
+
+
+def test_central_differences_explain_the_true_surface(capture):
+    """Central differences explain each pixel with the normal at its centre: under the true
+    model the true surface leaves the noise (1 level) as RMS; Tsai-Shah's backward
+    differences (the normal half a pixel off) leave far more around the sharp highlight
+    (measured on this frame: 1.04 vs 3.64 levels). Started at the truth, the joint solve
+    stays within a fraction of a millimetre (0.20 mm mean, RMS 1.10 levels)."""
+    frame = capture.frames[1]
+    mask = frame.geometry_mask
+    truth = capture.truth
+    model = paper_model(truth["rho_tilde"], truth["F_tilde"], truth["sigma"])
+    start = np.log(frame.depth.astype(float))
+    residuals = ReflectanceResiduals(model, capture.camera, jnp.asarray(1.0), jnp.asarray(1 / 255))
+    rows, cols = np.nonzero(mask)
+    rms = {
+        scheme: solve_log_depth(
+            residuals,
+            mask,
+            capture.camera,
+            start,
+            values=frame.image[rows, cols],
+            iterations=0,
+            differences=scheme,
+        )[1]
+        for scheme in ("backward", "central")
+    }
+    assert rms["central"] < 1.5, rms
+    assert rms["backward"] > 2 * rms["central"], rms
+    volume = bounding_box_volume(frame.depth, mask, capture.camera)
+    result, _ = sfs_cook_torrance(
+        frame.image, mask, capture.camera, model, volume, start=start, levels=1
+    )
+    assert np.mean(np.abs(result.depth - frame.depth)[mask]) < 0.5
+    assert result.rms_levels < 1.5
+
+
 def test_cook_torrance_refinement_explains_the_pixels_better(capture):
     """Started from normals 8 degrees off, eq. (9) brings every pixel's predicted RGB closer
     to the measurement, and the normals closer to the truth."""
@@ -154,4 +216,10 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path):
     # The paper's result: Cook-Torrance at most half the Lambertian RGB error on test frames.
     assert summary["cook_torrance_rgb_rmse_test"] <= 0.5 * summary["lambertian_rgb_rmse_test"]
     assert summary["test_frames"] == [2]
+    # ... and shape from shading under Cook-Torrance better than Tsai-Shah, near highlights too.
+    assert summary["cook_torrance_sfs_error_mm"] < summary["lambertian_sfs_error_mm"]
+    assert (
+        summary["cook_torrance_sfs_error_near_highlights_mm"]
+        < summary["lambertian_sfs_error_near_highlights_mm"]
+    )
     assert {p.name for p in plots.iterdir()} >= {"errors.png", "rgb_residuals.png"}

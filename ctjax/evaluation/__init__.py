@@ -10,6 +10,8 @@ from ._refine import refine_normals as refine_normals
 from ._scale import bounding_box_volume as bounding_box_volume
 from ._scale import scale_to_volume as scale_to_volume
 from ._sfs import ShapeFromShading as ShapeFromShading
+from ._sfs import sfs_cook_torrance as sfs_cook_torrance
 from ._sfs import sfs_refined as sfs_refined
 from ._sfs import sfs_tsai_shah as sfs_tsai_shah
+from ._tsai_shah import solve_log_depth as solve_log_depth
 from ._tsai_shah import tsai_shah as tsai_shah

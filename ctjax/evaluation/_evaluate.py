@@ -14,7 +14,6 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from .._camera import Camera
 from .._errors import CtjaxError
 from ..diagnostics._diagnose import split_frames
 from ..fitting import (
@@ -28,8 +27,9 @@ from ..fitting import (
 from ..io import Capture
 from ..lights import ColocatedLight
 from ..lobes import BRDF, Lambertian
+from ._pyramid import block_reduce, reduced
 from ._scale import bounding_box_volume
-from ._sfs import ShapeFromShading, sfs_refined, sfs_tsai_shah
+from ._sfs import ShapeFromShading, sfs_cook_torrance, sfs_refined, sfs_tsai_shah
 
 LIGHTS = ("near", "colocated", "field")
 # Shape from shading runs on the frame reduced so that it is at most this wide (its sparse
@@ -51,6 +51,8 @@ class FrameShape:
     cook_torrance: ShapeFromShading
     mask: np.ndarray
     near_highlight: np.ndarray
+    # The paper's Cook-Torrance SfS (Tsai-Shah's normals refined per pixel, eq. 9), if run.
+    per_pixel: ShapeFromShading | None = None
 
 
 @dataclasses.dataclass
@@ -66,11 +68,14 @@ class Evaluation:
     notes: list[str]
 
     def sfs_errors(self, model: str, where: str = "all") -> np.ndarray:
+        """|SfS depth - reference| (mm) over the test frames' pixels (or those near a
+        highlight) for `model`: "lambertian", "cook_torrance" or "per_pixel"."""
         errors = []
         for shape in self.shapes:
             selected = shape.mask if where == "all" else shape.mask & shape.near_highlight
-            estimate = getattr(shape, model).depth
-            errors.append(np.abs(estimate - shape.reference)[selected])
+            estimate = getattr(shape, model)
+            if estimate is not None:
+                errors.append(np.abs(estimate.depth - shape.reference)[selected])
         return np.concatenate(errors) if errors else np.zeros(0)
 
     def to_json(self) -> dict:
@@ -82,16 +87,22 @@ class Evaluation:
         for model in ("lambertian", "cook_torrance"):
             out[f"{model}_rgb_rmse_calibration"] = self.rgb_rmse[model]["calibration"]
             out[f"{model}_rgb_rmse_test"] = self.rgb_rmse[model]["test"]
-        for model in ("lambertian", "cook_torrance"):
+        for model in ("lambertian", "cook_torrance", "per_pixel"):
+            if model == "per_pixel" and not any(s.per_pixel for s in self.shapes):
+                continue
             errors = self.sfs_errors(model)
             near = self.sfs_errors(model, "near_highlight")
-            out[f"{model}_sfs_error_mm"] = _mean(errors)
-            out[f"{model}_sfs_error_median_mm"] = _median(errors)
-            out[f"{model}_sfs_error_near_highlights_mm"] = _mean(near)
+            key = "cook_torrance_per_pixel" if model == "per_pixel" else model
+            out[f"{key}_sfs_error_mm"] = _mean(errors)
+            out[f"{key}_sfs_error_median_mm"] = _median(errors)
+            out[f"{key}_sfs_error_near_highlights_mm"] = _mean(near)
         out["units"] = (
             "rgb_rmse: 8-bit levels over unsaturated pixels with geometry; sfs_error: mean "
             "(or median) |depth - reference depth|, mm, test frames, after scaling each SfS "
-            "surface to the reference's bounding-box volume"
+            "surface to the reference's bounding-box volume. SfS: lambertian = Tsai-Shah; "
+            "cook_torrance = Tsai-Shah's formulation with the Cook-Torrance reflectance map "
+            "(joint, coarse to fine); cook_torrance_per_pixel = the paper's refinement of "
+            "Tsai-Shah's normals per pixel (eq. 9), integrated"
         )
         out["models"] = {
             "lambertian": {"rho_tilde": _weights(self.lambertian, 0)},
@@ -109,7 +120,17 @@ class Evaluation:
                 "near_highlight_pixels": int((s.mask & s.near_highlight).sum()),
                 "lambertian_mm": _mean(np.abs(s.lambertian.depth - s.reference)[s.mask]),
                 "cook_torrance_mm": _mean(np.abs(s.cook_torrance.depth - s.reference)[s.mask]),
-                "cook_torrance_not_converged": s.cook_torrance.not_converged,
+                "cook_torrance_rms_levels": s.cook_torrance.rms_levels,
+                **(
+                    {
+                        "cook_torrance_per_pixel_mm": _mean(
+                            np.abs(s.per_pixel.depth - s.reference)[s.mask]
+                        ),
+                        "cook_torrance_per_pixel_not_converged": s.per_pixel.not_converged,
+                    }
+                    if s.per_pixel
+                    else {}
+                ),
             }
             for s in self.shapes
         ]
@@ -158,27 +179,6 @@ def fit_cook_torrance(capture: Capture, calibration: int, light: str) -> Shading
     raise CtjaxError(f"unknown light model {light!r}; known: {', '.join(LIGHTS)}")
 
 
-def reduced(camera: Camera, factor: int) -> Camera:
-    """The camera of an image reduced by an integer `factor` (block averages)."""
-    if factor == 1:
-        return camera
-    return Camera(
-        camera.width // factor,
-        camera.height // factor,
-        camera.fx / factor,
-        camera.fy / factor,
-        (camera.cx + 0.5) / factor - 0.5,
-        (camera.cy + 0.5) / factor - 0.5,
-    )
-
-
-def _block(array: np.ndarray, factor: int, reduce=np.mean) -> np.ndarray:
-    height, width = array.shape[0] // factor, array.shape[1] // factor
-    cropped = array[: height * factor, : width * factor]
-    blocks = cropped.reshape(height, factor, width, factor, *array.shape[2:])
-    return reduce(blocks, axis=(1, 3))
-
-
 def _near_highlight(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
     from ..estimation._specular_set import specular_sets
 
@@ -196,6 +196,7 @@ def frame_shapes(
     cook_torrance: ShadingModel,
     max_width: int = SFS_MAX_WIDTH,
     reference: Capture | None = None,
+    per_pixel: bool = False,
 ) -> FrameShape:
     """Both SfS of one frame against its depth (or `reference`'s), at reduced resolution."""
     frame = (reference or capture).frames[index]
@@ -204,17 +205,20 @@ def frame_shapes(
     factor = max(1, math.ceil(capture.camera.width / max_width))
     camera = reduced(capture.camera, factor)
     valid = frame.geometry_mask
-    mask = _block(valid, factor, np.all)
-    image = _block(frame.image, factor)
-    reference = np.where(mask, _block(np.where(valid, frame.depth, 0.0), factor), np.nan)
-    near = _block(_near_highlight(frame.image, valid), factor, np.any)
+    mask = block_reduce(valid, factor, np.all)
+    image = block_reduce(frame.image, factor)
+    reference = np.where(mask, block_reduce(np.where(valid, frame.depth, 0.0), factor), np.nan)
+    near = block_reduce(_near_highlight(frame.image, valid), factor, np.any)
     if mask.sum() < 9:
         raise CtjaxError(f"frame {frame.name}: too few pixels with depth for SfS")
     volume = bounding_box_volume(reference, mask, camera)
     rho = np.asarray(lambertian.brdf.lobes[0].weight)
     tsai_shah, log_depth = sfs_tsai_shah(image, mask, camera, rho, volume)
-    refined = sfs_refined(image, mask, camera, cook_torrance, log_depth, volume, rounds=1)
-    return FrameShape(frame.name, image, reference, tsai_shah, refined, mask, near)
+    joint, _ = sfs_cook_torrance(image, mask, camera, cook_torrance, volume)
+    paper = None
+    if per_pixel:
+        paper = sfs_refined(image, mask, camera, cook_torrance, log_depth, volume, rounds=1)
+    return FrameShape(frame.name, image, reference, tsai_shah, joint, mask, near, paper)
 
 
 def evaluate(
@@ -225,6 +229,7 @@ def evaluate(
     sfs: bool = True,
     cook_torrance: ShadingModel | None = None,
     reference: Capture | None = None,
+    per_pixel_sfs: bool = False,
     progress: Callable[[str], None] = lambda message: None,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance (+ `light`: "near", "colocated" or "field") on the
@@ -232,7 +237,9 @@ def evaluate(
 
     `cook_torrance`: an already fitted model (its light named by `light`), used as is.
     `reference`: the capture whose depth the SfS is compared with (default: `capture`'s own;
-    e.g. ground truth when `capture`'s shape came from structure-from-motion)."""
+    e.g. ground truth when `capture`'s shape came from structure-from-motion).
+    `per_pixel_sfs`: also run the paper's per-pixel Cook-Torrance SfS (eq. 9 on Tsai-Shah's
+    normals) and report it beside the joint one."""
     if light not in LIGHTS:
         raise CtjaxError(f"unknown light model {light!r}; known: {', '.join(LIGHTS)}")
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
@@ -266,7 +273,14 @@ def evaluate(
         for index in test:
             progress(f"shape from shading of test frame {capture.frames[index].name}...")
             shapes.append(
-                frame_shapes(capture, index, lambertian.model, cook_torrance, reference=reference)
+                frame_shapes(
+                    capture,
+                    index,
+                    lambertian.model,
+                    cook_torrance,
+                    reference=reference,
+                    per_pixel=per_pixel_sfs,
+                )
             )
         timings["sfs"] = time.perf_counter() - tic
     notes = []

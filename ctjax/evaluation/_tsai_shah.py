@@ -23,6 +23,9 @@ which does not depend on the depth's scale: the result is the shape up to scale.
 above the model's maximum (highlights) is clipped to it.
 """
 
+from collections.abc import Callable
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -42,6 +45,12 @@ DOME = 0.1
 # residuals (N.L units): chosen on synthetic organs (3 gave 20 mm error, 30 gave 2.7 mm
 # median, 300 gave 4.0 mm on a 320x256 frame).
 CURVATURE_WEIGHT = 30.0
+# The normal equations are symmetric positive definite: SuperLU's minimum-degree ordering on
+# A + A^T fills in less than its default COLAMD (measured 1.8x faster on 160x128 frames).
+_ORDERING = "MMD_AT_PLUS_A"
+# Pixel counts are padded up to a power of two (at least this) so that frames of one size
+# reuse the compiled linearisation.
+_MIN_BUCKET = 256
 
 
 def lambertian_reflectance(p, q, pixel, camera: Camera):
@@ -52,6 +61,25 @@ def lambertian_reflectance(p, q, pixel, camera: Camera):
     return normal_from_gradients(p, q, pixel, camera) @ light
 
 
+class LambertianResiduals(eqx.Module):
+    """Tsai-Shah's shading equation of one pixel, N.L - E (E the normalised shading)."""
+
+    camera: Camera
+
+    def __call__(self, z, p, q, u, v, shading):
+        return lambertian_reflectance(p, q, (u, v), self.camera)[None] - shading
+
+
+@eqx.filter_jit
+def _linearise(residuals, z, p, q, u, v, values):
+    """Every pixel's residuals and their derivatives in (z, p, q), vmapped."""
+
+    def one(*args):
+        return residuals(*args), jax.jacfwd(residuals, (0, 1, 2))(*args)
+
+    return jax.vmap(one)(z, p, q, u, v, values)
+
+
 def initial_log_depth(camera: Camera) -> np.ndarray:
     """A shallow dome z0 = DOME * (x^2 + y^2) on normalised image coordinates."""
     rows, cols = np.indices((camera.height, camera.width), dtype=np.float64)
@@ -60,20 +88,16 @@ def initial_log_depth(camera: Camera) -> np.ndarray:
     return DOME * (x * x + y * y)
 
 
-def _difference_operators(mask: np.ndarray):
-    """Sparse backward differences (p, q) and second differences over the pixels of `mask`
-    (rows where a neighbour is missing are empty)."""
+def _difference_operators(mask: np.ndarray, scheme: str = "backward"):
+    """Sparse first differences (p, q) and second differences over the pixels of `mask`.
+
+    `scheme` "backward" is Tsai-Shah's p[i, j] = z[i, j] - z[i, j-1] (rows where the
+    neighbour is missing are empty); "central" is (z[i, j+1] - z[i, j-1]) / 2, centred on
+    the pixel whose value it explains, one-sided where a neighbour is missing."""
     count = int(mask.sum())
     index = np.full(mask.shape, -1, np.int64)
     index[mask] = np.arange(count)
     here = index[mask]
-
-    def first(neighbour):
-        ok = neighbour[mask] >= 0
-        rows = np.concatenate([np.nonzero(ok)[0]] * 2)
-        cols = np.concatenate([here[ok], neighbour[mask][ok]])
-        values = np.concatenate([np.ones(ok.sum()), -np.ones(ok.sum())])
-        return sparse.csr_matrix((values, (rows, cols)), shape=(count, count))
 
     def shifted(dr, dc):
         out = np.full(mask.shape, -1, np.int64)
@@ -81,19 +105,144 @@ def _difference_operators(mask: np.ndarray):
         out[max(dr, 0) : h + min(dr, 0), max(dc, 0) : w + min(dc, 0)] = index[
             max(-dr, 0) : h + min(-dr, 0), max(-dc, 0) : w + min(-dc, 0)
         ]
-        return out
+        return out[mask]
+
+    def matrix(rows, cols, values):
+        return sparse.csr_matrix(
+            (np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(count, count),
+        )
+
+    def first(before, after):
+        has_before, has_after = before >= 0, after >= 0
+        if scheme == "backward":
+            ok = np.nonzero(has_before)[0]
+            return matrix([ok, ok], [here[ok], before[ok]], [np.ones(ok.size), -np.ones(ok.size)])
+        both = np.nonzero(has_before & has_after)[0]
+        back = np.nonzero(has_before & ~has_after)[0]
+        ahead = np.nonzero(~has_before & has_after)[0]
+        return matrix(
+            [both, both, back, back, ahead, ahead],
+            [after[both], before[both], here[back], before[back], after[ahead], here[ahead]],
+            [
+                np.full(both.size, 0.5),
+                np.full(both.size, -0.5),
+                np.ones(back.size),
+                -np.ones(back.size),
+                np.ones(ahead.size),
+                -np.ones(ahead.size),
+            ],
+        )
 
     left, up = shifted(0, 1), shifted(1, 0)
     right, down = shifted(0, -1), shifted(-1, 0)
     second = []
     for before, after in ((left, right), (up, down)):
-        ok = (before[mask] >= 0) & (after[mask] >= 0)
+        ok = (before >= 0) & (after >= 0)
         n = int(ok.sum())
         rows = np.concatenate([np.arange(n)] * 3)
-        cols = np.concatenate([here[ok], before[mask][ok], after[mask][ok]])
+        cols = np.concatenate([here[ok], before[ok], after[ok]])
         values = np.concatenate([-2 * np.ones(n), np.ones(n), np.ones(n)])
         second.append(sparse.csr_matrix((values, (rows, cols)), shape=(n, count)))
-    return first(left), first(up), sparse.vstack(second).tocsr()
+    return first(left, right), first(up, down), sparse.vstack(second).tocsr()
+
+
+def solve_log_depth(
+    residuals: Callable,
+    mask: np.ndarray,
+    camera: Camera,
+    start: np.ndarray,
+    *,
+    values: np.ndarray | None = None,
+    iterations: int = 15,
+    curvature_weight: float = CURVATURE_WEIGHT,
+    differences: str = "backward",
+    rtol: float = 1e-6,
+) -> tuple[np.ndarray, float]:
+    """The log depth (H, W) minimising every pixel's shading residuals plus the curvature
+    penalty, by damped Gauss-Newton on all pixels jointly (sparse normal equations).
+
+    `residuals(z, p, q, u, v, values)` is one pixel's residual vector (K,) as a JAX function
+    of its log depth `z`, Tsai-Shah's backward-difference gradients `p`, `q`, its position
+    (u, v) and its row of `values` (a (N, C) array, or None; N the pixels of `mask` in
+    row-major order); it is linearised by autodiff, vmapped over the pixels: pass an
+    `equinox.Module` (e.g. `LambertianResiduals`) so that the compiled linearisation is
+    reused. `start` (H, W) is the initial log depth. `differences`: "backward" (Tsai-Shah's)
+    or "central". Stops after `iterations` steps or when a step lowers the cost by less than
+    `rtol` of it. Returns the log depth (NaN outside `mask`) and the final RMS of the shading
+    residuals.
+    """
+    if differences not in ("backward", "central"):
+        raise CtjaxError(f"differences must be 'backward' or 'central', got {differences!r}")
+    rows, cols = np.nonzero(mask)
+    pixel = (jnp.asarray(cols, np.float64), jnp.asarray(rows, np.float64))
+    d_u, d_v, curvature = _difference_operators(mask, differences)
+    count = len(rows)
+    padding = max(_MIN_BUCKET, 1 << (count - 1).bit_length()) - count
+
+    def padded(x):
+        return jnp.asarray(
+            np.pad(np.asarray(x), [(0, padding)] + [(0, 0)] * (np.ndim(x) - 1), "edge")
+        )
+
+    pixel = tuple(padded(c) for c in pixel)
+    data = None if values is None else padded(values)
+
+    def linearise(z):
+        value, slopes = _linearise(
+            residuals, padded(z), padded(d_u @ z), padded(d_v @ z), *pixel, data
+        )
+        value = np.asarray(value)[:count]
+        residual = np.concatenate([value.T.reshape(-1), curvature_weight * (curvature @ z)])
+        return residual, [np.asarray(s)[:count] for s in slopes], value.size
+
+    z = np.asarray(start, np.float64)[mask]
+    residual, slopes, size = linearise(z)
+    cost = residual @ residual
+    damping = 1.0
+    for _ in range(iterations):
+        # One block of rows per residual component k: dr_k/dz + dr_k/dp D_u + dr_k/dq D_v.
+        blocks = [
+            sparse.diags(slopes[0][:, k])
+            + sparse.diags(slopes[1][:, k]) @ d_u
+            + sparse.diags(slopes[2][:, k]) @ d_v
+            for k in range(slopes[0].shape[1])
+        ]
+        jacobian = sparse.vstack([*blocks, curvature_weight * curvature]).tocsr()
+        normal = (jacobian.T @ jacobian).tocsc()
+        gradient = jacobian.T @ residual
+        scaling = sparse.diags(normal.diagonal() + 1e-12)
+        while damping < 1e8:
+            step = sparse_linalg.spsolve(
+                normal + damping * scaling, -gradient, permc_spec=_ORDERING
+            )
+            trial, trial_slopes, _ = linearise(z + step)
+            trial_cost = trial @ trial
+            if np.isfinite(trial_cost) and trial_cost < cost:
+                converged = cost - trial_cost <= rtol * cost
+                z, residual, slopes, cost = z + step, trial, trial_slopes, trial_cost
+                damping = max(damping / 3, 1e-6)
+                break
+            damping *= 4
+        else:
+            break
+        if converged:
+            break
+    out = np.full(mask.shape, np.nan)
+    out[mask] = z
+    return out, float(np.sqrt(np.mean(residual[:size] ** 2)))
+
+
+def _check(shading: np.ndarray, mask: np.ndarray, camera: Camera, what: str) -> None:
+    if shading.shape[:2] != (camera.height, camera.width) or mask.shape != shading.shape[:2]:
+        raise CtjaxError(
+            f"{what}: image {shading.shape} and mask {mask.shape} must both be "
+            f"(height, width) = ({camera.height}, {camera.width})"
+        )
+    if mask.sum() < 9:
+        raise CtjaxError(f"{what}: the mask has {int(mask.sum())} pixel(s), needs 9 or more")
+    if not np.all(np.isfinite(shading[mask])):
+        raise CtjaxError(f"{what}: the image has non-finite values inside the mask")
 
 
 def tsai_shah(
@@ -113,59 +262,15 @@ def tsai_shah(
     """
     shading = np.asarray(shading, np.float64)
     mask = np.asarray(mask, bool)
-    if shading.shape != (camera.height, camera.width) or mask.shape != shading.shape:
-        raise CtjaxError(
-            f"Tsai-Shah: shading {shading.shape} and mask {mask.shape} must both be "
-            f"(height, width) = ({camera.height}, {camera.width})"
-        )
-    if mask.sum() < 9:
-        raise CtjaxError(f"Tsai-Shah: the mask has {int(mask.sum())} pixel(s), needs 9 or more")
-    if not np.all(np.isfinite(shading[mask])):
-        raise CtjaxError("Tsai-Shah: the shading image has non-finite values inside the mask")
-    measured = np.clip(shading[mask], 0.0, 1.0)
-    rows, cols = np.nonzero(mask)
-    pixel = (jnp.asarray(cols, np.float64), jnp.asarray(rows, np.float64))
-    d_u, d_v, curvature = _difference_operators(mask)
-    reflectance = jax.jit(
-        jax.vmap(
-            jax.value_and_grad(
-                lambda p, q, u, v: lambertian_reflectance(p, q, (u, v), camera), (0, 1)
-            )
-        )
+    _check(shading, mask, camera, "Tsai-Shah")
+    measured = np.clip(shading[mask], 0.0, 1.0)[:, None]
+    log_depth, _ = solve_log_depth(
+        LambertianResiduals(camera),
+        mask,
+        camera,
+        initial_log_depth(camera),
+        values=measured,
+        iterations=iterations,
+        curvature_weight=curvature_weight,
     )
-
-    def linearise(z):
-        value, (dp, dq) = reflectance(jnp.asarray(d_u @ z), jnp.asarray(d_v @ z), *pixel)
-        residual = np.concatenate(
-            [np.asarray(value) - measured, curvature_weight * (curvature @ z)]
-        )
-        return residual, (np.asarray(dp), np.asarray(dq))
-
-    z = initial_log_depth(camera)[mask]
-    residual, slopes = linearise(z)
-    cost = residual @ residual
-    damping = 1.0
-    for _ in range(iterations):
-        jacobian = sparse.vstack(
-            [
-                sparse.diags(slopes[0]) @ d_u + sparse.diags(slopes[1]) @ d_v,
-                curvature_weight * curvature,
-            ]
-        ).tocsr()
-        normal = (jacobian.T @ jacobian).tocsc()
-        gradient = jacobian.T @ residual
-        scaling = sparse.diags(normal.diagonal() + 1e-12)
-        while damping < 1e8:
-            step = sparse_linalg.spsolve(normal + damping * scaling, -gradient)
-            trial, trial_slopes = linearise(z + step)
-            trial_cost = trial @ trial
-            if trial_cost < cost:
-                z, residual, slopes, cost = z + step, trial, trial_slopes, trial_cost
-                damping = max(damping / 3, 1e-6)
-                break
-            damping *= 4
-        else:
-            break
-    out = np.full(mask.shape, np.nan)
-    out[mask] = z
-    return out
+    return log_depth
