@@ -204,6 +204,11 @@ estimate) assumes one albedo, which biases F_tilde on textured tissue.</p>
 <h2>Light</h2>{light}
 <h2>Evaluation (paper section 7; calibration frames {ev["calibration_frames"]}, test frames
 {ev["test_frames"]})</h2>{errors}
+<p>Shape from shading, both against the ground-truth depth after scaling to its bounding-box
+volume: Lambertian = Tsai-Shah (light at the tip); Cook-Torrance = the same formulation with
+the estimated Cook-Torrance model and near light as the reflectance map, every pixel's RGB
+linearised, solved jointly and coarse to fine. Both assume one albedo: the texture reads as
+shading, which limits both here.</p>
 <h2>Figures</h2>{images}
 <h2>Timings</h2>{timings}
 </body></html>
