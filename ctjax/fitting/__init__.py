@@ -16,6 +16,7 @@ from ._model import paper_model as paper_model
 from ._parameters import Parameter as Parameter
 from ._parameters import constrained as constrained
 from ._parameters import free_parameters as free_parameters
+from ._parameters import strongly_typed as strongly_typed
 from ._parameters import unconstrained as unconstrained
 from ._samples import PixelSamples as PixelSamples
 from ._samples import capture_samples as capture_samples

@@ -13,7 +13,7 @@ import optimistix as optx
 from .._typing import Array, Float, Scalar
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
-from ._parameters import Parameter, constrained, free_parameters, unconstrained
+from ._parameters import Parameter, constrained, free_parameters, strongly_typed, unconstrained
 
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
 # s.pixel)` for pixels of a capture, or a BRDF evaluated at (L, V) for measured BRDF data.
@@ -42,10 +42,16 @@ def predictions(model, samples, predict: Predict) -> Float[Array, "N 3"]:
     return jax.vmap(lambda s: predict(model, s))(samples)
 
 
-@eqx.filter_jit
 def rmse_levels(model, samples, predict: Predict, scale: float = 255.0) -> Scalar:
     """Root-mean-square error of `model` on `samples`, times `scale` (255: 8-bit levels
     for images in linear units; 1 for measured BRDF data in their own units)."""
+    # One signature however `scale` is passed (default, positional, int or float): the
+    # compiled function is shared.
+    return _rmse_levels(model, samples, predict, float(scale))
+
+
+@eqx.filter_jit
+def _rmse_levels(model, samples, predict: Predict, scale: float) -> Scalar:
     residual = predictions(model, samples, predict) - samples.values
     return scale * jnp.sqrt(jnp.mean(residual * residual))
 
@@ -163,7 +169,9 @@ ROUGHNESS_STARTS = (0.1, 0.2, 0.35)
 
 def roughness_variants(model) -> list:
     """`model`, and copies with every scalar microfacet-distribution parameter set to each
-    of `ROUGHNESS_STARTS`."""
+    of `ROUGHNESS_STARTS`; all strongly typed (see `strongly_typed`), so that they share
+    one compilation of each fitter."""
+    model = strongly_typed(model)
     scalars = [
         p
         for p in free_parameters(model)

@@ -6,6 +6,7 @@ from .._vector import Vec3
 from ..effects import AbstractImageEffect
 from ..lights import AbstractLight, ColocatedLight
 from ..lobes import BRDF, cook_torrance_brdf
+from ._parameters import strongly_typed
 
 
 class ShadingModel(eqx.Module):
@@ -29,5 +30,9 @@ class ShadingModel(eqx.Module):
 
 
 def paper_model(rho_tilde=1.0, F_tilde=0.3, sigma=0.2) -> ShadingModel:
-    """The paper's model: Lambertian + Beckmann specular, constant F, light at the camera."""
-    return ShadingModel(cook_torrance_brdf(rho_tilde, F_tilde, sigma), ColocatedLight())
+    """The paper's model: Lambertian + Beckmann specular, constant F, light at the camera.
+
+    Its arrays are strongly typed (see `strongly_typed`), like the fitters' copies of it.
+    """
+    model = ShadingModel(cook_torrance_brdf(rho_tilde, F_tilde, sigma), ColocatedLight())
+    return strongly_typed(model)

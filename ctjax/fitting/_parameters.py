@@ -84,6 +84,22 @@ def _from_unconstrained(u, domain):
     return u
 
 
+def strongly_typed(tree):
+    """`tree` with its floating-point JAX arrays strongly typed, in their own dtype.
+
+    A Python float makes a weakly typed array (`jnp.asarray(0.2)`), which `jit` compiles
+    apart from a strongly typed one of the same dtype: models mixing the two (a start and
+    its copies with new values) would compile every fitter twice.
+    """
+
+    def leaf(x):
+        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact):
+            return jnp.asarray(x, x.dtype)
+        return x
+
+    return jax.tree_util.tree_map(leaf, tree)
+
+
 def unconstrained(model, parameters: list[Parameter]) -> list:
     """The unconstrained values of `parameters` in `model`."""
     return [_to_unconstrained(p.get(model), p.domain) for p in parameters]

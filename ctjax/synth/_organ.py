@@ -5,22 +5,24 @@ The surface is a height field `z = organ_depth(x, y)` (depth grows away from the
 smooth and with slopes well below the camera's ray slopes, so every ray meets it once.
 """
 
-import dataclasses
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 
-@dataclasses.dataclass(frozen=True)
-class OrganSurface:
-    """`z = base_mm + (x^2 + y^2) / (2 radius_mm) - sum_i A_i exp(-|p - c_i|^2 / (2 s_i^2))`."""
+class OrganSurface(eqx.Module):
+    """`z = base_mm + (x^2 + y^2) / (2 radius_mm) - sum_i A_i exp(-|p - c_i|^2 / (2 s_i^2))`.
+
+    A pytree that `cast_rays` traces: one compilation per image size serves every organ.
+    """
 
     base_mm: float
     radius_mm: float
-    centres_mm: np.ndarray  # (B, 2)
-    heights_mm: np.ndarray  # (B,)
-    widths_mm: np.ndarray  # (B,)
+    centres_mm: np.ndarray  # (B, 2) c_i
+    heights_mm: np.ndarray  # (B,) A_i
+    # (B,) 2 s_i^2, in NumPy float64 whatever JAX's precision (float32 captures keep their bits).
+    spreads_mm2: np.ndarray
 
     @classmethod
     def random(cls, rng: np.random.Generator, base_mm: float = 70.0) -> "OrganSurface":
@@ -28,20 +30,17 @@ class OrganSurface:
         angles = rng.uniform(0, 2 * np.pi, count)
         radii = rng.uniform(0, 35, count)
         centres = np.stack([radii * np.cos(angles), radii * np.sin(angles)], axis=-1)
-        return cls(
-            base_mm=base_mm,
-            radius_mm=float(rng.uniform(110, 150)),
-            centres_mm=centres,
-            heights_mm=rng.uniform(3.0, 8.0, count) * rng.choice([-1.0, 1.0], count, p=[0.3, 0.7]),
-            widths_mm=rng.uniform(7, 15, count),
-        )
+        radius = float(rng.uniform(110, 150))
+        heights = rng.uniform(3.0, 8.0, count) * rng.choice([-1.0, 1.0], count, p=[0.3, 0.7])
+        widths = rng.uniform(7, 15, count)
+        return cls(base_mm, radius, centres, heights, 2 * widths**2)
 
     def depth(self, x, y):
         """Height field z(x, y) in mm (JAX, differentiable)."""
         dome = (x * x + y * y) / (2 * self.radius_mm)
         dx = x - self.centres_mm[:, 0]
         dy = y - self.centres_mm[:, 1]
-        bumps = self.heights_mm * jnp.exp(-(dx * dx + dy * dy) / (2 * self.widths_mm**2))
+        bumps = self.heights_mm * jnp.exp(-(dx * dx + dy * dy) / self.spreads_mm2)
         return self.base_mm + dome - jnp.sum(bumps)
 
     def intersect(self, origin, direction, iterations: int = 40):
@@ -69,12 +68,20 @@ class OrganSurface:
         return jnp.where(ok, point, jnp.nan), jnp.where(ok, normal, jnp.nan)
 
 
+@jax.jit
+def _cast(surface: OrganSurface, rotation, centre, rays):
+    """Camera-frame points and normals, and world points, where the camera-frame `rays`
+    (N, 3) of a camera at `centre` with camera-to-world `rotation` meet the surface.
+    Surface and pose are arguments, not constants: one compilation per image size."""
+    directions = rays @ rotation.T
+    points, normals = jax.vmap(surface.intersect, in_axes=(None, 0))(centre, directions)
+    return (points - centre) @ rotation, normals @ rotation, points
+
+
 def cast_rays(surface: OrganSurface, camera, pose: np.ndarray):
     """Depth (H, W) and camera-frame unit normals (H, W, 3) of the organ seen from `pose`,
     plus world points (H, W, 3); NaN where no hit. Default JAX precision (float32 unless
     x64 is on): far below a pixel at laparoscope distances."""
-    rotation = jnp.asarray(pose[:3, :3])
-    centre = jnp.asarray(pose[:3, 3])
     u, v = np.meshgrid(
         np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64)
     )
@@ -86,16 +93,9 @@ def cast_rays(surface: OrganSurface, camera, pose: np.ndarray):
         ],
         axis=-1,
     ).reshape(-1, 3)
-
-    @jax.jit
-    def run(rays):
-        directions = rays @ rotation.T
-        points, normals = jax.vmap(surface.intersect, in_axes=(None, 0))(centre, directions)
-        points_camera = (points - centre) @ rotation
-        normals_camera = normals @ rotation
-        return points_camera, normals_camera, points
-
-    points_camera, normals_camera, points_world = run(jnp.asarray(rays_camera))
+    points_camera, normals_camera, points_world = _cast(
+        surface, jnp.asarray(pose[:3, :3]), jnp.asarray(pose[:3, 3]), jnp.asarray(rays_camera)
+    )
     shape = (camera.height, camera.width)
     depth = np.asarray(points_camera[:, 2]).reshape(shape)
     normals = np.asarray(normals_camera).reshape(*shape, 3)
