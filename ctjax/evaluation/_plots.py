@@ -45,7 +45,7 @@ def plot_error_bars(evaluation, path: Path) -> Path:
     left.set_xticks(range(2), ["calibration frames", "test frames"])
     left.set_ylabel("RGB RMSE (8-bit levels)")
     left.set_title("RGB error")
-    left.legend()
+    left.legend(loc="lower right")
     right.set_xticks(range(3), ["mean", "median", "mean near highlights"])
     right.set_ylabel("|depth error| (mm)")
     right.set_title("shape from shading, test frames")
