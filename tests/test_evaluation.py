@@ -2,6 +2,7 @@
 Cook-Torrance normal refinement, volume scaling and `ctjax evaluate`."""
 
 import json
+import re
 
 import jax.numpy as jnp
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 from helpers import reference_paper_image
 
 from ctjax import Camera
+from ctjax._errors import CtjaxError
 from ctjax._vector import Vec3
 from ctjax.cli import main
 from ctjax.evaluation import (
@@ -130,6 +132,34 @@ def test_cook_torrance_sfs_beats_tsai_shah_around_highlights(capture):
     assert np.mean(error_cook_torrance[near]) < 0.5 * np.mean(error_lambertian[near])
     assert cook_torrance.rms_levels < 2.0
     assert np.all(np.isfinite(cook_torrance.depth[mask]))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda a: {**a, "image": a["image"][:, :-1]}, "must both be"),
+        (lambda a: {**a, "image": a["image"][..., 0]}, "(height, width, channels)"),
+        (lambda a: {**a, "mask": np.zeros_like(a["mask"])}, "needs 9 or more"),
+        (lambda a: {**a, "image": np.where(a["mask"][..., None], np.nan, 0)}, "non-finite"),
+        (lambda a: {**a, "image": np.ones_like(a["image"])}, "saturated"),
+        (lambda a: {**a, "volume_mm3": -1.0}, "volume must be positive"),
+        (lambda a: {**a, "levels": 0}, "levels must be >= 1"),
+    ],
+)
+def test_cook_torrance_sfs_rejects_bad_input(capture, change, message):
+    frame = capture.frames[0]
+    truth = capture.truth
+    arguments = {
+        "image": frame.image,
+        "mask": frame.geometry_mask,
+        "camera": capture.camera,
+        "model": paper_model(truth["rho_tilde"], truth["F_tilde"], truth["sigma"]),
+        "volume_mm3": 1e4,
+        "levels": 1,
+        "iterations": 1,
+    }
+    with pytest.raises(CtjaxError, match=re.escape(message)):
+        sfs_cook_torrance(**change(arguments))
 
 
 def test_central_differences_explain_the_true_surface(capture):

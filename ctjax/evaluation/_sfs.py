@@ -31,7 +31,7 @@ from ._perspective import backward_gradients, gradients_from_normal, normal_from
 from ._pyramid import block_reduce, reduced, resample
 from ._refine import refine_normals
 from ._scale import scale_to_volume
-from ._tsai_shah import initial_log_depth, solve_log_depth, tsai_shah
+from ._tsai_shah import check_sfs_inputs, initial_log_depth, solve_log_depth, tsai_shah
 
 
 @dataclasses.dataclass
@@ -216,11 +216,14 @@ def sfs_cook_torrance(
     and the log depth."""
     image = np.asarray(image, np.float64)
     mask = np.asarray(mask, bool)
-    if image.ndim != 3 or image.shape[:2] != (camera.height, camera.width):
+    if image.ndim != 3:
         raise CtjaxError(
             f"shape from shading: image {image.shape} must be (height, width, channels) = "
             f"({camera.height}, {camera.width}, C)"
         )
+    check_sfs_inputs(image, mask, camera, "Cook-Torrance shape from shading")
+    if levels < 1:
+        raise CtjaxError(f"Cook-Torrance shape from shading: levels must be >= 1, got {levels}")
     unit = jnp.asarray(frame_brightness(image, mask) / math.sqrt(image.shape[-1]))
     if curvature_weight is None:
         focal = math.sqrt(float(camera.fx) * float(camera.fy))

@@ -233,7 +233,7 @@ def solve_log_depth(
     return out, float(np.sqrt(np.mean(residual[:size] ** 2)))
 
 
-def _check(shading: np.ndarray, mask: np.ndarray, camera: Camera, what: str) -> None:
+def check_sfs_inputs(shading: np.ndarray, mask: np.ndarray, camera: Camera, what: str) -> None:
     if shading.shape[:2] != (camera.height, camera.width) or mask.shape != shading.shape[:2]:
         raise CtjaxError(
             f"{what}: image {shading.shape} and mask {mask.shape} must both be "
@@ -262,7 +262,7 @@ def tsai_shah(
     """
     shading = np.asarray(shading, np.float64)
     mask = np.asarray(mask, bool)
-    _check(shading, mask, camera, "Tsai-Shah")
+    check_sfs_inputs(shading, mask, camera, "Tsai-Shah")
     measured = np.clip(shading[mask], 0.0, 1.0)[:, None]
     log_depth, _ = solve_log_depth(
         LambertianResiduals(camera),
