@@ -50,6 +50,7 @@ import numpy as np
 import optimistix as optx
 from scipy import ndimage
 
+from .._convert import cast_floating
 from .._errors import CtjaxError
 from .._geometry import points_from_depth
 from .._typing import Array, Float
@@ -226,7 +227,7 @@ def solve_pixels_closed_form(
 
     dtype = problems.values.dtype
     # The BRDF in the data's precision too: every iterate, step and cost in `dtype`.
-    brdf = jax.tree_util.tree_map(lambda a: a.astype(dtype) if eqx.is_inexact_array(a) else a, brdf)
+    brdf = cast_floating(brdf, dtype)
 
     def one(problem):
         def residual(y):
@@ -661,11 +662,7 @@ def calibrate_light_field(
             fits[name] = fit_field_brdf(
                 model, capture, calib, max_samples=max_samples, seed=seed, max_steps=100
             )
-        # `scale` positionally, as `fit_model` passes it: the same compiled function (a
-        # default and an explicit argument key different compilations).
-        heldout_fit = {
-            n: float(rmse_levels(f.model, test, pixel_predict, 255.0)) for n, f in fits.items()
-        }
+        heldout_fit = {n: float(rmse_levels(f.model, test, pixel_predict)) for n, f in fits.items()}
         lowest = min(heldout_fit.values())
         falloff = next(n for n in fits if heldout_fit[n] <= 1.01 * lowest)
         fit = fits[falloff]

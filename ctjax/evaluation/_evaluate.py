@@ -54,6 +54,24 @@ class FrameShape:
     # The paper's Cook-Torrance SfS (Tsai-Shah's normals refined per pixel, eq. 9), if run.
     per_pixel: ShapeFromShading | None = None
 
+    def error_mm(self, shape: ShapeFromShading) -> float | None:
+        """Mean |depth - reference| (mm) of one SfS over the compared pixels."""
+        return _mean(np.abs(shape.depth - self.reference)[self.mask])
+
+    def to_json(self) -> dict:
+        out = {
+            "name": self.name,
+            "pixels": int(self.mask.sum()),
+            "near_highlight_pixels": int((self.mask & self.near_highlight).sum()),
+            "lambertian_mm": self.error_mm(self.lambertian),
+            "cook_torrance_mm": self.error_mm(self.cook_torrance),
+            "cook_torrance_rms_levels": self.cook_torrance.rms_levels,
+        }
+        if self.per_pixel is not None:
+            out["cook_torrance_per_pixel_mm"] = self.error_mm(self.per_pixel)
+            out["cook_torrance_per_pixel_not_converged"] = self.per_pixel.not_converged
+        return out
+
 
 @dataclasses.dataclass
 class Evaluation:
@@ -113,27 +131,7 @@ class Evaluation:
                 "light": type(self.cook_torrance.light).__name__,
             },
         }
-        out["sfs_frames"] = [
-            {
-                "name": s.name,
-                "pixels": int(s.mask.sum()),
-                "near_highlight_pixels": int((s.mask & s.near_highlight).sum()),
-                "lambertian_mm": _mean(np.abs(s.lambertian.depth - s.reference)[s.mask]),
-                "cook_torrance_mm": _mean(np.abs(s.cook_torrance.depth - s.reference)[s.mask]),
-                "cook_torrance_rms_levels": s.cook_torrance.rms_levels,
-                **(
-                    {
-                        "cook_torrance_per_pixel_mm": _mean(
-                            np.abs(s.per_pixel.depth - s.reference)[s.mask]
-                        ),
-                        "cook_torrance_per_pixel_not_converged": s.per_pixel.not_converged,
-                    }
-                    if s.per_pixel
-                    else {}
-                ),
-            }
-            for s in self.shapes
-        ]
+        out["sfs_frames"] = [shape.to_json() for shape in self.shapes]
         out["timings_s"] = {k: round(v, 2) for k, v in self.timings.items()}
         out["notes"] = self.notes
         return out
