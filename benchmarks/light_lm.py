@@ -13,7 +13,7 @@ so L is shared), data noise-free and with 1 level of noise; the start is the tru
   several (rtol, atol, max_steps); under vmap every pixel runs until the slowest stops.
 - scipy-lm: `scipy.optimize.least_squares(method="lm")` per pixel on a sample, with the
   residuals and the Jacobian jitted in JAX (what a careful user writes).
-- closed-form-lm: ctjax's `solve_pixels_closed_form` (`engine="closed-form"`), a batched LM
+- closed-form-lm: ctjax's `solve_pixels` with `ClosedFormLM` (`--engine closed-form`), a batched LM
   written out in JAX, a fixed number of iterations, the Jacobian by `jax.jacfwd`, the 2x2
   damped normal equations solved by the explicit formula.
 
@@ -37,11 +37,11 @@ import optimistix as optx  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from ctjax._vector import Vec3, tangent_direction  # noqa: E402
-from ctjax.calibration._light_field import (  # noqa: E402
+from ctjax.calibration import (  # noqa: E402
+    ClosedFormLM,
     PixelProblem,
     pixel_residuals,
     solve_pixels,
-    solve_pixels_closed_form,
 )
 from ctjax.lobes import cook_torrance_brdf  # noqa: E402
 
@@ -176,8 +176,8 @@ def main():
             )
         for iterations in (5, 8, 10, 12):  # 10: calibrate_light_field's default
             out, seconds, compile_s = timed(
-                lambda iterations=iterations, problem=problem: solve_pixels_closed_form(
-                    problem, BRDF, 0.0, iterations
+                lambda iterations=iterations, problem=problem: solve_pixels(
+                    problem, BRDF, 0.0, ClosedFormLM(iterations)
                 ),
                 args.repeats,
             )

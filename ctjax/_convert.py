@@ -71,6 +71,22 @@ def cast_floating(tree, dtype):
     return jax.tree_util.tree_map(leaf, tree)
 
 
+def strongly_typed(tree):
+    """`tree` with its floating-point JAX arrays strongly typed, in their own dtype.
+
+    A Python float makes a weakly typed array (`jnp.asarray(0.2)`), which `jit` compiles
+    apart from a strongly typed one of the same dtype: models mixing the two (a start and
+    its copies with new values) would compile every fitter twice.
+    """
+
+    def leaf(x):
+        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact):
+            return jnp.asarray(x, x.dtype)
+        return x
+
+    return jax.tree_util.tree_map(leaf, tree)
+
+
 # Parameter domains, declared where each field is defined (`eqx.field(metadata=...)`), so
 # that the fitters keep every parameter physical by reparametrisation without a registry:
 # a new lobe or effect declares its own. Fields without a domain are free and unconstrained.
@@ -84,3 +100,10 @@ UNIT_INTERVAL = domain(0.0, 1.0)
 # Held fixed by the fitters (normalisations, directions, intensities the paper folds into
 # the weights).
 FIXED = {"domain": "fixed"}
+
+
+def named(name: str, metadata: dict | None = None) -> dict:
+    """Field metadata: the parameter's name in the paper's words (`rho_tilde`, `F_tilde`,
+    `sigma`, `offset_mm`...), under which every estimator's JSON shows it (`ctjax.to_json`),
+    with `metadata` (a domain) kept. A new lobe names its own parameters this way."""
+    return {**(metadata or {}), "name": name}

@@ -246,7 +246,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         for warning in shape["warnings"]:
             print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
-    result = fit_capture(capture, _mask_options(args), family)
+    result = fit_capture(capture, _mask_options(args), family).to_json()
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, result)
@@ -293,20 +293,18 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     if args.model == "field":
         return _calibrate_light_field(args)
     capture = load_capture(args.capture)
-    falloff = (
-        None if args.falloff == "auto" else tuple(f for f in args.falloff.split("+") if f != "none")
-    )
+    falloff = _falloff(args.falloff, capture)
     result = calibrate_near_light(capture, calibration=args.calib, falloff=falloff)
     summary = result.to_json()
     atomic_write_json(args.json, summary)
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     print(
-        f"light offset ({offset}) mm, falloff {'+'.join(result.falloff) or 'none'}; "
+        f"light offset ({offset}) mm, falloff {'+'.join(summary['falloff']) or 'none'}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
-    if result.status != "successful":
-        print(f"ctjax calibrate-light: warning: solver status {result.status}", file=sys.stderr)
+    for warning in result.warnings:
+        print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -320,12 +318,14 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
     from .io._atomic import atomic_write_bytes, atomic_write_json
 
     capture = load_capture(args.capture)
-    result = calibrate_light_field(capture, calibration=args.calib, engine=args.engine)
+    result = calibrate_light_field(
+        capture, calibration=args.calib, solver=_field_solver(args.engine)
+    )
     summary = result.to_json()
     atomic_write_json(args.json, summary)
     if args.npz is not None:
         buffer = io.BytesIO()
-        np.savez_compressed(buffer, **result.npz_arrays())
+        np.savez_compressed(buffer, **result.arrays)
         atomic_write_bytes(args.npz, buffer.getvalue())
     counts = summary["solver_status"]
     print(
@@ -348,7 +348,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     evaluation = evaluate(
         capture,
         calibration=args.calib,
-        light=args.light,
+        cook_torrance=_cook_torrance_estimator(args.light),
         per_pixel_sfs=args.per_pixel_sfs,
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
     )
@@ -379,6 +379,42 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+# The command line's words for objects, in one place.
+
+
+def _falloff(name: str, capture):
+    """`--falloff`: None (auto: chosen on held-out frames) or the falloff objects."""
+    if name == "auto":
+        return None
+    from .heldout import median_depth_mm
+    from .lights import InverseSquare, SpotFalloff
+
+    factors = {
+        "inverse_square": lambda: InverseSquare(median_depth_mm(capture)),
+        "spot": lambda: SpotFalloff(2.0),
+    }
+    return tuple(factors[part]() for part in name.split("+") if part != "none")
+
+
+def _field_solver(engine: str):
+    """`--engine`: the light field's per-pixel solver."""
+    from .calibration import FIELD_SOLVER, ClosedFormLM
+
+    return {"optimistix": FIELD_SOLVER, "closed-form": ClosedFormLM(iterations=10)}[engine]
+
+
+def _cook_torrance_estimator(light: str):
+    """`--light`: how `ctjax evaluate` fits Cook-Torrance and its light."""
+    from .calibration import calibrate_light_field, calibrate_near_light
+    from .evaluation import fit_colocated
+
+    return {
+        "near": calibrate_near_light,
+        "colocated": fit_colocated,
+        "field": calibrate_light_field,
+    }[light]
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with bad options reported on one line (`ctjax fit: error: ...`), status 2."""
 
@@ -392,18 +428,33 @@ def build_parser() -> argparse.ArgumentParser:
         description="Cook-Torrance reflectance and laparoscope light from images (JAX).",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _synth_command(commands)
+    _masks_command(commands)
+    _recon_command(commands)
+    _fit_command(commands)
+    _diag_command(commands)
+    _light_command(commands)
+    _evaluate_command(commands)
+    _demo_command(commands)
+    return parser
 
+
+def _synth_command(commands) -> None:
     synth = commands.add_parser("synth", help="generate a synthetic laparoscope capture")
     synth.add_argument("out", type=Path, help="output capture folder")
     _add_synth_arguments(synth, frames=5, texture=True)
     synth.set_defaults(run=_cmd_synth)
 
+
+def _masks_command(commands) -> None:
     masks = commands.add_parser("masks", help="specular set S and ring S~ of every frame")
     masks.add_argument("capture", type=Path, help="capture folder")
     masks.add_argument("--out", type=Path, required=True, help="folder for the PNG masks")
     _add_mask_arguments(masks)
     masks.set_defaults(run=_cmd_masks)
 
+
+def _recon_command(commands) -> None:
     recon = commands.add_parser(
         "reconstruct", help="depth, normals and poses from the images (structure-from-motion)"
     )
@@ -426,6 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")
     recon.set_defaults(run=_cmd_reconstruct)
 
+
+def _fit_command(commands) -> None:
     fit = commands.add_parser("fit", help="estimate (rho_tilde, F_tilde, sigma) from a capture")
     fit.add_argument(
         "capture", type=Path, help="capture folder (without depth or normals: reconstructed first)"
@@ -440,6 +493,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_mask_arguments(fit)
     fit.set_defaults(run=_cmd_fit)
 
+
+def _diag_command(commands) -> None:
     diag = commands.add_parser(
         "diagnose", help="where the model fails, and which physical effect is missing"
     )
@@ -456,6 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     diag.set_defaults(run=_cmd_diagnose)
 
+
+def _light_command(commands) -> None:
     light = commands.add_parser("calibrate-light", help="the laparoscope's light from images")
     light.add_argument("capture", type=Path, help="capture folder (with depth)")
     light.add_argument(
@@ -487,6 +544,8 @@ def build_parser() -> argparse.ArgumentParser:
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     light.set_defaults(run=_cmd_calibrate_light)
 
+
+def _evaluate_command(commands) -> None:
     evaluate = commands.add_parser(
         "evaluate", help="Lambertian vs Cook-Torrance: RGB error and shape from shading"
     )
@@ -509,12 +568,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.set_defaults(run=_cmd_evaluate)
 
+
+def _demo_command(commands) -> None:
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
     demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")
     # texture contrast: ctjax.demo.DEMO_TEXTURE_CONTRAST (not imported here: it loads JAX)
     _add_synth_arguments(demo, frames=5, texture=True, texture_contrast=0.3)
     demo.set_defaults(run=_cmd_demo)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

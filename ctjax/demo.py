@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import calibrate_light_field, calibrate_near_light
-from .estimation._capture_fit import MaskOptions, capture_sets, fit_capture
+from .calibration import ClosedFormLM, calibrate_light_field, calibrate_near_light
+from .estimation import MaskOptions, capture_sets, fit_capture
 from .evaluation import evaluate, evaluation_plots
 from .io import load_capture
 from .sfm import reconstruct
@@ -93,8 +93,8 @@ def _figure_light(field, near, capture, path: Path) -> Path:
     frame = capture.frames[0]
     fig = Figure(figsize=(11, 3.8), layout="constrained")
     axes = fig.subplots(1, 2)
-    view = np.asarray(field.view)
-    angle = np.degrees(np.arccos(np.clip(np.sum(field.directions * view, axis=-1), -1, 1)))
+    view, directions = field.arrays["view"], field.arrays["directions"]
+    angle = np.degrees(np.arccos(np.clip(np.sum(directions * view, axis=-1), -1, 1)))
     shown = axes[0].imshow(np.where(frame.geometry_mask, angle, np.nan), cmap="viridis")
     axes[0].set_title("light field: angle between L and V (deg)")
     fig.colorbar(shown, ax=axes[0], shrink=0.8)
@@ -102,7 +102,7 @@ def _figure_light(field, near, capture, path: Path) -> Path:
     rows, cols = np.mgrid[
         step // 2 : capture.camera.height : step, step // 2 : capture.camera.width : step
     ]
-    directions = field.directions[rows, cols]
+    directions = directions[rows, cols]
     axes[1].imshow(np.clip(frame.image, 0, 1))
     axes[1].quiver(cols, rows, directions[..., 0], directions[..., 1], color="w", angles="xy")
     offset = ", ".join(f"{v:.1f}" for v in near["offset_mm"])
@@ -248,7 +248,7 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
     sets = step("masks", "specular set S and ring S~...", capture_sets, capture, masks)
     fit = step(
         "fit", "BRDF (rho_tilde, F_tilde, sigma) on the ring...", fit_capture, capture, masks
-    )
+    ).to_json()
     _log(
         f"  sigma {fit['sigma']:.4f} (truth {truth.truth['sigma']}), rho_tilde "
         f"{np.round(fit['rho_tilde'], 3).tolist()}, F_tilde {np.round(fit['F_tilde'], 3).tolist()}"
@@ -267,15 +267,14 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         calibrate_light_field,
         capture,
         brdf_rounds=1,
-        engine="closed-form",
+        solver=ClosedFormLM(iterations=10),
     )
     evaluation = step(
         "evaluate",
         "evaluation: Lambertian vs Cook-Torrance, RGB error and shape from shading...",
         evaluate,
         capture,
-        light="near",
-        cook_torrance=near.model,
+        cook_torrance=near,
         reference=truth,
         progress=lambda m: _log(f"  {m}"),
     )

@@ -21,7 +21,7 @@ import ctjax
 from ctjax import Camera
 from ctjax._errors import CtjaxError
 from ctjax.cli import main
-from ctjax.estimation._capture_fit import capture_sets, fit_capture
+from ctjax.estimation import capture_sets, fit_capture
 from ctjax.estimation._specular_set import specular_sets
 from ctjax.io import load_alta, load_capture
 from ctjax.synth import SynthOptions, synthesize
@@ -119,7 +119,7 @@ def _fit(root):
 
 
 def _needs_two(root):
-    from ctjax.diagnostics._diagnose import split_frames
+    from ctjax.heldout import split_frames
 
     capture = load_capture(root)
     return split_frames(len(capture), source=capture.root)

@@ -19,8 +19,10 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     result = calibrate_near_light(load_capture(synthesize(tmp_path / "c", options)))
     np.testing.assert_allclose(np.asarray(result.model.light.position_mm), [6, -2, 0], atol=1.0)
     # Falloffs the data do not show are not chosen (the simplest model within 1%).
-    assert result.falloff == ()
-    assert set(result.alternatives) == {"none", "inverse_square", "spot", "inverse_square+spot"}
+    assert result.model.light.falloff == ()
+    assert result.details["falloff"] == {}
+    selection = result.details["falloff_selection"]
+    assert set(selection) == {"none", "inverse_square", "spot", "inverse_square+spot"}
     assert result.heldout_rmse <= 1.15 * NOISE_FLOOR
     assert result.noise_floor == pytest.approx(NOISE_FLOOR, rel=0.1)
 

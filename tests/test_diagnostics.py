@@ -42,7 +42,9 @@ def captures(tmp_path_factory):
 @pytest.mark.parametrize("effect", list(HIDDEN))
 def test_verdict_names_the_hidden_effect(captures, effect):
     diagnosis = diagnose(captures[effect])
-    assert diagnosis.verdict == effect, [(c.effect, c.heldout_rmse) for c in diagnosis.candidates]
+    assert diagnosis.verdict == effect, [
+        (c.details["effect"], c.heldout_rmse) for c in diagnosis.candidates
+    ]
     # The noise floor is estimated from the data: 1 level of noise plus quantisation.
     assert diagnosis.noise_floor == pytest.approx(np.sqrt(1 + 1 / 12), rel=0.2)
     if effect == "none":
@@ -50,7 +52,7 @@ def test_verdict_names_the_hidden_effect(captures, effect):
     else:
         best = diagnosis.candidates[0]
         assert best.heldout_rmse <= 1.15 * diagnosis.noise_floor
-        assert best.improvement > 0
+        assert best.details["improvement"] > 0
 
 
 def test_diagnose_command_json_and_plots(captures, tmp_path):
@@ -84,7 +86,7 @@ def test_add_puts_the_effect_in_the_base_model(captures, tmp_path):
     diagnosis = diagnose(captures["light_offset"], add=("light_offset",), candidates=few)
     assert diagnosis.verdict == "none"
     assert diagnosis.base_rmse < 1.15 * diagnosis.noise_floor
-    assert [c.effect for c in diagnosis.candidates] in (
+    assert [c.details["effect"] for c in diagnosis.candidates] in (
         ["ambient", "spot_falloff"],
         ["spot_falloff", "ambient"],
     )
@@ -112,4 +114,6 @@ def test_a_users_own_effect_is_fitted_and_ranked(captures):
     others = tuple(c for c in CANDIDATES if c.name != "ambient")
     diagnosis = diagnose(captures["ambient"], candidates=(*others, OffsetCandidate()))
     assert diagnosis.verdict == "my_offset"
-    assert diagnosis.candidates[0].params["effects[0].level"] == pytest.approx(0.023, abs=0.005)
+    assert diagnosis.candidates[0].details["params"]["effects[0].level"] == pytest.approx(
+        0.023, abs=0.005
+    )

@@ -7,87 +7,51 @@ Which falloffs the data show is decided on held-out frames. The light's intensit
 into rho_tilde and F_tilde, as the paper does (it is not separable from them).
 """
 
-import dataclasses
 import itertools
+import time
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 from .._errors import CtjaxError
-from ..diagnostics._diagnose import noise_floor_levels, split_frames
+from .._json import falloff_json
+from .._result import Estimate
 from ..fitting import (
+    LEVENBERG_MARQUARDT,
     ShadingModel,
-    capture_samples,
     fit_model,
     paper_model,
     pixel_columns,
     pixel_predict,
-    rmse_levels,
     roughness_variants,
 )
-from ..fitting._samples import usable_mask
+from ..heldout import HeldOut, median_depth_mm, simplest_within
 from ..io import Capture
-from ..lights import InverseSquare, PointLight, SpotFalloff
+from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
 
 # Starting offsets (mm, camera frame): the fit is not convex in the light's position.
 OFFSET_STARTS = ((3.0, 0.0, 0.0), (-3.0, 0.0, 0.0), (0.0, 3.0, 0.0), (0.0, -3.0, 0.0))
-FALLOFFS = ("inverse_square", "spot")
 
 
-@dataclasses.dataclass
-class NearLightCalibration:
-    model: ShadingModel
-    falloff: tuple[str, ...]
-    calibration_rmse: float
-    heldout_rmse: float
-    noise_floor: float
-    status: str
-    calibration_frames: list[int]
-    heldout_frames: list[int]
-    alternatives: dict  # falloff set -> held-out RMSE
-
-    def to_json(self) -> dict:
-        light = self.model.light
-        brdf = self.model.brdf
-        falloff = {}
-        for f in light.falloff:
-            if isinstance(f, InverseSquare):
-                falloff["inverse_square"] = {"reference_mm": float(f.reference_mm)}
-            elif isinstance(f, SpotFalloff):
-                falloff["spot"] = {
-                    "exponent": float(f.exponent),
-                    "axis": np.asarray(f.axis).tolist(),
-                }
-        return {
-            "model": "near",
-            "offset_mm": np.asarray(light.position_mm).tolist(),
-            "intensity": float(light.intensity),
-            "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
-            "falloff": falloff,
-            "rho_tilde": np.asarray(brdf.lobes[0].weight).tolist(),
-            "F_tilde": np.asarray(brdf.lobes[1].weight).tolist(),
-            "sigma": float(brdf.lobes[1].distribution.sigma),
-            "rgb_rmse_calibration": self.calibration_rmse,
-            "rgb_rmse_heldout": self.heldout_rmse,
-            "noise_floor": self.noise_floor,
-            "status": self.status,
-            "calibration_frames": self.calibration_frames,
-            "heldout_frames": self.heldout_frames,
-            "falloff_selection": self.alternatives,
-        }
+def falloff_choices(capture: Capture) -> list[tuple[AbstractFalloff, ...]]:
+    """Every subset of inverse-square (referenced at the working distance) and spot falloff:
+    what `calibrate_near_light` compares by default."""
+    factors = (InverseSquare(median_depth_mm(capture)), SpotFalloff(2.0))
+    return [c for r in range(len(factors) + 1) for c in itertools.combinations(factors, r)]
 
 
-def _starts(falloff: tuple[str, ...], reference_mm: float) -> list[ShadingModel]:
-    factors = []
-    if "inverse_square" in falloff:
-        factors.append(InverseSquare(reference_mm))
-    if "spot" in falloff:
-        factors.append(SpotFalloff(2.0))
+def _name(falloff: tuple[AbstractFalloff, ...]) -> str:
+    return "+".join(f.name for f in falloff) or "none"
+
+
+def _starts(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
     starts = []
     for offset in OFFSET_STARTS:
         base = paper_model(1.0, 0.3, 0.2)
-        light = PointLight(jnp.asarray(offset, float), falloff=tuple(factors))
+        light = PointLight(jnp.asarray(offset, float), falloff=tuple(falloff))
         starts.extend(roughness_variants(eqx.tree_at(lambda m: m.light, base, light)))
     return starts
 
@@ -96,58 +60,63 @@ def calibrate_near_light(
     capture: Capture,
     *,
     calibration: int | None = None,
-    falloff: tuple[str, ...] | None = None,
+    falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
+    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
     max_samples: int = 12_000,
     heldout_samples: int = 40_000,
     max_steps: int = 100,
     seed: int = 0,
-) -> NearLightCalibration:
+) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
-    `falloff` fixes the falloffs (a subset of ("inverse_square", "spot")); by default every
-    subset is fitted and the simplest one within 1% of the lowest held-out RMSE is kept.
+    `falloff`: the light's falloff factors (e.g. `(InverseSquare(70.0),)`), or several
+    such tuples to choose from; by default every subset of `falloff_choices` is fitted and
+    the simplest one within 1% of the lowest held-out RMSE is kept. `solver`: the
+    least-squares solver (optimistix's interface).
+
+    Returns an `Estimate` of the `ShadingModel` with its `PointLight`; `details` holds the
+    chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
+    RMSE of every falloff set tried.
     """
+    started = time.perf_counter()
     if any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
-    calib, heldout = split_frames(len(capture), calibration, source=capture.root)
-    train = capture_samples(capture, calib, max_samples=max_samples, seed=seed)
-    test = capture_samples(capture, heldout, max_samples=heldout_samples, seed=seed + 1)
-    depth = np.concatenate([capture.frames[i].depth[usable_mask(capture.frames[i])] for i in calib])
-    reference = float(np.median(depth))
-    choices = (
-        [tuple(falloff)]
-        if falloff is not None
-        else [c for r in range(len(FALLOFFS) + 1) for c in itertools.combinations(FALLOFFS, r)]
+    heldout = HeldOut.split(
+        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
     )
-    unknown = set(itertools.chain(*choices)) - set(FALLOFFS)
-    if unknown:
-        raise CtjaxError(f"unknown falloff {sorted(unknown)}; known: {', '.join(FALLOFFS)}")
-    fits = {}
+    if falloff is None:
+        choices = falloff_choices(capture)
+    elif all(isinstance(f, AbstractFalloff) for f in falloff):
+        choices = [tuple(falloff)]
+    else:
+        choices = [tuple(c) for c in falloff]
     for choice in choices:
-        fit = fit_model(
-            _starts(choice, reference),
-            train,
+        for factor in choice:
+            if not isinstance(factor, AbstractFalloff):
+                raise CtjaxError(f"a falloff must be an AbstractFalloff, got {factor!r}")
+    fits = [
+        fit_model(
+            _starts(choice),
+            heldout.train,
             pixel_predict,
             columns=pixel_columns,
+            solver=solver,
             max_steps=max_steps,
             refine=3,
         )
-        fits[choice] = (fit, float(rmse_levels(fit.model, test, pixel_predict)))
-    # The simplest falloff set whose held-out error is within 1% of the best: a falloff the
-    # data do not show fits to ~nothing and would otherwise win on noise.
-    lowest = min(v[1] for v in fits.values())
-    best = min((c for c in fits if fits[c][1] <= 1.01 * lowest), key=len)
-    fit, heldout_rmse = fits[best]
-    if not np.isfinite(heldout_rmse):
+        for choice in choices
+    ]
+    errors = [heldout.heldout_rmse(fit.model) for fit in fits]
+    fit = heldout.judge(fits[simplest_within(choices, errors)])
+    if not np.isfinite(fit.heldout_rmse):
         raise CtjaxError("the near-light fit did not produce finite estimates")
-    return NearLightCalibration(
-        fit.model,
-        best,
-        float(fit.rmse),
-        heldout_rmse,
-        noise_floor_levels(capture, heldout, fit.model),
-        fit.status,
-        calib,
-        heldout,
-        {"+".join(c) or "none": round(v[1], 4) for c, v in fits.items()},
-    )
+    fit.details |= {
+        "model": "near",
+        "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
+        "falloff": falloff_json(fit.model.light),
+        "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
+    }
+    fit.seconds = {"total": time.perf_counter() - started}
+    if not fit.converged:
+        fit.warnings.append(f"the solver did not converge: {fit.status.message}")
+    return fit

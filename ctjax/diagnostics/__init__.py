@@ -1,15 +1,14 @@
 """Model diagnostics: compare the model with measurements, see where it fails, learn which
 physical effect is missing."""
 
+from .._residuals import residual_map as residual_map
 from ._candidates import CANDIDATES as CANDIDATES
 from ._candidates import AbstractCandidate as AbstractCandidate
 from ._candidates import candidate as candidate
+from ._candidates import discover_candidates as discover_candidates
 from ._diagnose import Diagnosis as Diagnosis
 from ._diagnose import diagnose as diagnose
-from ._diagnose import noise_floor_levels as noise_floor_levels
-from ._diagnose import split_frames as split_frames
 from ._plots import diagnosis_plots as diagnosis_plots
-from ._plots import residual_map as residual_map
 from ._variables import VARIABLES as VARIABLES
 from ._variables import binned as binned
 from ._variables import physical_variables as physical_variables

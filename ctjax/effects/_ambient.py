@@ -1,5 +1,6 @@
 import equinox as eqx
 
+from .._candidate import AbstractCandidate, with_effect
 from .._convert import POSITIVE, as_rgb, check_positive, check_shape
 from .._typing import RGB, Array, Float
 from ._effect import AbstractImageEffect
@@ -24,3 +25,12 @@ class Ambient(AbstractImageEffect):
 
     def inverse(self, rgb: RGB) -> RGB:
         return rgb - self.level
+
+
+class AmbientCandidate(AbstractCandidate):
+    """Ambient radiance (inter-reflections, stray light), added before the camera response."""
+
+    name = "ambient"
+
+    def __call__(self, model, context):
+        return [with_effect(model, Ambient(0.01), first=True)]

@@ -1,6 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate, with_effect
 from .._convert import POSITIVE, as_float, check_positive, check_shape
 from .._typing import RGB, Array, Float
 from ._effect import AbstractImageEffect
@@ -27,3 +28,12 @@ class CameraGamma(AbstractImageEffect):
 
     def inverse(self, rgb: RGB) -> RGB:
         return jnp.maximum(rgb, 0) ** self.gamma
+
+
+class CameraGammaCandidate(AbstractCandidate):
+    """A camera response radiance^(1/gamma), from a mild and a standard gamma."""
+
+    name = "camera_gamma"
+
+    def __call__(self, model, context):
+        return [with_effect(model, CameraGamma(g)) for g in (1.3, 2.2)]

@@ -5,7 +5,10 @@ import dataclasses
 import numpy as np
 
 from .._errors import CtjaxError
+from .._model import ShadingModel
+from .._result import Estimate
 from ..io import Capture
+from ..lights import ColocatedLight
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, fit_brdf
 from ._samples import colocated_samples, concatenate
 from ._specular_set import (
@@ -103,13 +106,16 @@ def fit_capture(
     family: BRDFFamily = PAPER,
     *,
     tolerance: float = 1e-3,
-) -> dict:
+) -> Estimate:
     """Detect S and S~ in every frame and estimate the BRDF on the ring of all frames.
 
     The paper's light (co-located with the camera, L = V) and its model by default. Returns
-    the JSON-ready summary written by `ctjax fit`, with the Lambertian fit of the same ring
-    beside it. Raises `CtjaxError` when there is no specular pixel, the ring is empty or the
-    fit failed to produce finite numbers.
+    an `Estimate` of the `ShadingModel` (the BRDF under `ColocatedLight`) whose JSON is what
+    `ctjax fit` writes (no timings, so that the same capture gives the same bytes):
+    `rmse["calibration"]` is the ring's RMSE; `details` hold the standard errors, the ring
+    and specular pixel counts per frame and the Lambertian fit of the same ring. Raises
+    `CtjaxError` when there is no specular pixel, the ring is empty or the fit failed to
+    produce finite numbers.
     """
     _require_geometry(capture)
     sets = capture_sets(capture, masks)
@@ -142,7 +148,7 @@ def fit_capture(
             float(result.cost)
         ):
             raise CtjaxError("the BRDF fit did not produce finite estimates")
-    out = {
+    details = {
         **_fit_to_json(fit),
         "n_ring_pixels": ring_count,
         "n_specular_pixels": specular_count,
@@ -159,12 +165,18 @@ def fit_capture(
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": _fit_to_json(lambertian),
         "masks": dataclasses.asdict(masks),
-        "warnings": [],
     }
+    warnings = []
     poorly = _poorly_determined(fit)
     if poorly:
-        out["warnings"].append(
+        warnings.append(
             f"the ring ({ring_count} pixels) is too thin to determine: {'; '.join(poorly)} "
             "(relative standard error above 5%); widen it with --ring-px"
         )
-    return out
+    return Estimate(
+        ShadingModel(fit.brdf, ColocatedLight()),
+        {"calibration": float(fit.rgb_rmse)},
+        warnings=warnings,
+        details=details,
+        cost=float(fit.cost),
+    )

@@ -3,6 +3,8 @@ against Cook-Torrance."""
 
 from ._evaluate import Evaluation as Evaluation
 from ._evaluate import evaluate as evaluate
+from ._evaluate import fit_colocated as fit_colocated
+from ._evaluate import fit_lambertian as fit_lambertian
 from ._integrate import integrate_gradients as integrate_gradients
 from ._plots import evaluation_plots as evaluation_plots
 from ._refine import NormalRefinement as NormalRefinement

@@ -15,7 +15,9 @@ import cv2
 import numpy as np
 
 from .._errors import CtjaxError
-from ..diagnostics._diagnose import split_frames
+from .._json import named_parameters
+from .._result import Estimate
+from .._status import Status
 from ..fitting import (
     ShadingModel,
     capture_samples,
@@ -24,6 +26,7 @@ from ..fitting import (
     pixel_predict,
     rmse_levels,
 )
+from ..heldout import split_frames
 from ..io import Capture
 from ..lights import ColocatedLight
 from ..lobes import BRDF, Lambertian
@@ -31,7 +34,8 @@ from ._pyramid import block_reduce, reduced
 from ._scale import bounding_box_volume
 from ._sfs import ShapeFromShading, sfs_cook_torrance, sfs_refined, sfs_tsai_shah
 
-LIGHTS = ("near", "colocated", "field")
+# An estimator of Cook-Torrance with its light: fits on the first `calibration` frames.
+Estimator = Callable[..., Estimate]
 # Shape from shading runs on the frame reduced so that it is at most this wide (its sparse
 # Gauss-Newton solve grows faster than the pixel count).
 SFS_MAX_WIDTH = 160
@@ -75,15 +79,23 @@ class FrameShape:
 
 @dataclasses.dataclass
 class Evaluation:
-    light: str
+    """Both models (`Estimate`s, their `rmse` on the calibration and the test frames) and
+    the shapes from shading of the test frames."""
+
     calibration_frames: list[int]
     test_frames: list[int]
-    lambertian: ShadingModel
-    cook_torrance: ShadingModel
-    rgb_rmse: dict  # model -> {"calibration": levels, "test": levels}
+    lambertian: Estimate
+    cook_torrance: Estimate
     shapes: list[FrameShape]
     timings: dict
     notes: list[str]
+
+    @property
+    def light(self) -> str:
+        """Cook-Torrance's light: "near", "field", "colocated" (or the light's class)."""
+        return self.cook_torrance.details.get(
+            "light", type(self.cook_torrance.model.light).__name__
+        )
 
     def sfs_errors(self, model: str, where: str = "all") -> np.ndarray:
         """|SfS depth - reference| (mm) over the test frames' pixels (or those near a
@@ -103,8 +115,9 @@ class Evaluation:
             "test_frames": self.test_frames,
         }
         for model in ("lambertian", "cook_torrance"):
-            out[f"{model}_rgb_rmse_calibration"] = self.rgb_rmse[model]["calibration"]
-            out[f"{model}_rgb_rmse_test"] = self.rgb_rmse[model]["test"]
+            rmse = getattr(self, model).rmse
+            out[f"{model}_rgb_rmse_calibration"] = rmse["calibration"]
+            out[f"{model}_rgb_rmse_test"] = rmse["test"]
         for model in ("lambertian", "cook_torrance", "per_pixel"):
             if model == "per_pixel" and not any(s.per_pixel for s in self.shapes):
                 continue
@@ -123,12 +136,10 @@ class Evaluation:
             "Tsai-Shah's normals per pixel (eq. 9), integrated"
         )
         out["models"] = {
-            "lambertian": {"rho_tilde": _weights(self.lambertian, 0)},
+            "lambertian": named_parameters(self.lambertian.model.brdf),
             "cook_torrance": {
-                "rho_tilde": _weights(self.cook_torrance, 0),
-                "F_tilde": _weights(self.cook_torrance, 1),
-                "sigma": float(self.cook_torrance.brdf.lobes[1].distribution.sigma),
-                "light": type(self.cook_torrance.light).__name__,
+                **named_parameters(self.cook_torrance.model.brdf),
+                "light": type(self.cook_torrance.model.light).__name__,
             },
         }
         out["sfs_frames"] = [shape.to_json() for shape in self.shapes]
@@ -145,11 +156,7 @@ def _median(values) -> float | None:
     return float(np.median(values)) if len(values) else None
 
 
-def _weights(model: ShadingModel, lobe: int) -> list[float]:
-    return [round(float(w), 6) for w in np.asarray(model.brdf.lobes[lobe].weight)]
-
-
-def fit_lambertian(capture: Capture, frames: list[int], max_samples: int = 40_000):
+def fit_lambertian(capture: Capture, frames: list[int], max_samples: int = 40_000) -> Estimate:
     """The Lambertian model (rho_tilde, light at the camera) fitted to every usable pixel of
     `frames`: linear, so the closed form is the least-squares solution."""
     samples = capture_samples(capture, frames, max_samples=max_samples)
@@ -157,24 +164,28 @@ def fit_lambertian(capture: Capture, frames: list[int], max_samples: int = 40_00
     return fit_model(start, samples, pixel_predict, columns=pixel_columns, max_steps=20)
 
 
-def fit_cook_torrance(capture: Capture, calibration: int, light: str) -> ShadingModel:
-    """Cook-Torrance with its light, fitted on the calibration frames."""
-    if light == "near":
-        from ..calibration import calibrate_near_light
+def fit_colocated(capture: Capture, calibration: int) -> Estimate:
+    """The paper's estimate (`ctjax fit`: BnB on the ring, L = V) on the first
+    `calibration` frames, with a 10 px ring (the paper's 3 px is thin on bright tissue)."""
+    from ..estimation import MaskOptions, fit_capture
 
-        return calibrate_near_light(capture, calibration=calibration).model
-    if light == "field":
-        from ..calibration import calibrate_light_field  # the paper's light field (eq. 7-8)
+    subset = dataclasses.replace(capture, frames=capture.frames[:calibration])
+    fit = fit_capture(subset, MaskOptions(ring_px=10))
+    fit.details["light"] = "colocated"
+    return fit
 
-        return calibrate_light_field(capture, calibration=calibration).model
-    if light == "colocated":
-        from ..estimation._capture_fit import MaskOptions, fit_capture
-        from ..fitting import paper_model
 
-        subset = dataclasses.replace(capture, frames=capture.frames[:calibration])
-        fit = fit_capture(subset, MaskOptions(ring_px=10))
-        return paper_model(fit["rho_tilde"], fit["F_tilde"], fit["sigma"])
-    raise CtjaxError(f"unknown light model {light!r}; known: {', '.join(LIGHTS)}")
+def _cook_torrance(capture, calibration, cook_torrance) -> Estimate:
+    if isinstance(cook_torrance, Estimate):
+        return cook_torrance
+    if isinstance(cook_torrance, ShadingModel):
+        return Estimate(cook_torrance, status=Status.given)
+    if callable(cook_torrance):
+        return cook_torrance(capture, calibration=calibration)
+    raise CtjaxError(
+        "cook_torrance must be a fitted ShadingModel, an Estimate or an estimator "
+        f"(capture, calibration=N) -> Estimate, got {type(cook_torrance).__name__}"
+    )
 
 
 def _near_highlight(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -210,7 +221,7 @@ def frame_shapes(
     if mask.sum() < 9:
         raise CtjaxError(f"frame {frame.name}: too few pixels with depth for SfS")
     volume = bounding_box_volume(reference, mask, camera)
-    rho = np.asarray(lambertian.brdf.lobes[0].weight)
+    rho = np.asarray(named_parameters(lambertian.brdf)["rho_tilde"])
     tsai_shah, log_depth = sfs_tsai_shah(image, mask, camera, rho, volume)
     joint, _ = sfs_cook_torrance(image, mask, camera, cook_torrance, volume)
     paper = None
@@ -223,29 +234,32 @@ def evaluate(
     capture: Capture,
     *,
     calibration: int | None = None,
-    light: str = "near",
+    cook_torrance: Estimator | Estimate | ShadingModel | None = None,
     sfs: bool = True,
-    cook_torrance: ShadingModel | None = None,
     reference: Capture | None = None,
     per_pixel_sfs: bool = False,
     progress: Callable[[str], None] = lambda message: None,
 ) -> Evaluation:
-    """Fit Lambertian and Cook-Torrance (+ `light`: "near", "colocated" or "field") on the
-    calibration frames and evaluate both on the test frames (RGB error and SfS).
+    """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
+    test frames (RGB error and SfS).
 
-    `cook_torrance`: an already fitted model (its light named by `light`), used as is.
-    `reference`: the capture whose depth the SfS is compared with (default: `capture`'s own;
-    e.g. ground truth when `capture`'s shape came from structure-from-motion).
-    `per_pixel_sfs`: also run the paper's per-pixel Cook-Torrance SfS (eq. 9 on Tsai-Shah's
-    normals) and report it beside the joint one."""
-    if light not in LIGHTS:
-        raise CtjaxError(f"unknown light model {light!r}; known: {', '.join(LIGHTS)}")
+    `cook_torrance`: how Cook-Torrance and its light are obtained: an estimator called as
+    `cook_torrance(capture, calibration=N)` (default: `calibrate_near_light`; also
+    `calibrate_light_field`, `fit_colocated`), or an already fitted `Estimate` or
+    `ShadingModel`, used as is. `reference`: the capture whose depth the SfS is compared
+    with (default: `capture`'s own; e.g. ground truth when `capture`'s shape came from
+    structure-from-motion). `per_pixel_sfs`: also run the paper's per-pixel Cook-Torrance
+    SfS (eq. 9 on Tsai-Shah's normals) and report it beside the joint one."""
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
     if missing:
         raise CtjaxError(
             f"{capture.root}: evaluate needs depth and normals for every frame (missing for "
             f"{', '.join(missing[:5])}); run `ctjax reconstruct` first"
         )
+    if cook_torrance is None:
+        from ..calibration import calibrate_near_light
+
+        cook_torrance = calibrate_near_light
     calib, test = split_frames(len(capture), calibration, source=capture.root)
     timings = {}
     tic = time.perf_counter()
@@ -253,17 +267,11 @@ def evaluate(
     lambertian = fit_lambertian(capture, calib)
     timings["lambertian_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    if cook_torrance is None:
-        progress(f"fitting Cook-Torrance with the {light} light on frames {calib}...")
-        cook_torrance = fit_cook_torrance(capture, len(calib), light)
+    progress(f"fitting Cook-Torrance with its light on frames {calib}...")
+    fitted = _cook_torrance(capture, len(calib), cook_torrance)
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    rgb = {}
-    for name, model in (("lambertian", lambertian.model), ("cook_torrance", cook_torrance)):
-        rgb[name] = {
-            split: float(rmse_levels(model, capture_samples(capture, frames), pixel_predict))
-            for split, frames in (("calibration", calib), ("test", test))
-        }
+    lambertian, fitted = (_judged(capture, e, calib, test) for e in (lambertian, fitted))
     timings["rgb_error"] = time.perf_counter() - tic
     shapes = []
     if sfs:
@@ -275,15 +283,24 @@ def evaluate(
                     capture,
                     index,
                     lambertian.model,
-                    cook_torrance,
+                    fitted.model,
                     reference=reference,
                     per_pixel=per_pixel_sfs,
                 )
             )
         timings["sfs"] = time.perf_counter() - tic
-    notes = []
-    if lambertian.status != "successful":
-        notes.append(f"Lambertian fit: solver status {lambertian.status}")
-    return Evaluation(
-        light, calib, test, lambertian.model, cook_torrance, rgb, shapes, timings, notes
-    )
+    notes = [
+        f"{name} fit: {e.status.message}"
+        for name, e in (("Lambertian", lambertian), ("Cook-Torrance", fitted))
+        if not e.converged
+    ]
+    return Evaluation(calib, test, lambertian, fitted, shapes, timings, notes)
+
+
+def _judged(capture, fit: Estimate, calib, test) -> Estimate:
+    """`fit` with its RMSE on every usable pixel of the calibration and the test frames."""
+    rmse = {
+        split: float(rmse_levels(fit.model, capture_samples(capture, frames), pixel_predict))
+        for split, frames in (("calibration", calib), ("test", test))
+    }
+    return dataclasses.replace(fit, rmse=rmse, frames={"calibration": calib, "test": test})

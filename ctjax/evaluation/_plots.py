@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..diagnostics._plots import plot_residual_maps
+from .._residuals import plot_residual_maps
 from ..io import Capture
 
 _COLOURS = {"lambertian": "#9e9e9e", "cook_torrance": "#c0392b"}
@@ -95,7 +95,7 @@ def plot_shapes(shape, path: Path) -> Path:
 
 def plot_rgb_residuals(capture: Capture, evaluation, path: Path) -> Path:
     """RGB residual maps of both models on the first test frame (diagnostics' figure)."""
-    models = {_LABELS[m]: getattr(evaluation, m) for m in ("lambertian", "cook_torrance")}
+    models = {_LABELS[m]: getattr(evaluation, m).model for m in ("lambertian", "cook_torrance")}
     return plot_residual_maps(capture, evaluation.test_frames[0], models, path)
 
 

@@ -1,6 +1,9 @@
 """The general fitter: any BRDF + light + effects fitted to measurements."""
 
-from ._fit import FitResult as FitResult
+from .._model import ShadingModel as ShadingModel
+from .._model import paper_model as paper_model
+from .._result import Estimate as Estimate
+from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns
 from ._fit import pixel_predict as pixel_predict
@@ -11,8 +14,6 @@ from ._measured import DirectionSamples as DirectionSamples
 from ._measured import brdf_columns as brdf_columns
 from ._measured import brdf_predict as brdf_predict
 from ._measured import measured_samples as measured_samples
-from ._model import ShadingModel as ShadingModel
-from ._model import paper_model as paper_model
 from ._parameters import Parameter as Parameter
 from ._parameters import constrained as constrained
 from ._parameters import free_parameters as free_parameters

@@ -2,6 +2,7 @@
 on autodiff Jacobians, linear weights initialised in closed form, parameters kept physical
 by reparametrisation, several starts."""
 
+import math
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -10,6 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._result import Estimate
+from .._status import Status
 from .._typing import Array, Float, Scalar
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
@@ -18,23 +21,6 @@ from ._parameters import Parameter, constrained, free_parameters, strongly_typed
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
 # s.pixel)` for pixels of a capture, or a BRDF evaluated at (L, V) for measured BRDF data.
 Predict = Callable[[eqx.Module, eqx.Module], Float[Array, "3"]]
-
-
-class FitResult(eqx.Module):
-    """A fitted model, its cost (sum of squared residuals in the data's units), its RMSE
-    times the fit's `scale` (8-bit levels for images), the solver's status and number of
-    steps, and the names of the parameters that were free."""
-
-    model: eqx.Module
-    cost: Scalar
-    rmse: Scalar
-    status: str = eqx.field(static=True)
-    steps: int = eqx.field(static=True)
-    parameters: tuple[str, ...] = eqx.field(static=True)
-
-    @property
-    def converged(self) -> bool:
-        return self.status == "successful"
 
 
 def predictions(model, samples, predict: Predict) -> Float[Array, "N 3"]:
@@ -80,7 +66,7 @@ def initial_weights(model, samples, columns: Callable) -> eqx.Module:
 
 
 @eqx.filter_jit
-def _least_squares(model, samples, predict, names, max_steps, rtol, atol, scale):
+def _least_squares(model, samples, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
     def residuals(u, _):
@@ -88,23 +74,18 @@ def _least_squares(model, samples, predict, names, max_steps, rtol, atol, scale)
         # Residuals in the user's units (8-bit levels for images): so are the tolerances.
         return scale * (predictions(fitted, samples, predict) - samples.values).reshape(-1)
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     solution = optx.least_squares(
         residuals, solver, unconstrained(model, parameters), max_steps=max_steps, throw=False
     )
     fitted = constrained(model, parameters, solution.value)
     residual = predictions(fitted, samples, predict) - samples.values
     cost = jnp.sum(residual * residual)
-    return fitted, cost, solution.result, solution.stats["num_steps"]
+    return fitted, cost, Status.of_optimistix(solution.result), solution.stats["num_steps"]
 
 
-def _status(result) -> str:
-    """The solver's result as a name: "successful", "max_steps_reached", "singular",
-    "nonlinear_divergence", "nonfinite", ... (optimistix's `RESULTS`)."""
-    for name in optx.RESULTS._name_to_item:
-        if result == getattr(optx.RESULTS, name):
-            return name
-    return "unknown"
+# The default solver: residuals are in the user's units (8-bit levels for images), and so
+# are these tolerances.
+LEVENBERG_MARQUARDT = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
 
 
 def fit_model(
@@ -114,22 +95,26 @@ def fit_model(
     *,
     columns: Callable | None = None,
     freeze: Sequence[str] = (),
+    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
     max_steps: int = 100,
-    rtol: float = 1e-6,
-    atol: float = 1e-6,
     refine: int = 1,
     scale: float = 255.0,
-) -> FitResult:
+    unit: str = "8-bit levels",
+) -> Estimate:
     """Fit a model to `samples` (anything with `.values` (N, 3) that `predict` reads).
 
     `starts` are one or several initial models of the same structure (e.g. different
     roughness or light offsets). With `columns`, each start first gets its linear weights in
     closed form (cheap), and LM then runs from the `refine` best starts; the best fit wins.
-    `freeze` names parameters held fixed (dotted names, see `free_parameters`). `scale`
-    converts residuals to the reported units (255: 8-bit levels; 1 for measured BRDFs).
-    Returns a `FitResult` whose `status` names the solver's result ("successful",
-    "max_steps_reached", "singular", "nonlinear_divergence", ...); a failed fit is reported,
-    never silently returned as a success.
+    `freeze` names parameters held fixed (dotted names, see `free_parameters`). `solver`
+    is any optimistix least-squares solver (default: Levenberg-Marquardt, tolerances in the
+    reported units). `scale` converts residuals to the reported units (255: 8-bit levels;
+    1 for measured BRDFs), and `unit` names the result (e.g. "1/sr" for BRDF data).
+
+    Returns an `Estimate`: the best fit, its RMSE on `samples` (`rmse["calibration"]`), its
+    `cost`, and the solver's `Status` ("successful", "max_steps_reached", "singular",
+    ...); `details` holds the number of steps and the free parameters' names. A failed fit
+    is reported as `Status.failed` with an infinite cost, never returned as a success.
     """
     if isinstance(starts, eqx.Module):
         starts = [starts]
@@ -143,7 +128,7 @@ def fit_model(
     best = None
     for start in starts:
         fitted, cost, result, steps = _least_squares(
-            start, samples, predict, names, max_steps, rtol, atol, scale
+            start, samples, predict, names, solver, max_steps, scale
         )
         cost = float(cost)
         if not np.isfinite(cost):
@@ -151,13 +136,19 @@ def fit_model(
         if best is None or cost < best[1]:
             best = (fitted, cost, result, int(steps))
     if best is None:
-        start = starts[0]
-        return FitResult(start, jnp.inf, jnp.inf, "failed", 0, ())
+        return Estimate(
+            starts[0], {"calibration": math.inf}, Status.failed, cost=math.inf, unit=unit
+        )
     fitted, cost, result, steps = best
-    rmse = scale * np.sqrt(cost / samples.values.size)
-    parameters = tuple(p.name for p in free_parameters(fitted, lambda n: n in names))
-    return FitResult(
-        fitted, jnp.asarray(cost), jnp.asarray(rmse), _status(result), steps, parameters
+    rmse = float(scale * np.sqrt(cost / samples.values.size))
+    parameters = [p.name for p in free_parameters(fitted, lambda n: n in names)]
+    return Estimate(
+        fitted,
+        {"calibration": rmse},
+        Status(int(result)),
+        cost=cost,
+        unit=unit,
+        details={"steps": steps, "parameters": parameters},
     )
 
 
@@ -200,7 +191,6 @@ def pixel_columns(model, sample) -> Float[Array, " K"]:
 
 
 __all__ = [
-    "FitResult",
     "Parameter",
     "fit_model",
     "pixel_columns",

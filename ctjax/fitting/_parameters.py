@@ -16,6 +16,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._convert import strongly_typed as strongly_typed
+
 _EPS = 1e-9
 
 
@@ -82,22 +84,6 @@ def _from_unconstrained(u, domain):
     if math.isfinite(hi):
         return hi - jax.nn.softplus(-u)
     return u
-
-
-def strongly_typed(tree):
-    """`tree` with its floating-point JAX arrays strongly typed, in their own dtype.
-
-    A Python float makes a weakly typed array (`jnp.asarray(0.2)`), which `jit` compiles
-    apart from a strongly typed one of the same dtype: models mixing the two (a start and
-    its copies with new values) would compile every fitter twice.
-    """
-
-    def leaf(x):
-        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact):
-            return jnp.asarray(x, x.dtype)
-        return x
-
-    return jax.tree_util.tree_map(leaf, tree)
 
 
 def unconstrained(model, parameters: list[Parameter]) -> list:

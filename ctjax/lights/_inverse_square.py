@@ -1,6 +1,9 @@
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate, with_falloff
 from .._convert import FIXED, as_float, check_positive, check_shape
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
@@ -18,6 +21,8 @@ class InverseSquare(AbstractFalloff):
     - `reference_mm`: distance at which the factor is 1, mm (> 0).
     """
 
+    name: ClassVar[str] = "inverse_square"
+
     reference_mm: Float[Array, ""] = eqx.field(converter=as_float, default=50.0, metadata=FIXED)
 
     def __check_init__(self):
@@ -27,3 +32,13 @@ class InverseSquare(AbstractFalloff):
     def __call__(self, light_to_point: Vec3) -> Scalar:
         distance2 = jnp.maximum(light_to_point @ light_to_point, 1e-6)
         return self.reference_mm**2 / distance2
+
+
+class InverseSquareCandidate(AbstractCandidate):
+    """Irradiance falling with the square of the distance, referenced at the working
+    distance (so that the weights keep their meaning there)."""
+
+    name = "inverse_square"
+
+    def __call__(self, model, context):
+        return [with_falloff(model, InverseSquare(context["median_depth_mm"]))]

@@ -1,4 +1,5 @@
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 
@@ -20,7 +21,12 @@ class AbstractLight(eqx.Module):
 
 
 class AbstractFalloff(eqx.Module):
-    """A dimensionless irradiance factor of a light at a position (1 = no effect)."""
+    """A dimensionless irradiance factor of a light at a position (1 = no effect).
+
+    `name` is how the JSON outputs and `ctjax calibrate-light --falloff` call it.
+    """
+
+    name: ClassVar[str]
 
     @abc.abstractmethod
     def __call__(self, light_to_point: Vec3) -> Scalar:

@@ -1,6 +1,8 @@
 import equinox as eqx
+import jax.numpy as jnp
 
-from .._convert import FIXED, as_float, check_finite, check_positive, check_shape
+from .._candidate import AbstractCandidate
+from .._convert import FIXED, as_float, check_finite, check_positive, check_shape, named
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
 from .._vector import Vec3
@@ -24,7 +26,9 @@ class ColocatedLight(AbstractLight):
       uses none.
     """
 
-    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0, metadata=FIXED)
+    intensity: Float[Array, ""] = eqx.field(
+        converter=as_float, default=1.0, metadata=named("intensity", FIXED)
+    )
     falloff: tuple[AbstractFalloff, ...] = ()
 
     def __check_init__(self):
@@ -47,8 +51,10 @@ class PointLight(AbstractLight):
     - `falloff`: irradiance factors of position (`InverseSquare`, `SpotFalloff`).
     """
 
-    position_mm: Float[Array, "3"] = eqx.field(converter=as_float)
-    intensity: Float[Array, ""] = eqx.field(converter=as_float, default=1.0, metadata=FIXED)
+    position_mm: Float[Array, "3"] = eqx.field(converter=as_float, metadata=named("offset_mm"))
+    intensity: Float[Array, ""] = eqx.field(
+        converter=as_float, default=1.0, metadata=named("intensity", FIXED)
+    )
     falloff: tuple[AbstractFalloff, ...] = ()
 
     def __check_init__(self):
@@ -61,3 +67,22 @@ class PointLight(AbstractLight):
         light_to_point = point - Vec3.from_array(self.position_mm)
         direction = safe_normalize(-light_to_point)
         return direction, _irradiance(self.intensity, self.falloff, light_to_point)
+
+
+class LightOffsetCandidate(AbstractCandidate):
+    """The light guide beside the lens: a point light at an offset, from four starts (the
+    cost is not convex in the position)."""
+
+    name = "light_offset"
+
+    def __call__(self, model, context):
+        light = model.light
+        if not isinstance(light, ColocatedLight):
+            return []
+        offsets = [(3.0, 0, 0), (-3.0, 0, 0), (0, 3.0, 0), (0, -3.0, 0)]
+        return [
+            eqx.tree_at(
+                lambda m: m.light, model, PointLight(jnp.asarray(o, float), falloff=light.falloff)
+            )
+            for o in offsets
+        ]

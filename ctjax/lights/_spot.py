@@ -1,6 +1,9 @@
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate, with_falloff
 from .._convert import FIXED, POSITIVE, as_float, check_positive, check_shape
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Scalar
@@ -17,6 +20,8 @@ class SpotFalloff(AbstractFalloff):
     - `axis`: the light guide's axis in the camera frame (default: the optical axis +z).
     """
 
+    name: ClassVar[str] = "spot"
+
     exponent: Float[Array, ""] = eqx.field(converter=as_float, metadata=POSITIVE)
     axis: Float[Array, "3"] = eqx.field(converter=as_float, default=(0.0, 0.0, 1.0), metadata=FIXED)
 
@@ -30,3 +35,12 @@ class SpotFalloff(AbstractFalloff):
         ahead = cosine > 0
         # cos^k as exp(k log cos), guarded so k -> 0 and cos -> 0 keep finite gradients.
         return jnp.where(ahead, jnp.exp(self.exponent * jnp.log(jnp.where(ahead, cosine, 1))), 0)
+
+
+class SpotFalloffCandidate(AbstractCandidate):
+    """The light guide's angular falloff, from a broad and a narrow start."""
+
+    name = "spot_falloff"
+
+    def __call__(self, model, context):
+        return [with_falloff(model, SpotFalloff(k)) for k in (1.0, 4.0)]

@@ -1,7 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import POSITIVE, as_float, check_positive, check_shape
+from .._convert import POSITIVE, as_float, check_positive, check_shape, named
 from .._typing import Array, Float, Scalar
 from ._distribution import AbstractDistribution
 
@@ -35,7 +35,7 @@ class Beckmann(AbstractDistribution):
     - `sigma`: RMS slope of the microfacets (roughness), > 0. The paper searches [1e-5, 1].
     """
 
-    sigma: Float[Array, ""] = eqx.field(converter=as_float, metadata=POSITIVE)
+    sigma: Float[Array, ""] = eqx.field(converter=as_float, metadata=named("sigma", POSITIVE))
 
     def __check_init__(self):
         check_shape("Beckmann", "sigma", self.sigma, ())

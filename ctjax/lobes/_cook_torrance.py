@@ -1,6 +1,6 @@
 import equinox as eqx
 
-from .._convert import POSITIVE, as_rgb, check_positive, check_shape
+from .._convert import POSITIVE, as_rgb, check_positive, check_shape, named
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
 from ._distribution import AbstractDistribution
@@ -24,7 +24,7 @@ class CookTorrance(AbstractLobe):
     - `factors`: `SchlickFresnel`, `GeometricAttenuation`, ...
     """
 
-    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=POSITIVE)
+    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=named("F_tilde", POSITIVE))
     distribution: AbstractDistribution
     factors: tuple[AbstractSpecularFactor, ...] = ()
 

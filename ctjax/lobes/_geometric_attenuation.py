@@ -1,5 +1,6 @@
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate, with_factor
 from .._typing import Scalar
 from .._vector import Vec3
 from ._factor import AbstractSpecularFactor
@@ -19,3 +20,12 @@ class GeometricAttenuation(AbstractSpecularFactor):
         masking = 2 * n_dot_h * (normal @ view) / v_dot_h
         shadowing = 2 * n_dot_h * (normal @ light) / v_dot_h
         return jnp.clip(jnp.minimum(masking, shadowing), 0, 1)
+
+
+class GeometricAttenuationCandidate(AbstractCandidate):
+    """Cook-Torrance's masking and shadowing G on every microfacet lobe."""
+
+    name = "geometric_attenuation"
+
+    def __call__(self, model, context):
+        return [with_factor(model, GeometricAttenuation())]

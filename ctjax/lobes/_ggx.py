@@ -1,7 +1,9 @@
 import equinox as eqx
 
-from .._convert import POSITIVE, as_float, check_positive, check_shape
+from .._candidate import AbstractCandidate, with_lobes
+from .._convert import POSITIVE, as_float, check_positive, check_shape, named
 from .._typing import Array, Float, Scalar
+from ._beckmann import Beckmann
 from ._distribution import AbstractDistribution
 
 
@@ -17,7 +19,7 @@ class GGX(AbstractDistribution):
     - `alpha`: GGX roughness, > 0 (comparable to Beckmann's sigma near the peak).
     """
 
-    alpha: Float[Array, ""] = eqx.field(converter=as_float, metadata=POSITIVE)
+    alpha: Float[Array, ""] = eqx.field(converter=as_float, metadata=named("alpha", POSITIVE))
 
     def __check_init__(self):
         check_shape("GGX", "alpha", self.alpha, ())
@@ -33,3 +35,18 @@ class GGX(AbstractDistribution):
         # to 0 in float32 (and its square in the backward pass too).
         ratio = self.alpha / denominator
         return ratio * ratio
+
+
+class GGXCandidate(AbstractCandidate):
+    """GGX's longer tails instead of Beckmann, at the same roughness."""
+
+    name = "ggx"
+
+    def __call__(self, model, context):
+        def swap(lobe):
+            distribution = getattr(lobe, "distribution", None)
+            if not isinstance(distribution, Beckmann):
+                return lobe
+            return eqx.tree_at(lambda l: l.distribution, lobe, GGX(distribution.sigma))
+
+        return [with_lobes(model, swap)]

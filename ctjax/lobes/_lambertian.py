@@ -3,7 +3,7 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import POSITIVE, as_rgb, check_positive, check_shape
+from .._convert import POSITIVE, as_rgb, check_positive, check_shape, named
 from .._numerics import positive_part
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
@@ -19,7 +19,7 @@ class Lambertian(AbstractLobe):
       where 1.0 is 8-bit level 255), >= 0.
     """
 
-    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=POSITIVE)
+    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=named("rho_tilde", POSITIVE))
 
     def __check_init__(self):
         check_shape("Lambertian", "weight", self.weight, (3,))

@@ -1,6 +1,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate, with_factor
 from .._convert import UNIT_INTERVAL, _concrete, as_float, check_positive, check_shape
 from .._errors import ParameterError
 from .._typing import Array, Float, Scalar
@@ -42,3 +43,13 @@ class SchlickFresnel(AbstractSpecularFactor):
         cosine = view @ half if self.cosine == "half" else normal @ view
         one_minus = jnp.clip(1 - cosine, 0, 1)
         return 1 + (1 / self.f0 - 1) * one_minus**5
+
+
+class FresnelSchlickCandidate(AbstractCandidate):
+    """Schlick's Fresnel factor on every microfacet lobe."""
+
+    name = "fresnel_schlick"
+
+    def __call__(self, model, context):
+        # Cook-Torrance's V.H, and the N.V shortcut that many renderers use.
+        return [with_factor(model, SchlickFresnel(0.05, cosine)) for cosine in ("half", "normal")]

@@ -4,10 +4,12 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._convert import POSITIVE, as_rgb, check_positive, check_shape
+from .._candidate import AbstractCandidate, with_lobe
+from .._convert import POSITIVE, as_rgb, check_positive, check_shape, named
 from .._numerics import COSINE_FLOOR, safe_normalize
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
+from ._beckmann import Beckmann
 from ._distribution import AbstractDistribution
 from ._factor import AbstractSpecularFactor
 from ._lobe import AbstractLobe
@@ -28,7 +30,7 @@ class Specular(AbstractLobe):
     - `factors`: multiplicative factors (`SchlickFresnel`, `GeometricAttenuation`, ...).
     """
 
-    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=POSITIVE)
+    weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=named("F_tilde", POSITIVE))
     distribution: AbstractDistribution
     factors: tuple[AbstractSpecularFactor, ...] = ()
     reciprocal: ClassVar[bool] = False
@@ -56,3 +58,25 @@ def microfacet_term(distribution, factors, normal: Vec3, light: Vec3, view: Vec3
     for factor in factors:
         term = term * factor(normal, light, view, half)
     return jnp.where(lit, term, 0)
+
+
+class SecondLobeCandidate(AbstractCandidate):
+    """A second specular scale (the paper's eq. 3), sharper or broader than the first."""
+
+    name = "second_lobe"
+
+    def __call__(self, model, context):
+        specular = [lobe for lobe in model.brdf.lobes if isinstance(lobe, Specular)]
+        if not specular:
+            return []
+        first = specular[0]
+        sigma = getattr(first.distribution, "sigma", jnp.asarray(0.2))
+        return [
+            with_lobe(
+                model,
+                Specular(
+                    0.3 * first.weight, Beckmann(jnp.clip(sigma * scale, 0.02, 0.9)), first.factors
+                ),
+            )
+            for scale in (0.4, 2.5)
+        ]

@@ -129,74 +129,17 @@ def sparse_reconstruction(
         folder = Path(tmp)
         _write_workspace(folder, frames, highlight_dilate_px)
         database = folder / "database.db"
-
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = "PINHOLE"
-        reader.camera_params = ",".join(
-            f"{value:.17g}"
-            for value in (
-                float(camera.fx),
-                float(camera.fy),
-                float(camera.cx) + 0.5,
-                float(camera.cy) + 0.5,
-            )
-        )
-        reader.mask_path = str(folder / "masks")
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.sift.peak_threshold = peak_threshold
-        extraction.sift.max_num_features = max_features
         say(f"SIFT features in {len(frames)} frames (highlights masked)")
-        pycolmap.extract_features(
-            database,
-            folder / "images",
-            camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-        keypoints = _keypoint_counts(database)
-        poor = {n: k for n, k in keypoints.items() if k < MIN_KEYPOINTS}
-        if len(keypoints) - len(poor) < 2:
-            listing = ", ".join(f"{n}: {k}" for n, k in sorted(keypoints.items())[:6])
-            raise ReconstructionError(
-                f"too few features for structure-from-motion ({listing} SIFT keypoints; at "
-                f"least {MIN_KEYPOINTS} per frame needed): the images look untextured"
-            )
-
+        keypoints = _extract_features(folder, camera, peak_threshold, max_features)
         matching = "exhaustive" if len(frames) <= EXHAUSTIVE_MAX_FRAMES else "sequential"
         say(f"{matching} matching")
-        match_options = pycolmap.FeatureMatchingOptions()
-        if matching == "exhaustive":
-            pycolmap.match_exhaustive(
-                database, matching_options=match_options, device=pycolmap.Device.cpu
-            )
-        else:
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = _SEQUENTIAL_OVERLAP
-            pycolmap.match_sequential(
-                database,
-                matching_options=match_options,
-                pairing_options=pairing,
-                device=pycolmap.Device.cpu,
-            )
-
-        options = pycolmap.IncrementalPipelineOptions()
-        options.ba_refine_focal_length = False
-        options.ba_refine_principal_point = False
-        options.ba_refine_extra_params = False
-        options.multiple_models = False
-        options.random_seed = seed
-        options.mapper.random_seed = seed
-        options.triangulation.random_seed = seed
-        # A laparoscope sweeps a few degrees: COLMAP's 16-degree default for the initial pair
-        # is rarely reached.
-        options.mapper.init_min_tri_angle = init_min_tri_angle
-        # Keep points seen in two frames only: short sequences have many, and the robust
-        # surface fit copes with the few bad ones.
-        options.triangulation.ignore_two_view_tracks = False
+        _match(database, matching)
         say("incremental mapping (intrinsics fixed)")
         models = pycolmap.incremental_mapping(
-            database, folder / "images", folder / "sparse", options
+            database,
+            folder / "images",
+            folder / "sparse",
+            _mapping_options(seed, init_min_tri_angle),
         )
     if not models:
         raise ReconstructionError(
@@ -244,3 +187,84 @@ def _sparse_model(model, names, keypoints, matching) -> SparseModel:
         matching=matching,
         mean_reprojection_error=float(model.compute_mean_reprojection_error()),
     )
+
+
+def _extract_features(folder: Path, camera: Camera, peak_threshold, max_features) -> dict:
+    """SIFT into the workspace's database with the camera's intrinsics; keypoints per frame.
+
+    Raises `ReconstructionError` when fewer than two frames have enough keypoints."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    # COLMAP's pixel centres are at +0.5 (ctjax's, like OpenCV's, at integers).
+    intrinsics = (
+        float(camera.fx),
+        float(camera.fy),
+        float(camera.cx) + 0.5,
+        float(camera.cy) + 0.5,
+    )
+    reader.camera_params = ",".join(f"{value:.17g}" for value in intrinsics)
+    reader.mask_path = str(folder / "masks")
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.peak_threshold = peak_threshold
+    extraction.sift.max_num_features = max_features
+    database = folder / "database.db"
+    pycolmap.extract_features(
+        database,
+        folder / "images",
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    keypoints = _keypoint_counts(database)
+    poor = {n: k for n, k in keypoints.items() if k < MIN_KEYPOINTS}
+    if len(keypoints) - len(poor) < 2:
+        listing = ", ".join(f"{n}: {k}" for n, k in sorted(keypoints.items())[:6])
+        raise ReconstructionError(
+            f"too few features for structure-from-motion ({listing} SIFT keypoints; at "
+            f"least {MIN_KEYPOINTS} per frame needed): the images look untextured"
+        )
+    return keypoints
+
+
+def _match(database: Path, matching: str) -> None:
+    """Exhaustive matching for short sequences, sequential (with overlap) beyond."""
+    import pycolmap
+
+    match_options = pycolmap.FeatureMatchingOptions()
+    if matching == "exhaustive":
+        pycolmap.match_exhaustive(
+            database, matching_options=match_options, device=pycolmap.Device.cpu
+        )
+        return
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = _SEQUENTIAL_OVERLAP
+    pycolmap.match_sequential(
+        database,
+        matching_options=match_options,
+        pairing_options=pairing,
+        device=pycolmap.Device.cpu,
+    )
+
+
+def _mapping_options(seed: int, init_min_tri_angle: float):
+    """Incremental mapping with the intrinsics held fixed, deterministic for a seed."""
+    import pycolmap
+
+    options = pycolmap.IncrementalPipelineOptions()
+    options.ba_refine_focal_length = False
+    options.ba_refine_principal_point = False
+    options.ba_refine_extra_params = False
+    options.multiple_models = False
+    options.random_seed = seed
+    options.mapper.random_seed = seed
+    options.triangulation.random_seed = seed
+    # A laparoscope sweeps a few degrees: COLMAP's 16-degree default for the initial pair
+    # is rarely reached.
+    options.mapper.init_min_tri_angle = init_min_tri_angle
+    # Keep points seen in two frames only: short sequences have many, and the robust
+    # surface fit copes with the few bad ones.
+    options.triangulation.ignore_two_view_tracks = False
+    return options

@@ -127,37 +127,10 @@ def reconstruct_capture(
     world_from_ref = np.linalg.inv(ref_from_world)
     if knot_spacing_px is None:
         knot_spacing_px = max(camera.width, camera.height) / 20
-    margin = knot_spacing_px
 
-    surfaces, hulls, counts, cams = {}, {}, {}, {}
-    for name in sparse.registered:
-        cam_from_ref = sparse.cam_from_world[name] @ world_from_ref
-        cam_from_ref[:3, 3] /= unit
-        local = _to_camera(cam_from_ref, points)
-        front = local[:, 2] > 1e-6
-        u, v = _project(camera, local[front])
-        inside = (
-            (u >= -margin)
-            & (u <= camera.width - 1 + margin)
-            & (v >= -margin)
-            & (v <= camera.height - 1 + margin)
-        )
-        u, v, z = u[inside], v[inside], local[front][inside, 2]
-        if len(z) < 16:
-            continue
-        say(f"surface of {name} from {len(z)} points")
-        surface = fit_depth_surface(
-            u,
-            v,
-            z,
-            (-margin, camera.width - 1 + margin, -margin, camera.height - 1 + margin),
-            knot_spacing_px=knot_spacing_px,
-        )
-        surfaces[name] = surface
-        hulls[name] = _hull_mask(camera, u[surface.inliers], v[surface.inliers])
-        counts[name] = int(surface.inliers.sum())
-        cams[name] = cam_from_ref
-
+    surfaces, hulls, counts, cams = _view_surfaces(
+        camera, sparse, points, world_from_ref, unit, knot_spacing_px, say
+    )
     scale, scale_info = _scale(camera, surfaces.get(reference), hulls.get(reference), points)
     if scale_mm is not None:
         scale = scale_mm / scale_info["median_reference_depth"]
@@ -179,38 +152,7 @@ def reconstruct_capture(
         )
         views[name] = ViewSurface(name, scaled, hulls[name], pose, counts[name])
 
-    coverage = {name: float(view.hull.mean()) for name, view in views.items()}
-    unregistered = [n for n in sparse.names if n not in views]
-    warnings = [
-        f"frame {n} did not register (skipped; no depth or normals for it)" for n in unregistered
-    ]
-    if not scale_info["metric"]:
-        warnings.append(
-            "depth is up to scale (unit: median depth of the reference frame); give "
-            "scale_mm or volume_mm3 for millimetres"
-        )
-    report = {
-        "frames": len(sparse.names),
-        "registered": [n for n in sparse.names if n in views],
-        "unregistered": unregistered,
-        "reference_frame": reference,
-        "points": len(sparse.points),
-        "mean_reprojection_error_px": sparse.mean_reprojection_error,
-        "mean_track_length": float(np.mean(sparse.track_lengths)) if len(points) else 0.0,
-        "coverage": float(np.mean(list(coverage.values()))) if coverage else 0.0,
-        "coverage_per_frame": coverage,
-        "keypoints": sparse.keypoints,
-        "matching": sparse.matching,
-        "scale": scale_info,
-        "surface": {
-            "model": SURFACE_MODEL,
-            "knot_spacing_px": float(knot_spacing_px),
-            "points_per_frame": counts,
-            "residual_rms_per_frame": {n: v.surface.residual_rms for n, v in views.items()},
-        },
-        "world_frame": f"camera frame of {reference} (its pose is the identity)",
-        "warnings": warnings,
-    }
+    report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
     return Reconstruction(camera, views, sparse, report)
 
 
@@ -353,3 +295,76 @@ def with_reconstructed_shape(
             depth, normals = view.depth_and_normals(capture.camera)
             frames.append(dataclasses.replace(frame, depth=depth, normals=normals, pose=view.pose))
     return dataclasses.replace(capture, frames=tuple(frames)), result.report
+
+
+def _view_surfaces(camera, sparse, points, world_from_ref, unit, knot_spacing_px, say):
+    """A depth surface per registered frame from the points it sees (with a margin of one
+    knot spacing around the image): (surfaces, hulls, inlier counts, cam_from_ref)."""
+    margin = knot_spacing_px
+    surfaces, hulls, counts, cams = {}, {}, {}, {}
+    for name in sparse.registered:
+        cam_from_ref = sparse.cam_from_world[name] @ world_from_ref
+        cam_from_ref[:3, 3] /= unit
+        local = _to_camera(cam_from_ref, points)
+        front = local[:, 2] > 1e-6
+        u, v = _project(camera, local[front])
+        inside = (
+            (u >= -margin)
+            & (u <= camera.width - 1 + margin)
+            & (v >= -margin)
+            & (v <= camera.height - 1 + margin)
+        )
+        u, v, z = u[inside], v[inside], local[front][inside, 2]
+        if len(z) < 16:
+            continue
+        say(f"surface of {name} from {len(z)} points")
+        surface = fit_depth_surface(
+            u,
+            v,
+            z,
+            (-margin, camera.width - 1 + margin, -margin, camera.height - 1 + margin),
+            knot_spacing_px=knot_spacing_px,
+        )
+        surfaces[name] = surface
+        hulls[name] = _hull_mask(camera, u[surface.inliers], v[surface.inliers])
+        counts[name] = int(surface.inliers.sum())
+        cams[name] = cam_from_ref
+
+    return surfaces, hulls, counts, cams
+
+
+def _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px) -> dict:
+    """`ctjax reconstruct`'s JSON report."""
+    coverage = {name: float(view.hull.mean()) for name, view in views.items()}
+    unregistered = [n for n in sparse.names if n not in views]
+    warnings = [
+        f"frame {n} did not register (skipped; no depth or normals for it)" for n in unregistered
+    ]
+    if not scale_info["metric"]:
+        warnings.append(
+            "depth is up to scale (unit: median depth of the reference frame); give "
+            "scale_mm or volume_mm3 for millimetres"
+        )
+    report = {
+        "frames": len(sparse.names),
+        "registered": [n for n in sparse.names if n in views],
+        "unregistered": unregistered,
+        "reference_frame": reference,
+        "points": len(sparse.points),
+        "mean_reprojection_error_px": sparse.mean_reprojection_error,
+        "mean_track_length": float(np.mean(sparse.track_lengths)) if len(points) else 0.0,
+        "coverage": float(np.mean(list(coverage.values()))) if coverage else 0.0,
+        "coverage_per_frame": coverage,
+        "keypoints": sparse.keypoints,
+        "matching": sparse.matching,
+        "scale": scale_info,
+        "surface": {
+            "model": SURFACE_MODEL,
+            "knot_spacing_px": float(knot_spacing_px),
+            "points_per_frame": counts,
+            "residual_rms_per_frame": {n: v.surface.residual_rms for n, v in views.items()},
+        },
+        "world_frame": f"camera frame of {reference} (its pose is the identity)",
+        "warnings": warnings,
+    }
+    return report

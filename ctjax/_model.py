@@ -1,12 +1,14 @@
+"""The shading model: everything between the scene's geometry and a pixel value."""
+
 import equinox as eqx
 
-from .._render import render, shade, shade_columns
-from .._typing import RGB
-from .._vector import Vec3
-from ..effects import AbstractImageEffect
-from ..lights import AbstractLight, ColocatedLight
-from ..lobes import BRDF, cook_torrance_brdf
-from ._parameters import strongly_typed
+from ._convert import strongly_typed
+from ._render import render, shade, shade_columns
+from ._typing import RGB
+from ._vector import Vec3
+from .effects import AbstractImageEffect
+from .lights import AbstractLight, ColocatedLight
+from .lobes import BRDF, cook_torrance_brdf
 
 
 class ShadingModel(eqx.Module):

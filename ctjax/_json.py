@@ -1,0 +1,88 @@
+"""Any model as JSON, by walking its Modules: a new lobe, light or effect serialises itself.
+
+Two views of one model:
+
+- `to_json(module)`: the whole tree, `{"class": "PointLight", "position_mm": [...], ...}`,
+  every field (static ones too, when they are plain values), arrays as lists.
+- `named_parameters(module)`: the parameters a field declares a name for
+  (`eqx.field(metadata=named("sigma", ...))`), in the paper's words: `rho_tilde`,
+  `F_tilde`, `sigma`, `offset_mm`... The first field of a name keeps it; later ones get
+  `_2`, `_3` (a second specular lobe: `F_tilde_2`, `sigma_2`). These are the keys the
+  estimators' JSON documents, found whatever the lobes' order.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import numpy as np
+
+JSON = dict | list | float | int | str | bool | None
+
+
+def _value(x) -> JSON:
+    if eqx.is_array(x) or isinstance(x, np.generic):
+        array = np.asarray(x)
+        if array.dtype == bool:
+            return array.tolist()
+        if array.size > 64:  # a map (a light field's directions): its shape, not its values
+            return {"shape": list(array.shape), "dtype": str(array.dtype)}
+        return array.astype(float).tolist() if array.dtype.kind == "f" else array.tolist()
+    if isinstance(x, str | bool | int | float) or x is None:
+        return x
+    if isinstance(x, eqx.Module | tuple | list):
+        return to_json(x)
+    return type(x).__name__  # a function or another object: named, not serialised
+
+
+def to_json(module) -> JSON:
+    """The model tree as JSON: class names and every field, recursively."""
+    if isinstance(module, eqx.Module):
+        out: dict = {"class": type(module).__name__}
+        for field in dataclasses.fields(module):
+            value = getattr(module, field.name)
+            if field.metadata.get("static", False) and not isinstance(
+                value, str | bool | int | float | tuple
+            ):
+                continue  # a function or a config object: not data
+            out[field.name] = _value(value)
+        return out
+    if isinstance(module, tuple | list):
+        return [_value(m) for m in module]
+    return _value(module)
+
+
+def _walk_named(node, out: dict) -> None:
+    if isinstance(node, eqx.Module):
+        for field in dataclasses.fields(node):
+            value = getattr(node, field.name)
+            name = field.metadata.get("name")
+            if name is not None and eqx.is_array(value):
+                key, index = name, 1
+                while key in out:
+                    index += 1
+                    key = f"{name}_{index}"
+                out[key] = _value(value)
+            else:
+                _walk_named(value, out)
+    elif isinstance(node, tuple | list):
+        for value in node:
+            _walk_named(value, out)
+
+
+def named_parameters(module) -> dict[str, JSON]:
+    """The named parameters of a model (`rho_tilde`, `F_tilde`, `sigma`, ...), in the order
+    of the tree: the paper's view of any model."""
+    out: dict[str, JSON] = {}
+    _walk_named(module, out)
+    return out
+
+
+def falloff_json(light) -> dict[str, JSON]:
+    """A light's falloff factors by name: `{"inverse_square": {"reference_mm": 70}, ...}`."""
+    out = {}
+    for factor in getattr(light, "falloff", ()):
+        fields = to_json(factor)
+        out[getattr(factor, "name", fields.pop("class"))] = {
+            k: v for k, v in fields.items() if k != "class"
+        }
+    return out

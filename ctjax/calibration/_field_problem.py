@@ -1,0 +1,117 @@
+"""The paper's per-pixel light problem (section 5, eq. 7-8), for one pixel; batches come
+from `vmap`.
+
+`theta`, `phi` are eq. (7)'s tilt and slant in the paper's frame, which is ctjax's camera
+frame turned by 180 degrees about x (x right, y up, z towards the viewer):
+`L = (sin phi cos theta, -sin phi sin theta, -cos phi)` in ctjax's frame. They are reported,
+but the solvers work in tangent-plane coordinates around each pixel's start direction:
+eq. (7) is singular at phi = 0, which is exactly the boundary value near the image centre.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .._convert import cast_floating
+from .._typing import Array, Float
+from .._vector import Vec3, tangent_direction
+from ..lights import angles_from_direction
+from ..lobes import BRDF
+from ._closed_form_lm import ClosedFormLM, least_squares
+
+# ctjax's camera frame -> the paper's (x right, y up, z towards the viewer).
+_PAPER_FRAME = np.array([1.0, -1.0, -1.0])
+
+
+def paper_angles(directions: Float[Array, "... 3"]) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (7)'s (theta, phi) of unit directions in ctjax's camera frame (radians).
+
+    theta in [-pi, pi] (tilt), phi in [0, pi] (slant from the paper's z, the optical axis
+    pointing back towards the camera; light in front of the surface: phi < pi / 2).
+    """
+    theta, phi = angles_from_direction(jnp.asarray(directions) * _PAPER_FRAME)
+    return np.asarray(theta), np.asarray(phi)
+
+
+def directions_from_paper_angles(theta, phi) -> np.ndarray:
+    """Inverse of `paper_angles`: unit directions (..., 3) in ctjax's camera frame."""
+    theta, phi = np.asarray(theta, float), np.asarray(phi, float)
+    paper = np.stack([np.sin(phi) * np.cos(theta), np.sin(phi) * np.sin(theta), np.cos(phi)], -1)
+    return paper * _PAPER_FRAME
+
+
+class PixelProblem(eqx.Module):
+    """One pixel's data over F frames (a batch of pixels under vmap): the unit view
+    direction V (camera frame; the same in every frame, it depends on the pixel only), the
+    unit normal and measured linear RGB in each frame, a weight per frame (1 where the
+    pixel is in S-bar in that frame, else 0), the start direction and the prior direction."""
+
+    view: Vec3
+    normal: Vec3  # components (F,)
+    values: Float[Array, "F 3"]
+    weight: Float[Array, " F"]
+    irradiance: Float[Array, " F"]
+    start: Vec3
+    prior: Vec3
+
+
+def pixel_residuals(y, problem: PixelProblem, brdf: BRDF, prior_scale) -> Float[Array, " R"]:
+    """Eq. (8)'s residuals of one pixel in 8-bit levels, every frame (F x 3), then the
+    prior's three (`(L - L_prior) * prior_scale`, `prior_scale` = 1 / prior_deg in 1/rad)."""
+    light = tangent_direction(problem.start, y)
+
+    def one_frame(normal, values, weight, irradiance):
+        predicted = irradiance * brdf.radiance(normal, light, problem.view)
+        return 255 * weight * (predicted - values)
+
+    shading = jax.vmap(one_frame)(
+        problem.normal, problem.values, problem.weight, problem.irradiance
+    )
+    prior = (light - problem.prior).to_array() * prior_scale
+    return jnp.concatenate([shading.reshape(-1), prior])
+
+
+class PixelSolution(eqx.Module):
+    """Per pixel: the unit light direction (camera frame), the solver's `Status` code, its
+    number of steps and the data's RMSE (levels)."""
+
+    direction: Float[Array, "P 3"]
+    result: Array
+    steps: Array
+    rmse: Float[Array, " P"]
+
+
+@eqx.filter_jit
+def solve_pixels(
+    problems: PixelProblem,
+    brdf: BRDF,
+    prior_scale: float,
+    solver: ClosedFormLM | optx.AbstractLeastSquaresSolver,
+    max_steps: int = 24,
+) -> PixelSolution:
+    """Eq. (8) per pixel by `solver` (`ClosedFormLM`, or an optimistix solver such as
+    `optx.LevenbergMarquardt` with at most `max_steps` steps), vmapped over the pixels of
+    `problems` (a batch of `PixelProblem`s), from their start directions. Works in the dtype
+    of `problems` (the BRDF is cast to it), float32 or float64."""
+    brdf = cast_floating(brdf, problems.values.dtype)
+
+    def one(problem):
+        y0 = jnp.zeros(2, problem.values.dtype)
+        y, status, steps = least_squares(
+            lambda y: pixel_residuals(y, problem, brdf, prior_scale), solver, y0, max_steps
+        )
+        light = tangent_direction(problem.start, y)
+        return light.to_array(), status, steps, _data_rmse(y, problem, brdf)
+
+    direction, result, steps, rmse = jax.vmap(one)(problems)
+    return PixelSolution(direction, result, steps, rmse)
+
+
+def _data_rmse(y, problem: PixelProblem, brdf: BRDF):
+    """One pixel's RMSE (levels) of the shading residuals at `y`, over its observed values."""
+    residual = pixel_residuals(y, problem, brdf, 0.0)
+    frames = problem.values.shape[0]
+    count = 3 * jnp.maximum(jnp.sum(problem.weight), 1)
+    return jnp.sqrt(jnp.sum(residual[: 3 * frames] ** 2) / count)

@@ -1,0 +1,170 @@
+"""The held-out protocol, written once: split the frames, fit on the calibration frames,
+judge on the held-out frames against the noise floor.
+
+Calibration, evaluation and diagnostics all use it; it sits below them (it needs only the
+capture, the pixel samples and the model), so none of them imports another for it.
+"""
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._errors import CtjaxError
+from ._result import Estimate
+from .fitting._fit import pixel_predict, rmse_levels
+from .fitting._samples import PixelSamples, capture_samples, usable_mask
+from .io import Capture
+
+# Among models within this fraction of the lowest held-out RMSE, the simplest is kept: a
+# component the data do not show fits to ~nothing and would otherwise win on noise.
+SIMPLEST_WITHIN = 0.01
+
+
+def split_frames(
+    count: int, calibration: int | None = None, *, source=None
+) -> tuple[list[int], list[int]]:
+    """The first frames calibrate, the rest are held out (default: 60% / 40%).
+
+    `source` (the capture's folder) names the capture in the errors.
+    """
+    where = f"{source}: " if source is not None else ""
+    if count < 2:
+        raise CtjaxError(
+            f"{where}needs at least 2 frames (calibration and held-out), the capture has {count}"
+        )
+    if calibration is None:
+        calibration = min(count - 1, max(1, math.ceil(0.6 * count)))
+    if not 1 <= calibration < count:
+        raise CtjaxError(
+            f"{where}--calib (calibration frames) must be between 1 and {count - 1} for "
+            f"{count} frames, got {calibration}"
+        )
+    return list(range(calibration)), list(range(calibration, count))
+
+
+def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
+    """Pixel noise (8-bit levels) from second differences of residuals along rows and columns.
+
+    `r[i-1] - 2 r[i] + r[i+1]` cancels any residual that varies linearly over three pixels
+    (a smooth model error, even a large one), and has variance 6 sigma^2 for independent
+    noise. Outliers (highlights' edges) are clipped iteratively at 4 standard deviations;
+    not the median absolute deviation, which is biased here because the second difference
+    of a smooth image quantised to 8 bits takes nearly integer values.
+    """
+    differences = []
+    for index in frames:
+        frame = capture.frames[index]
+        rendered = np.asarray(model.render(capture.camera, frame.normals, frame.depth))
+        residual = (rendered - frame.image) * 255
+        usable = usable_mask(frame)
+        for r, u in ((residual, usable), (np.swapaxes(residual, 0, 1), usable.T)):
+            second = r[:-2] - 2 * r[1:-1] + r[2:]
+            both = u[:-2] & u[1:-1] & u[2:]
+            differences.append(second[both].reshape(-1))
+    d = np.concatenate(differences)
+    if d.size < 100:
+        raise CtjaxError("too few usable neighbouring pixels to estimate the noise floor")
+    kept = d
+    for _ in range(5):
+        spread = np.std(kept)
+        kept = d[np.abs(d - np.mean(kept)) < 4 * spread]
+    # A Gaussian clipped at 4 sigma keeps 99.9% of its variance.
+    return float(np.std(kept) / math.sqrt(6))
+
+
+def median_depth_mm(capture: Capture) -> float:
+    """Median depth (mm) of every frame's usable pixels: the working distance, where a
+    falloff's reference is put (so that rho_tilde and F_tilde read as there)."""
+    depths = [f.depth[usable_mask(f)] for f in capture.frames if f.depth is not None]
+    depth = np.concatenate(depths) if depths else np.zeros(0)
+    if depth.size == 0:
+        raise CtjaxError(f"{capture.root}: no usable pixel with depth")
+    return float(np.median(depth))
+
+
+@dataclasses.dataclass
+class HeldOut:
+    """A capture split into calibration and held-out frames, with the pixel samples of each
+    (built once, shared by every model compared on them).
+
+    `train`: at most `max_samples` usable pixels of the calibration frames (what models are
+    fitted on); `test`: at most `heldout_samples` of the held-out frames (what they are
+    judged on). Random subsets, deterministic for a seed.
+    """
+
+    capture: Capture
+    calibration: list[int]
+    heldout: list[int]
+    train: PixelSamples
+    test: PixelSamples
+
+    @classmethod
+    def split(
+        cls,
+        capture: Capture,
+        calibration: int | None = None,
+        *,
+        max_samples: int | None = 12_000,
+        heldout_samples: int | None = 40_000,
+        seed: int = 0,
+    ) -> "HeldOut":
+        """Split `capture` (`calibration`: the number of calibration frames, default 60%)."""
+        calib, heldout = split_frames(len(capture), calibration, source=capture.root)
+        train = capture_samples(capture, calib, max_samples=max_samples, seed=seed)
+        test = capture_samples(capture, heldout, max_samples=heldout_samples, seed=seed + 1)
+        return cls(capture, calib, heldout, train, test)
+
+    @property
+    def frames(self) -> dict[str, list[int]]:
+        return {"calibration": self.calibration, "heldout": self.heldout}
+
+    def median_depth_mm(self) -> float:
+        """Median depth of the calibration frames' usable pixels (a falloff's reference)."""
+        frames = self.capture.frames
+        return float(
+            np.median(
+                np.concatenate([frames[i].depth[usable_mask(frames[i])] for i in self.calibration])
+            )
+        )
+
+    def heldout_rmse(self, model) -> float:
+        """RMSE (8-bit levels) of `model` on the held-out samples."""
+        return float(rmse_levels(model, self.test, pixel_predict))
+
+    def rmse(self, model) -> dict[str, float]:
+        """RMSE (8-bit levels) of `model` on the calibration and the held-out samples."""
+        return {
+            "calibration": float(rmse_levels(model, self.train, pixel_predict)),
+            "heldout": self.heldout_rmse(model),
+        }
+
+    def noise_floor(self, model) -> float:
+        """The noise floor (8-bit levels) of the held-out frames' residuals under `model`."""
+        return noise_floor_levels(self.capture, self.heldout, model)
+
+    def judge(self, fit: Estimate, *, noise_floor: bool = True) -> Estimate:
+        """`fit` (fitted on `train`) with its held-out RMSE, noise floor and frames."""
+        rmse = {
+            "calibration": fit.rmse.get("calibration", math.nan),
+            "heldout": self.heldout_rmse(fit.model),
+        }
+        return dataclasses.replace(
+            fit,
+            rmse=rmse,
+            noise_floor=self.noise_floor(fit.model) if noise_floor else fit.noise_floor,
+            frames=self.frames,
+        )
+
+
+def simplest_within(
+    choices: Sequence[Sequence], heldout_rmse: Sequence[float], tolerance: float = SIMPLEST_WITHIN
+) -> int:
+    """The index of the simplest choice (fewest components, first on ties) whose held-out
+    RMSE is within `tolerance` of the lowest."""
+    lowest = min(heldout_rmse)
+    if not math.isfinite(lowest):
+        raise CtjaxError("no model produced a finite held-out error")
+    within = [i for i, value in enumerate(heldout_rmse) if value <= (1 + tolerance) * lowest]
+    return min(within, key=lambda i: len(choices[i]))
