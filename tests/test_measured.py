@@ -1,15 +1,12 @@
-"""Measured BRDF data: the ALTA loader, and a new lobe fitted to real retro-reflection data."""
+"""Measured BRDF data: the ALTA loader (the retro-reflection lobe fitted to real data is in
+`test_retro_reflection.py`)."""
 
 from pathlib import Path
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import ctjax
-from ctjax.fitting import brdf_columns, brdf_predict, fit_model, measured_samples
 from ctjax.io import load_alta
 
 RETRO = Path(__file__).resolve().parents[2] / "shared" / "data" / "retro-gray-tape.dat"
@@ -135,40 +132,3 @@ def test_non_numeric_line_names_the_line(tmp_path):
         load_alta(path)
     with pytest.raises(ctjax.CtjaxError, match="not found"):
         load_alta(tmp_path / "missing.dat")
-
-
-class RetroReflection(ctjax.lobes.AbstractLobe):
-    """A user's lobe: a narrow peak around L = V whose height falls with incidence."""
-
-    weight: jax.Array = eqx.field(metadata=ctjax.POSITIVE)
-    width: jax.Array = eqx.field(metadata=ctjax.POSITIVE)
-    falloff: jax.Array = eqx.field(metadata=ctjax.POSITIVE)
-
-    def radiance(self, normal, light, view):
-        n_dot_l = normal @ light
-        lit = (n_dot_l > 0) & (normal @ view > 0)
-        cosine = jnp.where(lit, n_dot_l, 1.0)
-        peak = jnp.exp(-(1 - light @ view) / self.width)
-        return jnp.where(lit, peak * cosine ** (self.falloff + 1), 0.0)
-
-
-def test_a_retro_lobe_halves_the_error_of_cook_torrance_on_measured_data():
-    samples = measured_samples(load_alta(RETRO))
-    cook_torrance = [
-        ctjax.BRDF(
-            ctjax.Lambertian(0.5),
-            ctjax.CookTorrance(0.5, ctjax.Beckmann(s), (ctjax.GeometricAttenuation(),)),
-        )
-        for s in (0.05, 0.2, 0.5)
-    ]
-    base = fit_model(
-        cook_torrance, samples, brdf_predict, columns=brdf_columns, scale=1.0, refine=3
-    )
-    starts = [
-        ctjax.BRDF(*base.model.lobes, RetroReflection(jnp.ones(3), jnp.asarray(w), jnp.asarray(k)))
-        for w in (1e-4, 1e-3, 1e-2)
-        for k in (1.0, 5.0)
-    ]
-    retro = fit_model(starts, samples, brdf_predict, columns=brdf_columns, scale=1.0, refine=3)
-    assert retro.calibration_rmse <= 0.5 * base.calibration_rmse
-    assert 0.0001 < float(retro.model.lobes[2].width) < 0.01
