@@ -77,6 +77,26 @@ def named_parameters(module) -> dict[str, JSON]:
     return out
 
 
+def _walk_arrays(node, name: str, out: dict) -> None:
+    if isinstance(node, eqx.Module):
+        for field in dataclasses.fields(node):
+            child = f"{name}.{field.name}" if name else field.name
+            _walk_arrays(getattr(node, field.name), child, out)
+    elif isinstance(node, tuple | list):
+        for index, value in enumerate(node):
+            _walk_arrays(value, f"{name}[{index}]", out)
+    elif eqx.is_array(node) or isinstance(node, str):
+        out[name] = _value(node)
+
+
+def array_fields(module) -> dict[str, JSON]:
+    """Every array (and string) field of a model by its dotted name (`light.position_mm`,
+    `brdf.lobes[1].distribution.sigma`), fixed ones too, as JSON values."""
+    out: dict[str, JSON] = {}
+    _walk_arrays(module, "", out)
+    return out
+
+
 def falloff_json(light) -> dict[str, JSON]:
     """A light's falloff factors by name: `{"inverse_square": {"reference_mm": 70}, ...}`."""
     out = {}

@@ -12,8 +12,13 @@ from ._errors import CtjaxError
 
 
 def _synth_options_from(args: argparse.Namespace):
-    from .synth import SynthOptions
+    from .synth import SynthOptions, synth_effects
 
+    effects = {}
+    for name, effect in synth_effects().items():
+        value = effect.synth_value(args)
+        if value is not None:
+            effects[name] = value
     return SynthOptions(
         width=args.width,
         height=args.height,
@@ -26,33 +31,14 @@ def _synth_options_from(args: argparse.Namespace):
         rho_tilde=tuple(args.rho) if args.rho else SynthOptions.rho_tilde,
         F_tilde=tuple(args.F) if args.F else SynthOptions.F_tilde,
         sigma=args.sigma,
-        light_offset_mm=tuple(args.light_offset) if args.light_offset else None,
-        inverse_square=args.inverse_square,
-        spot_exponent=args.spot,
-        camera_gamma=args.gamma,
-        ambient=_rgb(args.ambient),
-        fresnel_f0=args.fresnel_schlick,
-        fresnel_cosine=args.fresnel_cosine,
-        geometric_attenuation=args.geometric_attenuation,
-        ggx=args.ggx,
-        second_lobe=tuple(args.second_lobe) if args.second_lobe else None,
+        effects=effects,
     )
-
-
-def _rgb(values):
-    if values is None:
-        return None
-    if len(values) == 1:
-        return (values[0],) * 3
-    if len(values) != 3:
-        raise CtjaxError(f"expected 1 or 3 values (R G B), got {len(values)}")
-    return tuple(values)
 
 
 def _add_synth_arguments(
     parser: argparse.ArgumentParser, *, frames: int, texture: bool, texture_contrast: float = 1.0
 ) -> None:
-    from .synth import SynthOptions
+    from .synth import SynthOptions, synth_effects
 
     size = parser.add_argument_group("capture")
     size.add_argument("--frames", type=int, default=frames, help="number of frames")
@@ -76,41 +62,9 @@ def _add_synth_arguments(
     model.add_argument("--F", type=float, nargs=3, metavar=("R", "G", "B"), help="F_tilde")
     model.add_argument("--sigma", type=float, default=SynthOptions.sigma, help="roughness")
     effects = parser.add_argument_group("effects beyond the paper's model (all off by default)")
-    effects.add_argument(
-        "--light-offset",
-        type=float,
-        nargs=3,
-        metavar=("X", "Y", "Z"),
-        help="point light at this camera-frame offset from the lens, mm",
-    )
-    effects.add_argument(
-        "--inverse-square", action="store_true", help="inverse-square falloff (1 at 70 mm)"
-    )
-    effects.add_argument("--spot", type=float, metavar="K", help="angular falloff cos^K")
-    effects.add_argument("--gamma", type=float, help="camera response radiance^(1/gamma)")
-    effects.add_argument(
-        "--ambient", type=float, nargs="+", metavar="A", help="ambient radiance, one value or R G B"
-    )
-    effects.add_argument(
-        "--fresnel-schlick", type=float, metavar="F0", help="Schlick Fresnel with this F0"
-    )
-    effects.add_argument(
-        "--fresnel-cosine",
-        choices=("half", "normal"),
-        default="half",
-        help="Schlick at V.H (Cook-Torrance, default) or at N.V",
-    )
-    effects.add_argument(
-        "--geometric-attenuation", action="store_true", help="Cook-Torrance geometric attenuation G"
-    )
-    effects.add_argument("--ggx", action="store_true", help="GGX instead of Beckmann")
-    effects.add_argument(
-        "--second-lobe",
-        type=float,
-        nargs=2,
-        metavar=("SIGMA", "FRACTION"),
-        help="a second Beckmann lobe with F_tilde * FRACTION",
-    )
+    # Each effect declares its own options, beside its physics (its candidate).
+    for effect in synth_effects().values():
+        effect.add_synth_arguments(effects)
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:

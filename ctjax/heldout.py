@@ -120,15 +120,6 @@ class HeldOut:
     def frames(self) -> dict[str, list[int]]:
         return {"calibration": self.calibration, "heldout": self.heldout}
 
-    def median_depth_mm(self) -> float:
-        """Median depth of the calibration frames' usable pixels (a falloff's reference)."""
-        frames = self.capture.frames
-        return float(
-            np.median(
-                np.concatenate([frames[i].depth[usable_mask(frames[i])] for i in self.calibration])
-            )
-        )
-
     def heldout_rmse(self, model) -> float:
         """RMSE (8-bit levels) of `model` on the held-out samples."""
         return float(rmse_levels(model, self.test, pixel_predict))

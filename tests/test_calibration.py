@@ -15,8 +15,10 @@ NOISE_FLOOR = np.sqrt(1 + 1 / 12)  # 1 level of noise and 8-bit quantisation
 
 
 def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
-    options = SynthOptions(**SMALL, light_offset_mm=(6.0, -2.0, 0.0))
-    result = calibrate_near_light(load_capture(synthesize(tmp_path / "c", options)))
+    options = SynthOptions(**SMALL, effects={"light_offset": (6.0, -2.0, 0.0)})
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    # The demo's sample counts: the compiled fits are shared with its test.
+    result = calibrate_near_light(capture, max_samples=8000, heldout_samples=20_000)
     np.testing.assert_allclose(np.asarray(result.model.light.position_mm), [6, -2, 0], atol=1.0)
     # Falloffs the data do not show are not chosen (the simplest model within 1%).
     assert result.model.light.falloff == ()
@@ -29,7 +31,8 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
 
 def test_calibrate_light_command_with_falloffs(tmp_path):
     options = SynthOptions(
-        **SMALL, light_offset_mm=(-3.0, 7.0, 1.0), inverse_square=True, spot_exponent=3.0
+        **SMALL,
+        effects={"light_offset": (-3.0, 7.0, 1.0), "inverse_square": True, "spot_falloff": 3.0},
     )
     root = synthesize(tmp_path / "c", options)
     out = tmp_path / "light.json"

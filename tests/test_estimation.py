@@ -119,7 +119,12 @@ def test_grid_search_finds_the_global_minimum_of_two_basins():
 def test_brdf_cost_with_two_basins_matches_brute_force(tmp_path):
     # Two lobes in the data, one in the model: the cost over sigma has two basins.
     options = SynthOptions(
-        width=160, height=128, frames=3, texture=False, sigma=0.08, second_lobe=(0.45, 1.5)
+        width=160,
+        height=128,
+        frames=3,
+        texture=False,
+        sigma=0.08,
+        effects={"second_lobe": (0.45, 1.5)},
     )
     samples = _ring_samples(load_capture(synthesize(tmp_path / "two", options)), ring_px=12)
     fit = fit_brdf(samples)
@@ -146,7 +151,7 @@ def test_two_scale_family_recovers_two_lobes(tmp_path):
         rho_tilde=(0.8, 0.5, 0.4),
         F_tilde=(0.2, 0.2, 0.2),
         sigma=0.12,
-        second_lobe=(0.4, 0.5),
+        effects={"second_lobe": (0.4, 0.5)},
         noise_levels=0.5,
     )
     samples = _ring_samples(load_capture(synthesize(tmp_path / "two", options)), ring_px=15)

@@ -62,7 +62,7 @@ def median_angle_deg(directions, truth) -> float:
 @pytest.fixture(scope="module")
 def offset_capture(tmp_path_factory):
     root = tmp_path_factory.mktemp("field") / "capture"
-    return synthesize(root, SynthOptions(**SMALL, light_offset_mm=OFFSET_MM))
+    return synthesize(root, SynthOptions(**SMALL, effects={"light_offset": OFFSET_MM}))
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +147,7 @@ def test_light_field_solver_is_checked(offset_capture, tmp_path, capsys):
 
 
 def test_light_field_with_inverse_square_falloff(tmp_path):
-    options = SynthOptions(**SMALL, light_offset_mm=OFFSET_MM, inverse_square=True)
+    options = SynthOptions(**SMALL, effects={"light_offset": OFFSET_MM, "inverse_square": True})
     capture = load_capture(synthesize(tmp_path / "c", options))
     # One round: the BRDF refit under the field (the other test) hardly moves it here.
     result = calibrate_light_field(capture, brdf_rounds=1, solver=ClosedFormLM(iterations=10))

@@ -39,6 +39,7 @@ CHECKS = {
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
     monkeypatch.setenv("CTJAX_NOTEBOOK_WIDTH", "96")
+    monkeypatch.setenv("CTJAX_NOTEBOOK_SAMPLES", "5000")  # as test_diagnostics' SAMPLES
     monkeypatch.setenv("MPLBACKEND", "Agg")
     notebook = nbformat.read(path, as_version=4)
     NotebookClient(

@@ -126,16 +126,16 @@ def test_texture_gives_sift_features(tmp_path):
 
 
 EFFECTS = {
-    "light_offset": dict(light_offset_mm=(6.0, 0.0, 0.0)),
-    "inverse_square": dict(inverse_square=True),
-    "spot_falloff": dict(spot_exponent=4.0),
-    "camera_gamma": dict(camera_gamma=2.2),
-    "ambient": dict(ambient=(0.04, 0.04, 0.04)),
-    "fresnel_schlick": dict(fresnel_f0=0.02, light_offset_mm=(6.0, 0.0, 0.0)),
+    "light_offset": dict(effects={"light_offset": (6.0, 0.0, 0.0)}),
+    "inverse_square": dict(effects={"inverse_square": True}),
+    "spot_falloff": dict(effects={"spot_falloff": 4.0}),
+    "camera_gamma": dict(effects={"camera_gamma": 2.2}),
+    "ambient": dict(effects={"ambient": (0.04, 0.04, 0.04)}),
+    "fresnel_schlick": dict(effects={"fresnel_schlick": 0.02, "light_offset": (6.0, 0.0, 0.0)}),
     # With L = V, G = min(1, 2 (N.V)^2) only acts beyond 45 degrees: visible with rough tissue.
-    "geometric_attenuation": dict(geometric_attenuation=True, sigma=0.6),
-    "ggx": dict(ggx=True),
-    "second_lobe": dict(second_lobe=(0.6, 0.5)),
+    "geometric_attenuation": dict(effects={"geometric_attenuation": True}, sigma=0.6),
+    "ggx": dict(effects={"ggx": True}),
+    "second_lobe": dict(effects={"second_lobe": (0.6, 0.5)}),
 }
 
 

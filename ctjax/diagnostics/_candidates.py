@@ -6,34 +6,9 @@ candidate (each lives beside its effect: `InverseSquareCandidate` in
 with no edit here. A user's own candidate is passed in the `candidates` tuple.
 """
 
-import importlib
-import pkgutil
-
-from .._candidate import AbstractCandidate
+from .._candidate import AbstractCandidate as AbstractCandidate
+from .._candidate import discover_candidates as discover_candidates
 from .._errors import CtjaxError
-
-_PACKAGES = ("ctjax.lights", "ctjax.lobes", "ctjax.effects")
-
-
-def _subclasses(cls):
-    for sub in cls.__subclasses__():
-        yield sub
-        yield from _subclasses(sub)
-
-
-def discover_candidates() -> tuple[AbstractCandidate, ...]:
-    """One instance of every candidate defined in ctjax's physics packages, by name."""
-    for package in _PACKAGES:
-        module = importlib.import_module(package)
-        for info in pkgutil.iter_modules(module.__path__):
-            importlib.import_module(f"{package}.{info.name}")
-    found = {
-        cls.name: cls
-        for cls in _subclasses(AbstractCandidate)
-        if cls.__module__.startswith(_PACKAGES) and "name" in vars(cls)
-    }
-    return tuple(found[name]() for name in sorted(found))
-
 
 CANDIDATES: tuple[AbstractCandidate, ...] = discover_candidates()
 

@@ -37,3 +37,12 @@ class CameraGammaCandidate(AbstractCandidate):
 
     def __call__(self, model, context):
         return [with_effect(model, CameraGamma(g)) for g in (1.3, 2.2)]
+
+    def add_synth_arguments(self, group):
+        group.add_argument("--gamma", type=float, help="camera response radiance^(1/gamma)")
+
+    def synth_value(self, args):
+        return args.gamma
+
+    def synthesize(self, model, value, context):
+        return with_effect(model, CameraGamma(value))

@@ -42,3 +42,16 @@ class InverseSquareCandidate(AbstractCandidate):
 
     def __call__(self, model, context):
         return [with_falloff(model, InverseSquare(context["median_depth_mm"]))]
+
+    def add_synth_arguments(self, group):
+        group.add_argument(
+            "--inverse-square",
+            action="store_true",
+            help="inverse-square falloff (1 at the working distance, 70 mm)",
+        )
+
+    def synth_value(self, args):
+        return True if args.inverse_square else None
+
+    def synthesize(self, model, value, context):
+        return with_falloff(model, InverseSquare(context["working_distance_mm"]))

@@ -86,3 +86,19 @@ class LightOffsetCandidate(AbstractCandidate):
             )
             for o in offsets
         ]
+
+    def add_synth_arguments(self, group):
+        group.add_argument(
+            "--light-offset",
+            type=float,
+            nargs=3,
+            metavar=("X", "Y", "Z"),
+            help="point light at this camera-frame offset from the lens, mm",
+        )
+
+    def synth_value(self, args):
+        return tuple(args.light_offset) if args.light_offset else None
+
+    def synthesize(self, model, value, context):
+        light = PointLight(jnp.asarray(value, float), falloff=model.light.falloff)
+        return eqx.tree_at(lambda m: m.light, model, light)

@@ -44,3 +44,12 @@ class SpotFalloffCandidate(AbstractCandidate):
 
     def __call__(self, model, context):
         return [with_falloff(model, SpotFalloff(k)) for k in (1.0, 4.0)]
+
+    def add_synth_arguments(self, group):
+        group.add_argument("--spot", type=float, metavar="K", help="angular falloff cos^K")
+
+    def synth_value(self, args):
+        return args.spot
+
+    def synthesize(self, model, value, context):
+        return with_falloff(model, SpotFalloff(value))

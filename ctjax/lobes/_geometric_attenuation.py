@@ -29,3 +29,16 @@ class GeometricAttenuationCandidate(AbstractCandidate):
 
     def __call__(self, model, context):
         return [with_factor(model, GeometricAttenuation())]
+
+    def add_synth_arguments(self, group):
+        group.add_argument(
+            "--geometric-attenuation",
+            action="store_true",
+            help="Cook-Torrance geometric attenuation G",
+        )
+
+    def synth_value(self, args):
+        return True if args.geometric_attenuation else None
+
+    def synthesize(self, model, value, context):
+        return with_factor(model, GeometricAttenuation())

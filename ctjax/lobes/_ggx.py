@@ -50,3 +50,12 @@ class GGXCandidate(AbstractCandidate):
             return eqx.tree_at(lambda l: l.distribution, lobe, GGX(distribution.sigma))
 
         return [with_lobes(model, swap)]
+
+    def add_synth_arguments(self, group):
+        group.add_argument("--ggx", action="store_true", help="GGX instead of Beckmann")
+
+    def synth_value(self, args):
+        return True if args.ggx else None
+
+    def synthesize(self, model, value, context):
+        return self(model, context)[0]

@@ -53,3 +53,23 @@ class FresnelSchlickCandidate(AbstractCandidate):
     def __call__(self, model, context):
         # Cook-Torrance's V.H, and the N.V shortcut that many renderers use.
         return [with_factor(model, SchlickFresnel(0.05, cosine)) for cosine in ("half", "normal")]
+
+    def add_synth_arguments(self, group):
+        group.add_argument(
+            "--fresnel-schlick", type=float, metavar="F0", help="Schlick Fresnel with this F0"
+        )
+        group.add_argument(
+            "--fresnel-cosine",
+            choices=("half", "normal"),
+            default="half",
+            help="Schlick at V.H (Cook-Torrance, default) or at N.V",
+        )
+
+    def synth_value(self, args):
+        if args.fresnel_schlick is None:
+            return None
+        return (args.fresnel_schlick, args.fresnel_cosine)
+
+    def synthesize(self, model, value, context):
+        f0, cosine = value if isinstance(value, tuple | list) else (value, "half")
+        return with_factor(model, SchlickFresnel(f0, cosine))

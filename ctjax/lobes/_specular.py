@@ -80,3 +80,21 @@ class SecondLobeCandidate(AbstractCandidate):
             )
             for scale in (0.4, 2.5)
         ]
+
+    def add_synth_arguments(self, group):
+        group.add_argument(
+            "--second-lobe",
+            type=float,
+            nargs=2,
+            metavar=("SIGMA", "FRACTION"),
+            help="a second Beckmann lobe with F_tilde * FRACTION",
+        )
+
+    def synth_value(self, args):
+        return tuple(args.second_lobe) if args.second_lobe else None
+
+    def synthesize(self, model, value, context):
+        sigma, fraction = value
+        first = next(lobe for lobe in model.brdf.lobes if isinstance(lobe, Specular))
+        lobe = Specular(first.weight * fraction, Beckmann(sigma), first.factors)
+        return with_lobe(model, lobe)

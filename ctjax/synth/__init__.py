@@ -1,6 +1,8 @@
 """Synthetic laparoscope captures with known truth."""
 
 from ._synthesize import SynthOptions as SynthOptions
+from ._synthesize import effects_truth as effects_truth
 from ._synthesize import scene_model as scene_model
+from ._synthesize import synth_effects as synth_effects
 from ._synthesize import synthesize as synthesize
 from ._synthesize import synthetic_camera as synthetic_camera

@@ -8,27 +8,23 @@ known truth.
 """
 
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._camera import Camera
+from .._candidate import AbstractCandidate, discover_candidates
 from .._errors import ParameterError
+from .._json import array_fields, named_parameters
+from .._model import ShadingModel
 from .._render import apply_effects, render_columns
-from ..effects import Ambient, CameraGamma
 from ..io import Frame, write_capture
-from ..lights import ColocatedLight, InverseSquare, PointLight, SpotFalloff
-from ..lobes import (
-    BRDF,
-    GGX,
-    Beckmann,
-    GeometricAttenuation,
-    Lambertian,
-    SchlickFresnel,
-    Specular,
-)
+from ..lights import ColocatedLight
+from ..lobes import Lambertian, cook_torrance_brdf
 from ._organ import OrganSurface, cast_rays
 from ._texture import sample_texture, tissue_texture
 from ._trajectory import exploration
@@ -40,22 +36,28 @@ DEFAULT_SIGMA = 0.2
 WORKING_DISTANCE_MM = 70.0
 
 
+def synth_effects() -> dict:
+    """The effects synth can hide in a capture, by name: every candidate (see
+    `ctjax.diagnostics.CANDIDATES`) that declares how to synthesise itself."""
+    return {
+        c.name: c
+        for c in discover_candidates()
+        if type(c).synthesize is not AbstractCandidate.synthesize
+    }
+
+
 @dataclasses.dataclass(frozen=True)
 class SynthOptions:
     """What `synthesize` makes. Intensities are linear, 1.0 = 8-bit level 255.
 
-    Effects (all off by default, which gives the paper's exact model):
-
-    - `light_offset_mm`: a point light at this camera-frame position instead of the centre.
-    - `inverse_square`: irradiance falls as (70 mm / distance)^2.
-    - `spot_exponent`: angular falloff cos^k around the optical axis.
-    - `camera_gamma`: pixel = radiance^(1/gamma).
-    - `ambient`: constant radiance added per channel.
-    - `fresnel_f0`: Schlick's Fresnel angle dependence with this F0, at the angle
-      `fresnel_cosine` ("half": V.H, Cook-Torrance; "normal": N.V).
-    - `geometric_attenuation`: Cook-Torrance's G.
-    - `ggx`: GGX instead of Beckmann, with alpha = sigma.
-    - `second_lobe`: (sigma_2, fraction): a second Beckmann lobe with F_tilde * fraction.
+    `effects`: the effects beyond the paper's model, by name, with their true values (none
+    by default, which gives the paper's exact model), e.g.
+    `{"light_offset": (6.0, 0.0, 0.0), "inverse_square": True, "camera_gamma": 2.2}`.
+    Each effect is declared beside its physics (its candidate's `synthesize`): a point light
+    at an offset (`light_offset`, mm), `inverse_square` (1 at 70 mm), `spot_falloff`
+    (cos^k), `camera_gamma`, `ambient` (R, G, B), `fresnel_schlick` (F0, or (F0, "half" |
+    "normal")), `geometric_attenuation`, `ggx` (alpha = sigma), `second_lobe`
+    (sigma_2, fraction of F_tilde); `synth_effects()` lists them.
     """
 
     width: int = 320
@@ -70,16 +72,7 @@ class SynthOptions:
     F_tilde: tuple[float, float, float] = DEFAULT_F_TILDE
     sigma: float = DEFAULT_SIGMA
     focal_px: float | None = None  # default: 0.9 * width (a ~58 degree field of view)
-    light_offset_mm: tuple[float, float, float] | None = None
-    inverse_square: bool = False
-    spot_exponent: float | None = None
-    camera_gamma: float | None = None
-    ambient: tuple[float, float, float] | None = None
-    fresnel_f0: float | None = None
-    fresnel_cosine: str = "half"
-    geometric_attenuation: bool = False
-    ggx: bool = False
-    second_lobe: tuple[float, float] | None = None
+    effects: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         problems = []
@@ -99,70 +92,43 @@ class SynthOptions:
             value = np.asarray(getattr(self, name), float)
             if value.shape != (3,) or not np.all(np.isfinite(value)) or np.any(value < 0):
                 problems.append(f"{name}={getattr(self, name)} (three values >= 0)")
+        known = synth_effects()
+        unknown = sorted(set(self.effects) - set(known))
+        if unknown:
+            problems.append(f"effects {unknown} (known: {', '.join(known)})")
         if problems:
             raise ParameterError("synth: invalid " + "; ".join(problems))
 
-    @property
-    def effects(self) -> dict:
-        """The effects switched on, with their parameters (as written to truth.json)."""
-        out = {}
-        if self.light_offset_mm is not None:
-            out["light_offset"] = {"position_mm": list(map(float, self.light_offset_mm))}
-        if self.inverse_square:
-            out["inverse_square"] = {"reference_mm": WORKING_DISTANCE_MM}
-        if self.spot_exponent is not None:
-            out["spot_falloff"] = {"exponent": float(self.spot_exponent), "axis": [0, 0, 1]}
-        if self.camera_gamma is not None:
-            out["camera_gamma"] = {"gamma": float(self.camera_gamma)}
-        if self.ambient is not None:
-            out["ambient"] = {"level": list(map(float, self.ambient))}
-        if self.fresnel_f0 is not None:
-            out["fresnel_schlick"] = {"f0": float(self.fresnel_f0), "cosine": self.fresnel_cosine}
-        if self.geometric_attenuation:
-            out["geometric_attenuation"] = {}
-        if self.ggx:
-            out["ggx"] = {"alpha": float(self.sigma)}
-        if self.second_lobe is not None:
-            sigma2, fraction = self.second_lobe
-            out["second_lobe"] = {
-                "sigma": float(sigma2),
-                "F_tilde": [float(f * fraction) for f in self.F_tilde],
-            }
-        return out
+
+def _paper_scene(options: SynthOptions) -> ShadingModel:
+    return ShadingModel(
+        cook_torrance_brdf(options.rho_tilde, options.F_tilde, options.sigma), ColocatedLight()
+    )
 
 
-def scene_model(options: SynthOptions):
-    """(brdf, light, effects) of the synthetic scene: the paper's model plus the options."""
-    factors = []
-    if options.fresnel_f0 is not None:
-        factors.append(SchlickFresnel(options.fresnel_f0, options.fresnel_cosine))
-    if options.geometric_attenuation:
-        factors.append(GeometricAttenuation())
-    distribution = GGX(options.sigma) if options.ggx else Beckmann(options.sigma)
-    lobes = [
-        Lambertian(options.rho_tilde),
-        Specular(options.F_tilde, distribution, tuple(factors)),
-    ]
-    if options.second_lobe is not None:
-        sigma2, fraction = options.second_lobe
-        lobes.append(
-            Specular(np.asarray(options.F_tilde) * fraction, Beckmann(sigma2), tuple(factors))
-        )
-    falloff = []
-    if options.inverse_square:
-        falloff.append(InverseSquare(WORKING_DISTANCE_MM))
-    if options.spot_exponent is not None:
-        falloff.append(SpotFalloff(options.spot_exponent))
-    if options.light_offset_mm is not None:
-        light = PointLight(np.asarray(options.light_offset_mm, float), falloff=tuple(falloff))
-    else:
-        light = ColocatedLight(falloff=tuple(falloff))
-    effects = []
-    if options.ambient is not None:
-        effects.append(Ambient(options.ambient))
-    if options.camera_gamma is not None:
-        effects.append(CameraGamma(options.camera_gamma))
-    return BRDF(*lobes), light, tuple(effects)
+def scene_model(options: SynthOptions) -> ShadingModel:
+    """The synthetic scene's model: the paper's, with each effect added at its true value
+    (in the order of their names, which puts a falloff before the light that keeps it)."""
+    model = _paper_scene(options)
+    known = synth_effects()
+    context = {"working_distance_mm": WORKING_DISTANCE_MM}
+    for name in sorted(options.effects):
+        model = known[name].synthesize(model, options.effects[name], context)
+    return model
+
+
+def effects_truth(options: SynthOptions) -> dict:
+    """Each effect's parameters as the scene has them (truth.json's `effects`): the array
+    fields it added or changed, by their dotted names (`light.position_mm`...)."""
+    known = synth_effects()
+    context = {"working_distance_mm": WORKING_DISTANCE_MM}
+    out = {}
+    for name in sorted(options.effects):
+        base = _paper_scene(options)
+        fields = array_fields(base)
+        added = array_fields(known[name].synthesize(base, options.effects[name], context))
+        out[name] = {k: v for k, v in added.items() if fields.get(k) != v}
+    return out
 
 
 def synthetic_camera(options: SynthOptions) -> Camera:
@@ -177,14 +143,15 @@ def synthetic_camera(options: SynthOptions) -> Camera:
     )
 
 
-def _render_frame(brdf, light, effects, camera, depth, normals, albedo_map):
+def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map):
     """Linear RGB of one frame: the diffuse lobes' weights are multiplied by the texture."""
-    columns = render_columns(brdf, light, camera, jnp.asarray(normals), jnp.asarray(depth))
+    brdf = model.brdf
+    columns = render_columns(brdf, model.light, camera, jnp.asarray(normals), jnp.asarray(depth))
     weights = brdf.weights  # (K, 3)
     diffuse = jnp.array([isinstance(lobe, Lambertian) for lobe in brdf.lobes])
     texture = jnp.where(diffuse[:, None, None, None], jnp.asarray(albedo_map)[None], 1.0)
     rgb = jnp.einsum("hwk,khwc,kc->hwc", columns, texture, weights)
-    return jax.vmap(jax.vmap(lambda pixel: apply_effects(effects, pixel)))(rgb)
+    return jax.vmap(jax.vmap(lambda pixel: apply_effects(model.effects, pixel)))(rgb)
 
 
 def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
@@ -196,7 +163,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     """
     # The model first: a bad parameter fails before any work. No timings in truth.json,
     # so that the same options give byte-identical captures.
-    brdf, light, effects = scene_model(options)
+    model = scene_model(options)
     rng = np.random.default_rng(options.seed)
     surface_rng, texture_rng, path_rng, noise_rng = rng.spawn(4)
     surface = OrganSurface.random(surface_rng, WORKING_DISTANCE_MM)
@@ -217,7 +184,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         )
         if options.texture_contrast != 1:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
-        linear = np.asarray(_render_frame(brdf, light, effects, camera, depth, normals, albedo_map))
+        linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map))
         noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
         top = 255 if options.bits == 8 else 65535
         quantised = np.round(np.clip(noisy, 0, 1) * top) / top
@@ -233,11 +200,11 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         "model": "paper eq. (1)-(2): rho_tilde/pi (N.L) + F_tilde D / (pi (N.L)(N.V)), "
         "Beckmann D = exp(-tan^2 a / sigma^2) / (sigma^2 cos^4 a)",
         "light": {
-            "model": "point" if options.light_offset_mm is not None else "colocated",
-            "position_mm": list(map(float, options.light_offset_mm or (0, 0, 0))),
+            "model": "colocated" if isinstance(model.light, ColocatedLight) else "point",
+            "position_mm": named_parameters(model.light).get("offset_mm", [0.0, 0.0, 0.0]),
             "intensity": 1.0,
         },
-        "effects": options.effects,
+        "effects": effects_truth(options),
         "noise_levels": float(options.noise_levels),
         "bits": options.bits,
         "texture": options.texture,
