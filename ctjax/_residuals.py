@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .fitting._samples import usable_mask
 from .io import Capture
+from .observations import usable_mask
 
 
 def figure(**kwargs):

@@ -14,8 +14,8 @@ import numpy as np
 from ._errors import CtjaxError
 from ._result import Estimate
 from .fitting._fit import pixel_predict, rmse_levels
-from .fitting._samples import PixelSamples, capture_samples, usable_mask
 from .io import Capture
+from .observations import Observations, PixelSamples
 
 # Among models within this fraction of the lowest held-out RMSE, the simplest is kept: a
 # component the data do not show fits to ~nothing and would otherwise win on noise.
@@ -53,12 +53,13 @@ def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
     not the median absolute deviation, which is biased here because the second difference
     of a smooth image quantised to 8 bits takes nearly integer values.
     """
+    obs = Observations.of(capture)
     differences = []
     for index in frames:
-        frame = capture.frames[index]
-        rendered = np.asarray(model.render(capture.camera, frame.normals, frame.depth))
+        frame = obs.frames[index]
+        rendered = np.asarray(model.render(obs.camera, frame.normals, frame.depth))
         residual = (rendered - frame.image) * 255
-        usable = usable_mask(frame)
+        usable = obs.usable[index]
         for r, u in ((residual, usable), (np.swapaxes(residual, 0, 1), usable.T)):
             second = r[:-2] - 2 * r[1:-1] + r[2:]
             both = u[:-2] & u[1:-1] & u[2:]
@@ -74,14 +75,10 @@ def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
     return float(np.std(kept) / math.sqrt(6))
 
 
-def median_depth_mm(capture: Capture) -> float:
+def median_depth_mm(capture) -> float:
     """Median depth (mm) of every frame's usable pixels: the working distance, where a
     falloff's reference is put (so that rho_tilde and F_tilde read as there)."""
-    depths = [f.depth[usable_mask(f)] for f in capture.frames if f.depth is not None]
-    depth = np.concatenate(depths) if depths else np.zeros(0)
-    if depth.size == 0:
-        raise CtjaxError(f"{capture.root}: no usable pixel with depth")
-    return float(np.median(depth))
+    return Observations.of(capture).median_depth_mm()
 
 
 @dataclasses.dataclass
@@ -94,7 +91,7 @@ class HeldOut:
     judged on). Random subsets, deterministic for a seed.
     """
 
-    capture: Capture
+    capture: Observations
     calibration: list[int]
     heldout: list[int]
     train: PixelSamples
@@ -103,7 +100,7 @@ class HeldOut:
     @classmethod
     def split(
         cls,
-        capture: Capture,
+        capture: "Capture | Observations",
         calibration: int | None = None,
         *,
         max_samples: int | None = 12_000,
@@ -111,10 +108,11 @@ class HeldOut:
         seed: int = 0,
     ) -> "HeldOut":
         """Split `capture` (`calibration`: the number of calibration frames, default 60%)."""
-        calib, heldout = split_frames(len(capture), calibration, source=capture.root)
-        train = capture_samples(capture, calib, max_samples=max_samples, seed=seed)
-        test = capture_samples(capture, heldout, max_samples=heldout_samples, seed=seed + 1)
-        return cls(capture, calib, heldout, train, test)
+        obs = Observations.of(capture)
+        calib, heldout = split_frames(len(obs), calibration, source=obs.root)
+        train = obs.pixels(calib, max_samples=max_samples, seed=seed)
+        test = obs.pixels(heldout, max_samples=heldout_samples, seed=seed + 1)
+        return cls(obs, calib, heldout, train, test)
 
     @property
     def frames(self) -> dict[str, list[int]]:

@@ -10,11 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
 
-from .._geometry import points_from_depth
 from .._vector import Vec3
-from ..estimation._samples import view_directions
-from ..fitting._samples import usable_mask
-from ..io import Capture
+from ..observations import Observations
 from ._field_problem import PixelProblem
 
 # Propagation: pixels are solved in bands of distance (px) from S, each band starting from
@@ -35,27 +32,24 @@ class FieldObservations:
     irradiance: np.ndarray  # (H, W, F)
 
 
-def field_observations(
-    capture: Capture, frames: list[int], sets, falloff, dtype
-) -> FieldObservations:
-    camera = capture.camera
-    rows, cols = np.mgrid[0 : camera.height, 0 : camera.width]
-    view = view_directions(camera, rows.astype(float), cols.astype(float))
+def field_observations(obs: Observations, frames: list[int], falloff, dtype) -> FieldObservations:
+    """Every frame of `frames` at every pixel of S-bar (usable, not specular, not saturated),
+    with the irradiance factor of the light's `falloff` there."""
     normal, values, weight, irradiance = [], [], [], []
     for index in frames:
-        frame = capture.frames[index]
-        observed = usable_mask(frame) & ~sets[index].specular & ~sets[index].saturated
+        frame, sets = obs.frames[index], obs.sets[index]
+        observed = obs.usable[index] & ~sets.specular & ~sets.saturated
         normal.append(np.where(observed[..., None], np.nan_to_num(frame.normals), [0, 0, -1]))
         values.append(np.where(observed[..., None], frame.image, 0))
         weight.append(observed)
-        point = points_from_depth(camera, np.where(observed, frame.depth, 1.0))
+        point = np.where(observed[..., None], np.nan_to_num(obs.points(index)), [0, 0, 1.0])
         factor = np.ones(observed.shape)
         for effect in falloff:
             factor = factor * np.asarray(effect(Vec3.from_array(point)))
         irradiance.append(factor)
     stack = lambda parts: np.stack(parts, axis=2).astype(dtype)  # noqa: E731
     return FieldObservations(
-        view.astype(dtype), stack(normal), stack(values), stack(weight), stack(irradiance)
+        obs.view.astype(dtype), stack(normal), stack(values), stack(weight), stack(irradiance)
     )
 
 

@@ -53,7 +53,7 @@ from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
 from .._status import Status
-from ..estimation._capture_fit import MaskOptions, capture_sets
+from ..estimation._capture_fit import MaskOptions
 from ..fitting import (
     fit_model,
     paper_model,
@@ -62,11 +62,11 @@ from ..fitting import (
     roughness_variants,
     strongly_typed,
 )
-from ..fitting._samples import usable_mask
-from ..heldout import HeldOut, median_depth_mm, simplest_within
+from ..heldout import HeldOut, simplest_within
 from ..io import Capture
 from ..lights import AbstractFalloff, ColocatedLight, InverseSquare, LightField
 from ..lobes import BRDF
+from ..observations import Observations
 from ._closed_form_lm import ClosedFormLM
 from ._field_problem import paper_angles, solve_pixels
 from ._field_propagation import field_observations, propagate, solve_batches
@@ -94,9 +94,14 @@ def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
 
 
 def _first_brdf(heldout: HeldOut, falloff, brdf: BRDF | None) -> Estimate:
-    """Step 1: the paper's model (L = V) with each falloff choice, the simplest within 1% on
-    held-out frames (a unit-irradiance field would turn an unmodelled falloff into direction
-    errors: measured ~30 degrees); or `brdf` as given."""
+    """Step 1: the paper's model (L = V) with `falloff`, or (None) without and with an
+    inverse-square falloff, the simpler unless the other is 1% better on held-out frames (a
+    unit-irradiance field would turn an unmodelled falloff into direction errors: measured
+    ~30 degrees); or `brdf` as given."""
+    if falloff is None:
+        falloff = [(), (InverseSquare(heldout.capture.median_depth_mm()),)]
+    else:
+        falloff = [tuple(falloff)]
     if brdf is not None:
         choice = falloff[0] if len(falloff) == 1 else ()
         return Estimate(ShadingModel(brdf, ColocatedLight(falloff=choice)), status=Status.given)
@@ -132,7 +137,8 @@ def _field_round(obs, boundary, todo, brdf, solve, knot_px, field):
     return field, pixel_directions, solution
 
 
-def _boundary_and_todo(capture, calib, sets):
+def _boundary_and_todo(obs: Observations, calib):
+    capture, sets = obs, obs.sets
     boundary = np.any([sets[i].specular for i in calib], axis=0)
     if not boundary.any():
         raise CtjaxError(
@@ -141,7 +147,7 @@ def _boundary_and_todo(capture, calib, sets):
         )
     observed = np.zeros(boundary.shape, bool)
     for i in calib:
-        observed |= usable_mask(capture.frames[i]) & ~sets[i].specular & ~sets[i].saturated
+        observed |= obs.usable[i] & ~sets[i].specular & ~sets[i].saturated
     todo = observed & ~boundary
     if not todo.any():
         raise CtjaxError(f"{capture.root}: no pixel of S-bar in the calibration frames {calib}")
@@ -189,7 +195,7 @@ def _result(heldout, final, field, pixel_directions, todo, status, boundary, vie
 
 
 def calibrate_light_field(
-    capture: Capture,
+    capture: "Capture | Observations",
     calibration: int | None = None,
     *,
     solver: ClosedFormLM | optx.AbstractLeastSquaresSolver = FIELD_SOLVER,
@@ -235,14 +241,14 @@ def calibrate_light_field(
     say = progress or (lambda message: None)
     started = time.perf_counter()
     timings = {}
+    capture = Observations.of(capture, masks)
     if any(f.depth is None or f.normals is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the light field needs depth and normals for every frame")
     heldout = HeldOut.split(
         capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
     )
     calib = heldout.calibration
-    sets = capture_sets(capture, masks or MaskOptions())
-    boundary, todo = _boundary_and_todo(capture, calib, sets)
+    boundary, todo = _boundary_and_todo(capture, calib)
     height, width = boundary.shape
     knot_px = max(8.0, max(height, width) / 8) if knot_px is None else knot_px
     prior_scale = 1 / math.radians(prior_deg)
@@ -251,12 +257,11 @@ def calibrate_light_field(
         return solve_pixels(problems, brdf, prior_scale, solver, max_steps)
 
     tick = time.perf_counter()
-    choices = [falloff] if falloff is not None else [(), (InverseSquare(median_depth_mm(capture)),)]
     say(f"BRDF: the paper's model (L = V) on frames {calib}")
-    fit = _first_brdf(heldout, choices, brdf)
+    fit = _first_brdf(heldout, falloff, brdf)
     chosen = fit.model.light.falloff
     dtype = jax.dtypes.canonicalize_dtype(np.float64)
-    obs = field_observations(capture, calib, sets, chosen, dtype)
+    obs = field_observations(capture, calib, chosen, dtype)
     timings["brdf"] = time.perf_counter() - tick
 
     field = None

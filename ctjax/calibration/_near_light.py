@@ -31,12 +31,13 @@ from ..fitting import (
 from ..heldout import HeldOut, median_depth_mm, simplest_within
 from ..io import Capture
 from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
+from ..observations import Observations
 
 # Starting offsets (mm, camera frame): the fit is not convex in the light's position.
 OFFSET_STARTS = ((3.0, 0.0, 0.0), (-3.0, 0.0, 0.0), (0.0, 3.0, 0.0), (0.0, -3.0, 0.0))
 
 
-def falloff_choices(capture: Capture) -> list[tuple[AbstractFalloff, ...]]:
+def falloff_choices(capture: "Capture | Observations") -> list[tuple[AbstractFalloff, ...]]:
     """Every subset of inverse-square (referenced at the working distance) and spot falloff:
     what `calibrate_near_light` compares by default."""
     factors = (InverseSquare(median_depth_mm(capture)), SpotFalloff(2.0))
@@ -57,7 +58,7 @@ def _starts(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
 
 
 def calibrate_near_light(
-    capture: Capture,
+    capture: "Capture | Observations",
     *,
     calibration: int | None = None,
     falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
@@ -79,6 +80,7 @@ def calibrate_near_light(
     RMSE of every falloff set tried.
     """
     started = time.perf_counter()
+    capture = Observations.of(capture)
     if any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
     heldout = HeldOut.split(

@@ -26,6 +26,7 @@ from ..fitting import (
 )
 from ..heldout import HeldOut, median_depth_mm
 from ..io import Capture
+from ..observations import Observations
 from ._candidates import CANDIDATES, AbstractCandidate, candidate
 
 # A candidate "explains the data" when it lowers the held-out RMSE by at least this
@@ -117,7 +118,7 @@ def _base_model(heldout, add, candidates, context, max_steps, say) -> Estimate:
 
 
 def diagnose(
-    capture: Capture,
+    capture: "Capture | Observations",
     *,
     calibration: int | None = None,
     add: tuple[str | AbstractCandidate, ...] = (),
@@ -131,7 +132,8 @@ def diagnose(
     """Fit the paper's model (plus `add`) and rank every candidate effect by held-out RMSE."""
     started = time.perf_counter()
     say = progress or (lambda message: None)
-    if not capture.has_geometry or any(f.depth is None for f in capture.frames):
+    capture = Observations.of(capture)
+    if not capture.capture.has_geometry or any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: diagnose needs depth for every frame (depth/NAME.npy)")
     heldout = HeldOut.split(
         capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed

@@ -6,14 +6,15 @@ import numpy as np
 
 from .._residuals import figure as _figure
 from .._residuals import plot_residual_maps
-from ..fitting import capture_samples, pixel_predict, predictions
+from ..fitting import pixel_predict, predictions
 from ..io import Capture
+from ..observations import Observations
 from ._variables import VARIABLES, binned, physical_variables
 
 
 def plot_binned_residuals(capture, frames, models: dict, path: Path, max_samples=40_000) -> Path:
     """Mean residual per channel against each physical variable, one curve per model."""
-    samples = capture_samples(capture, frames, max_samples=max_samples, seed=2)
+    samples = Observations.of(capture).pixels(frames, max_samples=max_samples, seed=2)
     names = list(VARIABLES)
     columns = (len(names) + 1) // 2
     fig = _figure(figsize=(4 * columns, 6.5))

@@ -9,8 +9,8 @@ from .._model import ShadingModel
 from .._result import Estimate
 from ..io import Capture
 from ..lights import ColocatedLight
+from ..observations import Observations
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, fit_brdf
-from ._samples import colocated_samples, concatenate
 from ._specular_set import (
     DEFAULT_LIGHTNESS,
     DEFAULT_MIN_SPECK_PX,
@@ -101,7 +101,7 @@ def _poorly_determined(fit: BRDFFit) -> list[str]:
 
 
 def fit_capture(
-    capture: Capture,
+    capture: "Capture | Observations",
     masks: MaskOptions = MaskOptions(),
     family: BRDFFamily = PAPER,
     *,
@@ -117,8 +117,10 @@ def fit_capture(
     `CtjaxError` when there is no specular pixel, the ring is empty or the fit failed to
     produce finite numbers.
     """
+    obs = Observations.of(capture, masks)
+    capture = obs.capture
     _require_geometry(capture)
-    sets = capture_sets(capture, masks)
+    sets = obs.sets
     specular_count = sum(int(s.specular.sum()) for s in sets)
     ring_count = sum(int(s.ring.sum()) for s in sets)
     if specular_count == 0:
@@ -134,13 +136,7 @@ def fit_capture(
             f"of their neighbours within {masks.ring_px} px is unsaturated with a valid normal); "
             "try a wider ring (--ring-px)"
         )
-    samples = concatenate(
-        [
-            colocated_samples(capture.camera, frame.image, frame.normals, s.ring)
-            for frame, s in zip(capture.frames, sets, strict=True)
-            if s.ring.any()
-        ]
-    )
+    samples = obs.ring()
     fit = fit_brdf(samples, family, tolerance=tolerance)
     lambertian = fit_brdf(samples, LAMBERTIAN)
     for result in (fit, lambertian):

@@ -20,7 +20,6 @@ from .._result import Estimate
 from .._status import Status
 from ..fitting import (
     ShadingModel,
-    capture_samples,
     fit_model,
     pixel_columns,
     pixel_predict,
@@ -30,6 +29,7 @@ from ..heldout import split_frames
 from ..io import Capture
 from ..lights import ColocatedLight
 from ..lobes import BRDF, Lambertian
+from ..observations import Observations
 from ._pyramid import block_reduce, reduced
 from ._scale import bounding_box_volume
 from ._sfs import ShapeFromShading, sfs_cook_torrance, sfs_refined, sfs_tsai_shah
@@ -159,7 +159,7 @@ def _median(values) -> float | None:
 def fit_lambertian(capture: Capture, frames: list[int], max_samples: int = 40_000) -> Estimate:
     """The Lambertian model (rho_tilde, light at the camera) fitted to every usable pixel of
     `frames`: linear, so the closed form is the least-squares solution."""
-    samples = capture_samples(capture, frames, max_samples=max_samples)
+    samples = Observations.of(capture).pixels(frames, max_samples=max_samples)
     start = ShadingModel(BRDF(Lambertian(1.0)), ColocatedLight())
     return fit_model(start, samples, pixel_predict, columns=pixel_columns, max_steps=20)
 
@@ -169,6 +169,7 @@ def fit_colocated(capture: Capture, calibration: int) -> Estimate:
     `calibration` frames, with a 10 px ring (the paper's 3 px is thin on bright tissue)."""
     from ..estimation import MaskOptions, fit_capture
 
+    capture = Observations.of(capture).capture
     subset = dataclasses.replace(capture, frames=capture.frames[:calibration])
     fit = fit_capture(subset, MaskOptions(ring_px=10))
     fit.details["light"] = "colocated"
@@ -260,6 +261,7 @@ def evaluate(
         from ..calibration import calibrate_near_light
 
         cook_torrance = calibrate_near_light
+    capture = Observations.of(capture)
     calib, test = split_frames(len(capture), calibration, source=capture.root)
     timings = {}
     tic = time.perf_counter()
@@ -297,10 +299,10 @@ def evaluate(
     return Evaluation(calib, test, lambertian, fitted, shapes, timings, notes)
 
 
-def _judged(capture, fit: Estimate, calib, test) -> Estimate:
+def _judged(capture: Observations, fit: Estimate, calib, test) -> Estimate:
     """`fit` with its RMSE on every usable pixel of the calibration and the test frames."""
     rmse = {
-        split: float(rmse_levels(fit.model, capture_samples(capture, frames), pixel_predict))
+        split: float(rmse_levels(fit.model, capture.pixels(frames), pixel_predict))
         for split, frames in (("calibration", calib), ("test", test))
     }
     return dataclasses.replace(fit, rmse=rmse, frames={"calibration": calib, "test": test})

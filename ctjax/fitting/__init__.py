@@ -3,6 +3,8 @@
 from .._model import ShadingModel as ShadingModel
 from .._model import paper_model as paper_model
 from .._result import Estimate as Estimate
+from ..observations import PixelSamples as PixelSamples
+from ..observations import capture_samples as capture_samples
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns
@@ -19,5 +21,3 @@ from ._parameters import constrained as constrained
 from ._parameters import free_parameters as free_parameters
 from ._parameters import strongly_typed as strongly_typed
 from ._parameters import unconstrained as unconstrained
-from ._samples import PixelSamples as PixelSamples
-from ._samples import capture_samples as capture_samples

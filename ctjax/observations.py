@@ -1,0 +1,256 @@
+"""A capture as observations: what the estimators consume, built once and passed down.
+
+`Observations.of(capture)` gathers, per frame, the usable pixels (geometry, no clipped
+channel), the view direction of every pixel, the camera-frame points, and (on first use) the
+specular set S, its ring S~ and the saturated pixels; the estimators take them instead of
+going back to the frames: pixel samples for the general fitter (`pixels`), the ring's
+shading samples under the paper's light for the BnB (`ring`), the working distance. Every
+public estimator accepts a `Capture` or its `Observations`.
+"""
+
+import dataclasses
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._camera import Camera
+from ._errors import CtjaxError, ParameterError
+from ._geometry import points_from_depth
+from ._typing import Array, Float, Int
+from ._vector import Vec3
+from .io import Capture
+
+
+class PixelSamples(eqx.Module):
+    """N pixels: camera-frame point (mm) and unit normal, pixel (u, v), measured linear RGB
+    (1.0 = 8-bit level 255), and the index of the frame and (row, col) they come from."""
+
+    point: Vec3
+    normal: Vec3
+    pixel: tuple[Float[Array, " N"], Float[Array, " N"]]
+    values: Float[Array, "N 3"]
+    frame: Int[Array, " N"]
+    row: Int[Array, " N"]
+    col: Int[Array, " N"]
+
+    def __len__(self) -> int:
+        return self.values.shape[0]
+
+
+class ShadingSamples(eqx.Module):
+    """N pixels: unit normal, light and view directions (camera frame), the irradiance
+    factor of the light there, and the measured linear RGB (1.0 = 8-bit level 255)."""
+
+    normal: Vec3
+    light: Vec3
+    view: Vec3
+    irradiance: Float[Array, " N"]
+    values: Float[Array, "N 3"]
+
+    def __check_init__(self):
+        n = self.values.shape[0]
+        if self.values.ndim != 2 or self.values.shape[1] != 3:
+            raise ParameterError(f"sample values must be (N, 3) RGB, got {self.values.shape}")
+        for name in ("normal", "light", "view"):
+            for part in (getattr(self, name).x, getattr(self, name).y, getattr(self, name).z):
+                if jnp.shape(part) != (n,):
+                    raise ParameterError(f"sample {name} must have {n} entries per component")
+        if jnp.shape(self.irradiance) != (n,):
+            raise ParameterError(f"sample irradiance must have shape ({n},)")
+
+    def __len__(self) -> int:
+        return self.values.shape[0]
+
+
+def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
+    return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *samples)
+
+
+def usable_mask(frame, saturation_level: float = 1.0) -> np.ndarray:
+    """Pixels with geometry (finite positive depth and normal) and no clipped channel."""
+    if frame.depth is None or frame.normals is None:
+        raise CtjaxError(f"frame {frame.name}: needs depth (and normals) to compare the model")
+    return frame.geometry_mask & np.all(frame.image < saturation_level, axis=-1)
+
+
+def view_directions(camera, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Unit directions (..., 3) from the surface point seen at each pixel towards the camera.
+
+    Along the pixel's ray, so they do not need depth.
+    """
+    ray = np.stack(
+        [
+            (cols - float(camera.cx)) / float(camera.fx),
+            (rows - float(camera.cy)) / float(camera.fy),
+            np.ones(np.shape(rows)),
+        ],
+        axis=-1,
+    )
+    return -ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+
+
+def colocated_samples(
+    camera: Camera, image: np.ndarray, normals: np.ndarray, mask: np.ndarray, dtype=None
+) -> ShadingSamples:
+    """Samples of the pixels in `mask` under the paper's light: L = V, unit irradiance.
+
+    `dtype` defaults to JAX's default float (float64 when x64 is enabled, as the CLI does).
+    """
+    if dtype is None:
+        dtype = jax.dtypes.canonicalize_dtype(np.float64)
+    rows, cols = np.nonzero(mask)
+    view = view_directions(camera, rows.astype(float), cols.astype(float)).astype(dtype)
+    normal = normals[rows, cols].astype(dtype)
+    v = Vec3.from_array(jnp.asarray(view))
+    return ShadingSamples(
+        Vec3.from_array(jnp.asarray(normal)),
+        v,
+        v,
+        jnp.ones(len(rows), dtype),
+        jnp.asarray(image[rows, cols], dtype),
+    )
+
+
+def capture_samples(
+    capture, frames, *, max_samples: int | None = None, seed: int = 0, dtype=None
+) -> PixelSamples:
+    """`Observations.of(capture).pixels(frames, ...)`: the usable pixels of `frames`."""
+    return Observations.of(capture).pixels(frames, max_samples=max_samples, seed=seed, dtype=dtype)
+
+
+def _float(dtype):
+    return jax.dtypes.canonicalize_dtype(np.float64) if dtype is None else dtype
+
+
+@dataclasses.dataclass(eq=False)
+class Observations:
+    """The frames of `capture` as the estimators see them (see the module).
+
+    `masks` are the options of S and S~ (`ctjax.estimation.MaskOptions`; the paper's by
+    default), used the first time `sets` is read.
+    """
+
+    capture: Capture
+    masks: object = None
+
+    @classmethod
+    def of(cls, capture: "Capture | Observations", masks=None) -> "Observations":
+        """`capture`'s observations (itself when it already is; new `masks` make new sets)."""
+        if isinstance(capture, Observations):
+            if masks is None or masks == capture.masks:
+                return capture
+            capture = capture.capture
+        return cls(capture, masks)
+
+    # The capture's own attributes, so that observations stand in for it where only those
+    # are read (the root in messages, the camera, the frames, the count).
+    @property
+    def root(self):
+        return self.capture.root
+
+    @property
+    def camera(self):
+        return self.capture.camera
+
+    @property
+    def frames(self):
+        return self.capture.frames
+
+    def __len__(self) -> int:
+        return len(self.capture)
+
+    @functools.cached_property
+    def usable(self) -> list[np.ndarray]:
+        """Per frame (H, W): geometry and no clipped channel (see `usable_mask`)."""
+        return [usable_mask(frame) for frame in self.capture.frames]
+
+    @functools.cached_property
+    def view(self) -> np.ndarray:
+        """(H, W, 3): each pixel's unit view direction, the same in every frame."""
+        camera = self.capture.camera
+        rows, cols = np.mgrid[0 : camera.height, 0 : camera.width]
+        return view_directions(camera, rows.astype(float), cols.astype(float))
+
+    @functools.cached_property
+    def sets(self) -> list:
+        """Per frame: S, S~ and the saturated pixels (`SpecularSets`)."""
+        from .estimation._capture_fit import MaskOptions, capture_sets
+
+        return capture_sets(self.capture, self.masks or MaskOptions())
+
+    def points(self, index: int) -> np.ndarray:
+        """(H, W, 3): frame `index`'s camera-frame points (mm), NaN without depth."""
+        return points_from_depth(self.capture.camera, self.capture.frames[index].depth)
+
+    def median_depth_mm(self) -> float:
+        """Median depth (mm) of every frame's usable pixels: the working distance."""
+        depth = np.concatenate(
+            [f.depth[u] for f, u in zip(self.capture.frames, self.usable, strict=True)]
+        )
+        if depth.size == 0:
+            raise CtjaxError(f"{self.capture.root}: no usable pixel with depth")
+        return float(np.median(depth))
+
+    def pixels(
+        self, frames, *, max_samples: int | None = None, seed: int = 0, dtype=None
+    ) -> PixelSamples:
+        """The usable pixels of `frames` (indices), optionally a random subset of at most
+        `max_samples` (deterministic for a seed), as `PixelSamples` for the fitters."""
+        frames = list(frames)
+        found = [(i, *np.nonzero(self.usable[i])) for i in frames]
+        total = sum(len(rows) for _, rows, _ in found)
+        if total == 0:
+            raise CtjaxError(
+                f"{self.capture.root}: no usable pixel (geometry and unsaturated) in frames "
+                f"{frames}"
+            )
+        index = np.concatenate([np.full(len(r), i) for i, r, _ in found])
+        rows = np.concatenate([r for _, r, _ in found])
+        cols = np.concatenate([c for _, _, c in found])
+        if max_samples is not None and total > max_samples:
+            keep = np.sort(np.random.default_rng(seed).choice(total, max_samples, replace=False))
+            index, rows, cols = index[keep], rows[keep], cols[keep]
+        gather = lambda name: np.concatenate(  # noqa: E731
+            [
+                getattr(self.capture.frames[i], name)[rows[index == i], cols[index == i]]
+                for i in np.unique(index)
+            ]
+        )
+        depth, normals, values = gather("depth"), gather("normals"), gather("image")
+        camera = self.capture.camera
+        u, v = cols.astype(np.float64), rows.astype(np.float64)
+        x = depth * (u - float(camera.cx)) / float(camera.fx)
+        y = depth * (v - float(camera.cy)) / float(camera.fy)
+        as_array = lambda a: jnp.asarray(a, _float(dtype))  # noqa: E731
+        return PixelSamples(
+            Vec3(as_array(x), as_array(y), as_array(depth)),
+            Vec3.from_array(as_array(normals)),
+            (as_array(u), as_array(v)),
+            as_array(values),
+            jnp.asarray(index),
+            jnp.asarray(rows),
+            jnp.asarray(cols),
+        )
+
+    def ring(self, dtype=None) -> ShadingSamples:
+        """Every frame's ring S~ under the paper's light (L = V, unit irradiance): the BnB's
+        samples."""
+        parts = []
+        for frame, s in zip(self.capture.frames, self.sets, strict=True):
+            if not s.ring.any():
+                continue
+            rows, cols = np.nonzero(s.ring)
+            v = Vec3.from_array(jnp.asarray(self.view[rows, cols], _float(dtype)))
+            parts.append(
+                ShadingSamples(
+                    Vec3.from_array(jnp.asarray(frame.normals[rows, cols], _float(dtype))),
+                    v,
+                    v,
+                    jnp.ones(len(rows), _float(dtype)),
+                    jnp.asarray(frame.image[rows, cols], _float(dtype)),
+                )
+            )
+        return concatenate(parts)
