@@ -48,5 +48,6 @@ from .lobes import MultiScaleBeckmann as MultiScaleBeckmann
 from .lobes import SchlickFresnel as SchlickFresnel
 from .lobes import Specular as Specular
 from .lobes import cook_torrance_brdf as cook_torrance_brdf
+from .observations import Observations as Observations
 
 __version__ = "0.1.0"

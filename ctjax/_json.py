@@ -91,7 +91,7 @@ def _walk_arrays(node, name: str, out: dict) -> None:
 
 def array_fields(module) -> dict[str, JSON]:
     """Every array (and string) field of a model by its dotted name (`light.position_mm`,
-    `brdf.lobes[1].distribution.sigma`), fixed ones too, as JSON values."""
+    `brdf.lobes[k].distribution.sigma`), fixed ones too, as JSON values."""
     out: dict[str, JSON] = {}
     _walk_arrays(module, "", out)
     return out

@@ -225,6 +225,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         capture,
         calibration=args.calib,
         add=tuple(args.add),
+        max_samples=args.max_samples,
         progress=lambda m: print(f"[ctjax diagnose] {m}", flush=True),
     )
     atomic_write_json(args.json, diagnosis.to_json())
@@ -369,6 +370,16 @@ def _cook_torrance_estimator(light: str):
     }[light]
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return value
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with bad options reported on one line (`ctjax fit: error: ...`), status 2."""
 
@@ -463,6 +474,14 @@ def _diag_command(commands) -> None:
         help="effects to add to the base model first (e.g. light_offset)",
     )
     diag.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    diag.add_argument(
+        "--max-samples",
+        type=_positive_int,
+        default=12_000,
+        metavar="N",
+        help="calibration pixels each model is fitted on, a random subset (default %(default)s; "
+        "fewer run faster)",
+    )
     diag.set_defaults(run=_cmd_diagnose)
 
 

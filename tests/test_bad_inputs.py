@@ -327,6 +327,11 @@ OPTION_CASES = [
         id="diagnose-calib-0",
     ),
     pytest.param(
+        ["diagnose", "{cap}", "--json", "{out}/d.json", "--max-samples", "0"],
+        "--max-samples: must be a positive integer, got '0'",
+        id="diagnose-max-samples-0",
+    ),
+    pytest.param(
         ["calibrate-light", "{cap}", "--json", "{out}/c.json", "--calib", "5"],
         "--calib (calibration frames) must be between 1 and 1",
         id="calibrate-light-calib-5",

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._status import Status
 from .._typing import Array, Float, Int
 from .._vector import Vec3, tangent_direction
 
@@ -22,8 +23,8 @@ PRIOR_LEVELS_PER_RADIAN = 2.0
 
 
 class NormalRefinement(eqx.Module):
-    """Refined unit normals (N, 3), each pixel's solver status (optimistix `RESULTS` as an
-    integer: 0 successful) and number of steps, and RMSE (8-bit levels) before and after."""
+    """Refined unit normals (N, 3), each pixel's solver status (a `ctjax.Status` code:
+    0 successful) and number of steps, and RMSE (8-bit levels) before and after."""
 
     normals: Float[Array, "N 3"]
     status: Int[Array, " N"]
@@ -53,7 +54,8 @@ def refine_normal(model, point: Vec3, normal: Vec3, pixel, values, max_steps: in
     before = residuals(start, None)[:3]
     after = residuals(solution.value, None)[:3]
     rms = lambda r: jnp.sqrt(jnp.mean(r * r))  # noqa: E731
-    return refined, solution.result._value, solution.stats["num_steps"], rms(before), rms(after)
+    status = Status.of_optimistix(solution.result)
+    return refined, status, solution.stats["num_steps"], rms(before), rms(after)
 
 
 @eqx.filter_jit

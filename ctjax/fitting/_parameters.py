@@ -54,7 +54,7 @@ def _walk(node, get, name, out, freeze):
 
 def free_parameters(model, freeze: Callable[[str], bool] = lambda name: False) -> list[Parameter]:
     """The free parameters of `model`, in a fixed order, with dotted names
-    (e.g. `brdf.lobes[1].distribution.sigma`). `freeze(name)` can hold more fixed."""
+    (e.g. `brdf.lobes[k].distribution.sigma`). `freeze(name)` can hold more fixed."""
     out: list[Parameter] = []
     _walk(model, lambda m: m, "", out, freeze)
     return out
