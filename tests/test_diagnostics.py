@@ -19,7 +19,7 @@ SMALL = dict(width=128, height=96, frames=5, texture=False, seed=3)
 # Fewer calibration pixels than the command's default (12k): each capture is diagnosed once,
 # and the verdicts are as clear at this size. The command's test and the notebook's use the
 # same (their fits are then compiled once, through the persistent compilation cache).
-SAMPLES = dict(max_samples=5000)
+SAMPLES = dict(max_samples=3000)
 
 HIDDEN = {
     "none": {},

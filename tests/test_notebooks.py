@@ -46,7 +46,7 @@ CHECKS = {
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
     monkeypatch.setenv("CTJAX_NOTEBOOK_WIDTH", "96")
-    monkeypatch.setenv("CTJAX_NOTEBOOK_SAMPLES", "5000")  # as test_diagnostics' SAMPLES
+    monkeypatch.setenv("CTJAX_NOTEBOOK_SAMPLES", "3000")  # as test_diagnostics' SAMPLES
     monkeypatch.chdir(tmp_path)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
