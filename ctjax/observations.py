@@ -216,7 +216,7 @@ class Observations:
         gather = lambda name: np.concatenate(  # noqa: E731
             [
                 getattr(self.capture.frames[i], name)[rows[index == i], cols[index == i]]
-                for i in np.unique(index)
+                for i in dict.fromkeys(index.tolist())  # frames in the order given
             ]
         )
         depth, normals, values = gather("depth"), gather("normals"), gather("image")

@@ -1,0 +1,49 @@
+"""A capture as observations: the samples every estimator consumes, built in one place."""
+
+import numpy as np
+import pytest
+
+from ctjax import CtjaxError, Observations
+from ctjax.io import load_capture
+from ctjax.synth import SynthOptions, synthesize
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    root = tmp_path_factory.mktemp("obs") / "c"
+    return load_capture(synthesize(root, SynthOptions(width=48, height=40, frames=3, seed=2)))
+
+
+def test_pixels_are_the_frames_own_values_in_any_frame_order(capture):
+    obs = Observations.of(capture)
+    assert Observations.of(obs) is obs  # built once, passed down as is
+    for frames in ([0, 2], [2, 0]):
+        samples = obs.pixels(frames, max_samples=500, seed=1)
+        frame, row, col = (np.asarray(a) for a in (samples.frame, samples.row, samples.col))
+        assert set(frame) == set(frames) and len(frame) == 500
+        for i in frames:
+            pick = frame == i
+            image, depth = capture.frames[i].image, capture.frames[i].depth
+            np.testing.assert_array_equal(
+                np.asarray(samples.values)[pick], image[row[pick], col[pick]]
+            )
+            np.testing.assert_allclose(
+                np.asarray(samples.point.z)[pick], depth[row[pick], col[pick]]
+            )
+            assert obs.usable[i][row[pick], col[pick]].all()
+
+
+def test_ring_and_view_directions(capture):
+    obs = Observations.of(capture)
+    ring = obs.ring()
+    assert len(ring) == sum(int(s.ring.sum()) for s in obs.sets) > 0
+    np.testing.assert_allclose(np.linalg.norm(obs.view, axis=-1), 1)
+    assert np.all(obs.view[..., 2] < 0)  # towards the camera
+    assert 40 < obs.median_depth_mm() < 120
+
+
+def test_no_usable_pixel_is_one_clear_error(capture):
+    obs = Observations.of(capture)
+    obs.usable = [np.zeros_like(u) for u in obs.usable]
+    with pytest.raises(CtjaxError, match="no usable pixel"):
+        obs.pixels([0])
