@@ -181,10 +181,12 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     import json
 
+    import numpy as np
+
     from .estimation import PAPER, TWO_SCALES
     from .estimation._capture_fit import fit_capture
     from .io import load_capture
-    from .io._atomic import atomic_write_json
+    from .io._atomic import atomic_write_json, atomic_write_npy
 
     capture = load_capture(args.capture)
     shape = None
@@ -200,15 +202,33 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         for warning in shape["warnings"]:
             print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
-    result = fit_capture(capture, _mask_options(args), family).to_json()
+    if args.albedo_maps is not None and args.albedo == "uniform":
+        raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")
+    estimate = fit_capture(capture, _mask_options(args), family, albedo=args.albedo)
+    if args.albedo_maps is not None:
+        if "albedo" not in estimate.details or estimate.details["albedo"] != "map":
+            raise CtjaxError(
+                f"{args.capture}: --albedo-maps needs the albedo map, which needs depth and "
+                "poses in every frame (poses.json), or a capture with images only"
+            )
+        for key, albedo in estimate.arrays.items():
+            if key.startswith("albedo/"):
+                name = key.removeprefix("albedo/")
+                atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
+    result = estimate.to_json()
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, result)
-    summary = {k: result[k] for k in result if k in ("rho_tilde", "F_tilde", "sigma", "rgb_rmse")}
-    print(json.dumps(summary))
+    keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo")
+    print(json.dumps({k: result[k] for k in result if k in keys}))
+    samples = (
+        f"{result['n_points']} tracked points"
+        if result["albedo"] == "map"
+        else f"{result['n_ring_pixels']} ring pixels"
+    )
     print(
-        f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; "
-        f"{result['n_ring_pixels']} ring pixels; wrote {args.json}"
+        f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; {samples}; "
+        f"wrote {args.json}" + (f" and {args.albedo_maps}/" if args.albedo_maps else "")
     )
     for warning in result["warnings"]:
         print(f"ctjax fit: warning: {warning}", file=sys.stderr)
@@ -454,6 +474,19 @@ def _fit_command(commands) -> None:
         choices=("paper", "two-scales"),
         default="paper",
         help="paper: one Beckmann lobe (eq. 2); two-scales: two (eq. 3)",
+    )
+    fit.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="map: rho_tilde per surface point from all frames (default when every frame has "
+        "depth and a pose, or the shape is reconstructed); uniform: one rho_tilde (the paper)",
+    )
+    fit.add_argument(
+        "--albedo-maps",
+        type=Path,
+        metavar="DIR",
+        help="write DIR/NAME.npy per frame: float32 (H, W, 3) rho_tilde per pixel, NaN where "
+        "not estimated",
     )
     _add_mask_arguments(fit)
     fit.set_defaults(run=_cmd_fit)

@@ -247,7 +247,11 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
     masks = MaskOptions(ring_px=DEMO_RING_PX)
     sets = step("masks", "specular set S and ring S~...", capture_sets, capture, masks)
     fit = step(
-        "fit", "BRDF (rho_tilde, F_tilde, sigma) on the ring...", fit_capture, capture, masks
+        "fit",
+        "BRDF (rho_tilde map, F_tilde, sigma) from all frames...",
+        fit_capture,
+        capture,
+        masks,
     ).to_json()
     _log(
         f"  sigma {fit['sigma']:.4f} (truth {truth.truth['sigma']}), rho_tilde "
@@ -306,7 +310,17 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         ],
         "brdf_fit": {
             k: fit[k]
-            for k in ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "n_ring_pixels", "warnings")
+            for k in (
+                "rho_tilde",
+                "F_tilde",
+                "sigma",
+                "rgb_rmse",
+                "albedo",
+                "n_points",
+                "n_ring_pixels",
+                "warnings",
+            )
+            if k in fit
         },
         "near_light": near_json,
         "light_field": field.to_json(),

@@ -65,6 +65,11 @@ class ShadingSamples(eqx.Module):
         return self.values.shape[0]
 
 
+# Tracks for the albedo map: anchored within this many pixels of S, at most this many points.
+DEFAULT_TRACK_RADIUS_PX = 12.0
+DEFAULT_MAX_TRACKS = 40_000
+
+
 def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
     return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *samples)
 
@@ -234,6 +239,49 @@ class Observations:
             jnp.asarray(rows),
             jnp.asarray(cols),
         )
+
+    def tracks(
+        self,
+        *,
+        radius_px: float = DEFAULT_TRACK_RADIUS_PX,
+        max_points: int | None = DEFAULT_MAX_TRACKS,
+        neighbours: int | None = None,
+        tolerance: float | None = None,
+        seed: int = 0,
+    ):
+        """Surface points followed across frames (`ctjax._tracks.Tracks`): the albedo map's
+        samples. Anchored at every pixel with geometry within `radius_px` of S in each frame
+        (S itself included: saturated there, seen elsewhere), where the specular lobe is
+        measured, plus as many pixels drawn at random from the rest; at most `max_points`
+        in all (a random subset, deterministic for a seed). Each is followed into its
+        frame's `neighbours` nearest frames (all by default) within the relative depth
+        `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`)."""
+        import cv2
+
+        from . import _tracks
+
+        _tracks.require_poses(self.capture)
+        rng = np.random.default_rng(seed)
+        anchors = []
+        for frame, s in zip(self.capture.frames, self.sets, strict=True):
+            geometry = frame.geometry_mask
+            if s.specular.any():
+                distance = cv2.distanceTransform((~s.specular).astype(np.uint8), cv2.DIST_L2, 5)
+                near = geometry & (distance <= radius_px)
+            else:
+                near = np.zeros_like(geometry)
+            rest = np.flatnonzero(geometry & ~near)
+            drawn = rng.choice(rest, min(len(rest), int(near.sum())), replace=False)
+            chosen = np.union1d(np.flatnonzero(near), drawn)
+            anchors.append(np.unravel_index(chosen, geometry.shape))
+        total = sum(len(r) for r, _ in anchors)
+        if max_points is not None and total > max_points:
+            keep = max_points / total
+            anchors = [
+                (r[mask], c[mask]) for r, c in anchors for mask in [rng.random(len(r)) < keep]
+            ]
+        options = {} if tolerance is None else {"tolerance": tolerance}
+        return _tracks.follow(self.capture, anchors, neighbours=neighbours, **options)
 
     def ring(self, dtype=None) -> ShadingSamples:
         """Every frame's ring S~ under the paper's light (L = V, unit irradiance): the BnB's

@@ -184,9 +184,19 @@ def test_masks_and_fit_commands(capture, tmp_path, capsys):
     for kind in ("specular", "ring", "saturated"):
         assert len(list((tmp_path / "m" / kind).glob("*.png"))) == len(capture)
     out = tmp_path / "fit.json"
-    assert main(["fit", str(capture.root), "--json", str(out), "--ring-px", "10"]) == 0
+    argv = ["fit", str(capture.root), "--json", str(out)]
+    # Depth and poses in every frame: the albedo map by default, right on untextured tissue.
+    assert main(argv) == 0
     result = json.loads(out.read_text())
     truth = capture.truth
+    assert result["albedo"] == "map" and result["warnings"] == []
+    assert result["sigma"] == pytest.approx(truth["sigma"], rel=0.02)
+    np.testing.assert_allclose(result["rho_tilde"], truth["rho_tilde"], rtol=0.02)
+    np.testing.assert_allclose(result["F_tilde"], truth["F_tilde"], rtol=0.02)
+    # The paper's model: one albedo, fitted on the ring.
+    assert main([*argv, "--albedo", "uniform", "--ring-px", "10"]) == 0
+    result = json.loads(out.read_text())
+    assert result["albedo"] == "uniform"
     assert result["sigma"] == pytest.approx(truth["sigma"], rel=0.02)
     np.testing.assert_allclose(result["rho_tilde"], truth["rho_tilde"], rtol=0.02)
     np.testing.assert_allclose(result["F_tilde"], truth["F_tilde"], rtol=0.02)
@@ -194,7 +204,7 @@ def test_masks_and_fit_commands(capture, tmp_path, capsys):
     assert result["lambertian"]["rgb_rmse"] > 5 * result["rgb_rmse"]
     assert result["warnings"] == []
     # The paper's 3 px ring is thin here: the fit says so.
-    assert main(["fit", str(capture.root), "--json", str(out)]) == 0
+    assert main([*argv, "--albedo", "uniform"]) == 0
     assert json.loads(out.read_text())["warnings"]
     assert "too thin" in capsys.readouterr().err
 

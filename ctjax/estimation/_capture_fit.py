@@ -100,14 +100,54 @@ def _poorly_determined(fit: BRDFFit) -> list[str]:
     return warnings
 
 
+ALBEDO_CHOICES = ("map", "uniform")
+
+
+def default_albedo(capture: "Capture | Observations") -> str:
+    """`"map"` when the capture has several frames, all with depth and a pose (the albedo
+    map follows surface points across them), else `"uniform"` (the paper's model)."""
+    frames = capture.frames
+    if len(frames) > 1 and all(f.pose is not None and f.depth is not None for f in frames):
+        return "map"
+    return "uniform"
+
+
 def fit_capture(
     capture: "Capture | Observations",
     masks: MaskOptions = MaskOptions(),
     family: BRDFFamily = PAPER,
     *,
     tolerance: float = 1e-3,
+    albedo: str | None = None,
+    max_points: int | None = None,
 ) -> Estimate:
-    """Detect S and S~ in every frame and estimate the BRDF on the ring of all frames.
+    """Estimate the BRDF of a capture: the paper's light (co-located with the camera,
+    L = V) and its model (`family`) by default.
+
+    `albedo="map"` (the default when every frame has depth and a pose, `default_albedo`):
+    one rho_tilde per surface point and channel, with F_tilde and sigma shared, from all
+    frames (`fit_albedo_map`): the estimate for textured tissue. `albedo="uniform"`: the
+    paper's model, one rho_tilde, fitted on the ring S~ of every frame (below).
+    """
+    albedo = default_albedo(capture) if albedo is None else albedo
+    if albedo not in ALBEDO_CHOICES:
+        raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
+    if albedo == "map":
+        from ._map_fit import fit_albedo_map
+
+        return fit_albedo_map(capture, masks, family, tolerance=tolerance, max_points=max_points)
+    return fit_uniform(capture, masks, family, tolerance=tolerance)
+
+
+def fit_uniform(
+    capture: "Capture | Observations",
+    masks: MaskOptions = MaskOptions(),
+    family: BRDFFamily = PAPER,
+    *,
+    tolerance: float = 1e-3,
+) -> Estimate:
+    """The paper's estimate: detect S and S~ in every frame and fit the BRDF, one albedo,
+    on the ring of all frames.
 
     The paper's light (co-located with the camera, L = V) and its model by default. Returns
     an `Estimate` of the `ShadingModel` (the BRDF under `ColocatedLight`) whose JSON is what
@@ -161,6 +201,7 @@ def fit_capture(
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": _fit_to_json(lambertian),
         "masks": dataclasses.asdict(masks),
+        "albedo": "uniform",
     }
     warnings = []
     poorly = _poorly_determined(fit)

@@ -171,7 +171,7 @@ def fit_colocated(capture: Capture, calibration: int) -> Estimate:
 
     capture = Observations.of(capture).capture
     subset = dataclasses.replace(capture, frames=capture.frames[:calibration])
-    fit = fit_capture(subset, MaskOptions(ring_px=10))
+    fit = fit_capture(subset, MaskOptions(ring_px=10), albedo="uniform")
     fit.details["light"] = "colocated"
     return fit
 

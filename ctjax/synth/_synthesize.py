@@ -23,6 +23,7 @@ from .._json import array_fields, named_parameters
 from .._model import ShadingModel
 from .._render import apply_effects, render_columns
 from ..io import Frame, write_capture
+from ..io._atomic import atomic_write_npy
 from ..lights import ColocatedLight
 from ..lobes import Lambertian, cook_torrance_brdf
 from ._organ import OrganSurface, cast_rays
@@ -157,8 +158,9 @@ def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map):
 def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     """Generate a synthetic laparoscope capture into folder `out`; returns the folder.
 
-    Writes the capture format (camera.json, images/, depth/, normals/, poses.json) and
-    truth.json with `rho_tilde`, `F_tilde`, `sigma` (the paper's scaled weights, linear
+    Writes the capture format (camera.json, images/, depth/, normals/, poses.json), the
+    true albedo maps (albedo/NAME.npy: rho_tilde per pixel, (H, W, 3), NaN off the surface)
+    and truth.json with `rho_tilde`, `F_tilde`, `sigma` (the paper's scaled weights, linear
     units where 1.0 is 8-bit level 255), the poses, the noise and the effects used.
     """
     # The model first: a bad parameter fails before any work. No timings in truth.json,
@@ -172,6 +174,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     camera = synthetic_camera(options)
     frames = []
     saturated = []
+    true_albedo = {}
     for index, pose in enumerate(poses):
         depth, normals, points_world = cast_rays(surface, camera, pose)
         # Render from exactly what is stored (float32), so the files are self-consistent.
@@ -185,6 +188,11 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         if options.texture_contrast != 1:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
         linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map))
+        true_albedo[f"frame_{index:03d}"] = np.where(
+            np.isfinite(depth)[..., None],
+            albedo_map * np.asarray(options.rho_tilde, np.float32),
+            np.nan,
+        ).astype(np.float32)
         noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
         top = 255 if options.bits == 8 else 65535
         quantised = np.round(np.clip(noisy, 0, 1) * top) / top
@@ -210,9 +218,15 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         "texture": options.texture,
         "texture_contrast": options.texture_contrast,
         "texture_note": "textured captures multiply rho_tilde per pixel by a map of mean 1",
+        "albedo_maps": "albedo/NAME.npy: the true rho_tilde of every pixel, float32 (H, W, 3), "
+        "NaN off the surface (the diffuse lobe's weight; effects such as a light's "
+        "intensity or falloff are not folded in)",
         "seed": options.seed,
         "saturated_fraction": saturated,
         "organ": {"base_mm": surface.base_mm, "radius_mm": surface.radius_mm},
         "poses": {frame.name: frame.pose.tolist() for frame in frames},
     }
-    return write_capture(out, camera, frames, truth, bits=options.bits)
+    root = write_capture(out, camera, frames, truth, bits=options.bits)
+    for name, albedo in true_albedo.items():
+        atomic_write_npy(root / "albedo" / f"{name}.npy", albedo)
+    return root

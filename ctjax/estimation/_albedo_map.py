@@ -1,0 +1,423 @@
+"""The BRDF with an albedo map: rho_tilde per surface point and channel, F_tilde and sigma
+shared, from all frames (beyond the paper, whose eq. 1 has one rho_tilde per capture).
+
+Real tissue is textured, and a texture is indistinguishable from N.L in one frame; not
+across frames, since the light moves with the camera (see `ctjax._tracks`). The unknowns:
+one albedo per surface point p and channel c, the global linear weights g (F_tilde, or
+several specular weights) and the nonlinear parameters (sigma). The model of observation m of
+point p is
+
+    I_pmc = rho_pc a_pm + sum_g w_gc b_gpm(sigma)                   a: the diffuse column
+
+For fixed sigma it is linear in (rho, w) >= 0, and each point's albedo appears only in its
+own observations, so it is eliminated in closed form (variable projection, Golub & Pereyra):
+
+    rho_pc(w) = max(0, (S_aI - sum_g w_gc S_ag) / S_aa)       S_xy = sum_m x_pm y_pm
+
+which leaves a nonnegative least squares in the few global weights with the reduced normal
+equations sum_p (S_gh - S_ag S_ah / S_aa) (and sum_p S_gh for points whose albedo is clamped
+at 0). That is solved exactly (`nnls_normal_equations`); the clamped set is updated a few
+times (`_ACTIVE_SET_ROUNDS`: the cost is convex in w, and a clamped albedo is rare on
+tissue). The sigma branch-and-bound is then the same batched grid of closed-form solves as the
+paper's, with 10^5 albedos eliminated instead of searched.
+
+A point observed once has its albedo fitted exactly (no residual): it tells nothing about
+sigma and w, and counts for nothing in their fit. Given the fit, its albedo is still
+determined by its one observation (see `albedo_maps`).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import CtjaxError
+from .._numerics import safe_normalize
+from .._tracks import (
+    DEFAULT_TOLERANCE,
+    FrameData,
+    Tracks,
+    observe,
+    observe_own,
+    partners,
+    world_points,
+)
+from .._typing import Array, Bool, Float, Scalar
+from .._vector import Vec3
+from ..lights import AbstractLight, ColocatedLight
+from ..observations import ShadingSamples
+from ._branch_and_bound import grid_search
+from ._brdf import PAPER, BRDFFamily, design_columns
+from ._closed_form import nnls_normal_equations
+
+# Rounds of the clamped-albedo update (see the module doc).
+_ACTIVE_SET_ROUNDS = 3
+# A point whose diffuse column's squared norm is below this fraction of the largest carries
+# no information on its albedo (grazing in every view).
+_NEGLIGIBLE = 1e-12
+# Albedo maps are left NaN where the diffuse column is below this (N.L / pi in every view
+# below ~0.05 / pi): the albedo would be noise divided by nearly 0.
+MIN_COSINE = 0.05
+# The paper's light: at the camera centre, L = V.
+_PAPER_LIGHT = ColocatedLight()
+
+
+class TrackShading(eqx.Module):
+    """Tracks as the BnB sees them: the shading samples of every observation's four corners,
+    flattened (P * M * 4), the corners' bilinear weights (P, M, 4), the measured RGB
+    (P, M, 3) and each observation's least-squares weight (P, M; 0: not observed)."""
+
+    samples: ShadingSamples
+    corner_weight: Float[Array, "P M 4"]
+    values: Float[Array, "P M 3"]
+    weight: Float[Array, "P M"]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.weight.shape
+
+    @property
+    def observed(self) -> Bool[Array, "P M"]:
+        return self.weight > 0
+
+
+def _shade(light: AbstractLight, point: Vec3, normal: Vec3, pixel):
+    view = safe_normalize(-point)
+    direction, irradiance = light.illuminate(point, view, pixel)
+    return normal, direction, view, irradiance
+
+
+def _shading_samples(light, point, normal, pixel, dtype) -> ShadingSamples:
+    """Shading samples under `light` of points, normals (N, 3) and pixels (N, 2)."""
+    as_jax = lambda a: jnp.asarray(a, dtype)  # noqa: E731
+    n, l, v, e = jax.vmap(lambda p, q, x: _shade(light, p, q, x))(
+        Vec3.from_array(as_jax(point)),
+        Vec3.from_array(as_jax(normal)),
+        (as_jax(pixel[:, 0]), as_jax(pixel[:, 1])),
+    )
+    return ShadingSamples(n, l, v, e, jnp.zeros((len(point), 3), dtype))
+
+
+def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=None):
+    """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading`."""
+    dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
+    flat = lambda a: a.reshape(-1, a.shape[-1])  # noqa: E731
+    samples = _shading_samples(
+        light,
+        flat(tracks.corner_point),
+        flat(tracks.corner_normal),
+        flat(tracks.corner_pixel),
+        dtype,
+    )
+    return TrackShading(
+        samples,
+        jnp.asarray(tracks.corner_weight, dtype),
+        jnp.asarray(tracks.values, dtype),
+        jnp.asarray(tracks.weight, dtype),
+    )
+
+
+def _per_point_index(family: BRDFFamily) -> int:
+    if "rho_tilde" not in family.weight_names:
+        raise CtjaxError(f"BRDF family {family.names} has no rho_tilde weight to map")
+    return family.weight_names.index("rho_tilde")
+
+
+def _sums(columns, values, weight, per_point):
+    """The per-point sums of products the projection needs, each observation weighted."""
+    w = jnp.sqrt(weight)
+    a = columns[per_point] * w
+    others = [c * w for k, c in enumerate(columns) if k != per_point]
+    values = values * w[..., None]
+    s_aa = jnp.sum(a * a, axis=1)  # (P,)
+    s_ai = jnp.einsum("pm,pmc->pc", a, values)  # (P, C)
+    s_ag = jnp.stack([jnp.sum(a * g, axis=1) for g in others]) if others else None  # (G, P)
+    s_gh = (
+        jnp.stack([jnp.stack([jnp.sum(g * h, axis=1) for h in others]) for g in others])
+        if others
+        else None
+    )  # (G, G, P)
+    s_gi = jnp.stack([jnp.einsum("pm,pmc->pc", g, values) for g in others]) if others else None
+    return a, others, values, s_aa, s_ai, s_ag, s_gh, s_gi
+
+
+def project_weights(
+    columns: tuple[Float[Array, "P M"], ...],
+    values: Float[Array, "P M C"],
+    weight: Float[Array, "P M"],
+    per_point: int = 0,
+):
+    """The albedo of every point and the global weights, eliminated in closed form.
+
+    `columns[k]` is lobe k's value for unit weight at each observation, `weight` each
+    observation's least-squares weight (0: not observed); `per_point` the lobe whose weight
+    is per point (the diffuse one). Returns `(albedo (P, C), weights (K, C), cost)`:
+    `weights[per_point]` is 0 (the albedo is per point), the cost is the weighted sum of
+    squared residuals (finite or +inf).
+    """
+    a, others, masked, s_aa, s_ai, s_ag, s_gh, s_gi = _sums(columns, values, weight, per_point)
+    ok = s_aa > _NEGLIGIBLE * jnp.max(s_aa)
+    inverse = jnp.where(ok, 1 / jnp.where(ok, s_aa, 1), 0)
+    free = jnp.broadcast_to(ok[:, None], s_ai.shape)
+    channels = values.shape[-1]
+    if others:
+        solve = jax.vmap(lambda g, r: nnls_normal_equations(g, r[:, None])[:, 0], (2, 1), 1)
+        weights = jnp.zeros((len(others), channels), values.dtype)
+        for _ in range(_ACTIVE_SET_ROUNDS):
+            projected = inverse[:, None] * free  # (P, C)
+            gram = jnp.sum(s_gh, axis=-1)[..., None] - jnp.einsum(
+                "gp,hp,pc->ghc", s_ag, s_ag, projected
+            )
+            rhs = jnp.sum(s_gi, axis=1) - jnp.einsum("gp,pc->gc", s_ag, projected * s_ai)
+            weights = solve(gram, rhs)
+            albedo = (s_ai - jnp.einsum("gp,gc->pc", s_ag, weights)) * inverse[:, None]
+            free = ok[:, None] & (albedo > 0)
+        rest = sum(g[..., None] * weights[i] for i, g in enumerate(others))
+    else:
+        weights = jnp.zeros((0, channels), values.dtype)
+        albedo = s_ai * inverse[:, None]
+        rest = jnp.zeros_like(masked)
+    albedo = jnp.where(ok[:, None], jnp.maximum(albedo, 0), 0)
+    residual = masked - a[..., None] * albedo[:, None, :] - rest
+    cost = jnp.sum(residual * residual)
+    full = jnp.insert(weights, per_point, jnp.zeros(channels, values.dtype), axis=0)
+    return albedo, full, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+
+
+def _columns(family, params, shading: TrackShading):
+    """Each lobe's value for unit weight at every observation (P, M): at the corners,
+    bilinearly combined like the image."""
+    p, m = shading.shape
+    return tuple(
+        jnp.sum(c.reshape(p, m, 4) * shading.corner_weight, axis=-1)
+        for c in design_columns(family, params, shading.samples)
+    )
+
+
+def _values(shading: TrackShading):
+    return shading.values
+
+
+class AlbedoMapFit(eqx.Module):
+    """The estimate with an albedo map: nonlinear `params` (D,), global `weights` (K, 3)
+    whose per-point row holds the albedos' median, the albedo of every track (P, 3), the
+    cost (sum of squared residuals, linear units) and RMSE (8-bit levels) over the observed
+    slots, the standard errors of the global parameters (the per-point row: NaN)."""
+
+    params: Float[Array, " D"]
+    weights: Float[Array, "K 3"]
+    albedo: Float[Array, "P 3"]
+    cost: Scalar
+    rgb_rmse: Scalar
+    params_stderr: Float[Array, " D"]
+    weights_stderr: Float[Array, "K 3"]
+    search_half_width: Float[Array, " D"]
+    n_samples: int = eqx.field(static=True)
+    family: BRDFFamily = eqx.field(static=True)
+
+    @property
+    def brdf(self):
+        return self.family.build(self.params).with_weights(self.weights)
+
+
+def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
+    """Standard errors of the global parameters with every albedo eliminated: from the
+    Jacobian of the projected residuals (the albedos' clamped set held fixed), whose
+    Gauss-Newton covariance is the global block of the joint one (a Schur complement)."""
+    k, channels = weights.shape
+    values, weight, observed = _values(shading), shading.weight, shading.observed
+    free = albedo > 0
+    globals_ = [i for i in range(k) if i != per_point]
+    if not globals_ and params.shape[0] == 0:  # every weight is per point: nothing global
+        return params, jnp.full((k, channels), jnp.nan, weights.dtype)
+
+    def residuals(theta):
+        w = theta[: len(globals_) * channels].reshape(len(globals_), channels)
+        p = theta[len(globals_) * channels :]
+        columns = _columns(family, p, shading)
+        a, others, masked, s_aa, s_ai, s_ag, _, _ = _sums(columns, values, weight, per_point)
+        rest = sum(g[..., None] * w[i] for i, g in enumerate(others)) if others else 0
+        inverse = jnp.where(s_aa > 0, 1 / jnp.where(s_aa > 0, s_aa, 1), 0)
+        fitted = s_ai - (jnp.einsum("gp,gc->pc", s_ag, w) if others else 0)
+        rho = jnp.where(free, fitted * inverse[:, None], 0)
+        return (masked - a[..., None] * rho[:, None, :] - rest).reshape(-1)
+
+    theta = jnp.concatenate([weights[jnp.array(globals_, int)].reshape(-1), params])
+    jacobian = jax.jacfwd(residuals)(theta)
+    n_observed = jnp.sum(observed) * channels
+    n_unknowns = theta.shape[0] + jnp.sum(free)
+    dof = jnp.maximum(n_observed - n_unknowns, 1)
+    information = jacobian.T @ jacobian
+    covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
+    variance = jnp.diagonal(covariance)
+    rank_deficient = jnp.linalg.matrix_rank(information) < theta.shape[0]
+    stderr = jnp.where(rank_deficient | (variance < 0), jnp.inf, jnp.sqrt(jnp.abs(variance)))
+    n_weights = len(globals_) * channels
+    weights_stderr = jnp.full((k, channels), jnp.nan, weights.dtype)
+    weights_stderr = weights_stderr.at[jnp.array(globals_, int)].set(
+        stderr[:n_weights].reshape(len(globals_), channels)
+    )
+    return stderr[n_weights:], weights_stderr
+
+
+@eqx.filter_jit
+def _fit(shading, family, per_point, tolerance, grid, candidates, zoom):
+    values, weight, observed = _values(shading), shading.weight, shading.observed
+
+    def cost(params):
+        return project_weights(_columns(family, params, shading), values, weight, per_point)[2]
+
+    dtype = values.dtype
+    if family.names:
+        search = grid_search(
+            cost,
+            family.lo,
+            family.hi,
+            tolerance=tolerance,
+            grid=grid,
+            candidates=candidates,
+            zoom=zoom,
+            dtype=dtype,
+        )
+        params, half_width = search.params, search.half_width
+    else:
+        params = jnp.zeros((0,), dtype)
+        half_width = params
+    columns = _columns(family, params, shading)
+    albedo, weights, best = project_weights(columns, values, weight, per_point)
+    params_stderr, weights_stderr = _standard_errors(
+        family, params, weights, albedo, shading, per_point, best
+    )
+    # The RMSE of every observation, unweighted: what a user compares with the noise.
+    model = sum(
+        c[..., None] * (albedo[:, None, :] if k == per_point else weights[k])
+        for k, c in enumerate(columns)
+    )
+    residual = jnp.where(observed[..., None], values - model, 0)
+    counted = jnp.sum(observed) * values.shape[-1]
+    rmse = 255 * jnp.sqrt(jnp.sum(residual * residual) / jnp.maximum(counted, 1))
+    return params, weights, albedo, best, rmse, params_stderr, weights_stderr, half_width
+
+
+def fit_brdf_map(
+    shading: TrackShading,
+    family: BRDFFamily = PAPER,
+    *,
+    tolerance: float = 1e-3,
+    grid: int = 32,
+    candidates: int = 4,
+    zoom: int = 2,
+) -> AlbedoMapFit:
+    """The BRDF with one albedo per tracked point (see the module doc): the sigma BnB over
+    closed-form solves in which every albedo and the global weights are eliminated.
+
+    The global weights' per-point row (`rho_tilde`) reports the median albedo per channel.
+    """
+    observed = np.asarray(shading.observed)
+    views = observed.sum(axis=1)
+    k = len(family.weight_names)
+    informative = int(np.sum(views[views > 1] - 1))
+    if informative < 3 * (k - 1) + len(family.names) + 1:
+        raise CtjaxError(
+            f"{len(views)} tracked points with {int(observed.sum())} observations: too few "
+            "points seen in two frames or more to separate the albedo from the BRDF (poses "
+            "or depth wrong, or frames that do not overlap?)"
+        )
+    values = np.asarray(shading.values)[observed]
+    if not np.all(np.isfinite(values)):
+        raise CtjaxError("observed values contain NaN or inf")
+    per_point = _per_point_index(family)
+    params, weights, albedo, cost, rmse, p_err, w_err, half = _fit(
+        shading, family, per_point, tolerance, grid, candidates, zoom
+    )
+    seen = np.asarray(views > 1)
+    median = np.median(np.asarray(albedo)[seen], axis=0) if seen.any() else np.zeros(3)
+    weights = weights.at[per_point].set(jnp.asarray(median, weights.dtype))
+    return AlbedoMapFit(
+        params, weights, albedo, cost, rmse, p_err, w_err, half, int(observed.sum()), family
+    )
+
+
+@eqx.filter_jit
+def _accumulate(brdf, light, per_point, samples: ShadingSamples, corner_weight, values):
+    """One frame's contribution to the albedo normal equations of N points: sum a (I - rest)
+    and sum a^2 per channel (`corner_weight` (N, 4) 0 where not observed)."""
+    columns = jax.vmap(lambda n, l, v, e: e * brdf.columns(n, l, v))(
+        samples.normal, samples.light, samples.view, samples.irradiance
+    )  # (N * 4, K)
+    columns = jnp.einsum("nck,nc->nk", columns.reshape(-1, 4, columns.shape[-1]), corner_weight)
+    a = columns[:, per_point]
+    global_ = jnp.arange(columns.shape[-1]) != per_point
+    rest = (columns * global_) @ brdf.weights
+    return a[:, None] * (values - rest), a * a
+
+
+def albedo_maps(
+    capture,
+    brdf,
+    light: AbstractLight = _PAPER_LIGHT,
+    *,
+    per_point: int = 0,
+    neighbours: int | None = None,
+    tolerance: float | None = None,
+    dtype=None,
+):
+    """The albedo map of every frame given the fitted BRDF's global lobes and the light:
+    a list of (H, W, 3) float32 maps (rho_tilde per pixel, in the units of `rho_tilde`, NaN
+    where not estimated), and of (H, W) view counts.
+
+    Every pixel with depth and a normal is followed into the frames that see it (its
+    `neighbours` nearest, all by default; see `ctjax._tracks`); its albedo is the weighted
+    least-squares one over those observations with the global lobes subtracted, clamped at
+    0. NaN where no observation counts (clipped in its own frame and seen in no other) or
+    the point is grazing in every view (N.L below `MIN_COSINE`). A point seen in one frame
+    only gets the albedo of that one observation, given the fitted BRDF.
+    """
+    dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
+    tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
+    camera = capture.camera
+    data = [FrameData.of(f) for f in capture.frames]
+    count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
+    maps, views = [], []
+    for index, frame in enumerate(capture.frames):
+        rows, cols = np.nonzero(frame.geometry_mask)
+        world = world_points(camera, frame, rows, cols)
+        numerator = np.zeros((len(rows), 3))
+        denominator = np.zeros(len(rows))
+        cosine = np.zeros(len(rows))
+        seen_count = np.zeros(len(rows), int)
+        for other in partners(capture, index, count):
+            obs = (
+                observe_own(camera, data[index], rows, cols)
+                if other == index
+                else observe(camera, data[other], world, tolerance)
+            )
+            samples = _shading_samples(
+                light,
+                obs.corner_point.reshape(-1, 3),
+                obs.corner_normal.reshape(-1, 3),
+                obs.corner_pixel.reshape(-1, 2),
+                dtype,
+            )
+            num, den = _accumulate(
+                brdf,
+                light,
+                per_point,
+                samples,
+                jnp.asarray(obs.corner_weight, dtype),
+                jnp.asarray(obs.values, dtype),
+            )
+            numerator += np.asarray(num) * obs.weight[:, None]
+            denominator += np.asarray(den) * obs.weight
+            cosine += np.asarray(den) * obs.seen
+            seen_count += obs.seen
+        enough = (cosine > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            albedo = np.maximum(numerator / denominator[:, None], 0)
+        full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
+        full[rows, cols] = np.where(enough[:, None], albedo, np.nan)
+        count_map = np.zeros((camera.height, camera.width), int)
+        count_map[rows, cols] = np.where(enough, seen_count, 0)
+        maps.append(full)
+        views.append(count_map)
+    return maps, views

@@ -1,0 +1,178 @@
+"""The albedo map (textured tissue): the variable projection against a joint solve, its
+gradient, truth recovery on textured captures, the command and its errors."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import nnls as scipy_nnls
+
+from ctjax.cli import main
+from ctjax.estimation import PAPER, fit_capture
+from ctjax.estimation._albedo_map import project_weights
+from ctjax.io import load_capture
+from ctjax.synth import SynthOptions, synthesize
+
+
+def _problem(seed, points=7, frames=4, clamp=False):
+    """Random positive columns (a diffuse and a specular one) and values of P points."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.1, 0.4, (points, frames))
+    b = rng.uniform(0.0, 1.0, (points, frames)) ** 3
+    albedo = rng.uniform(0.5, 2.5, (points, 3))
+    if clamp:
+        albedo[0] = 0.0  # a black point: its least-squares albedo is negative with the noise
+    values = a[..., None] * albedo[:, None] + 0.3 * b[..., None]
+    values += rng.normal(0, 0.05, values.shape)
+    if clamp:
+        values[0] -= 0.2
+    weight = rng.uniform(0.2, 1.0, (points, frames))
+    weight[1, 1:] = 0  # a point observed once
+    return a, b, values, weight
+
+
+def _joint(a, b, values, weight):
+    """The same problem as one NNLS over every albedo and F (SciPy), per channel."""
+    points, frames = a.shape
+    root = np.sqrt(weight).reshape(-1)
+    design = np.zeros((points * frames, points + 1))
+    for p in range(points):
+        design[p * frames : (p + 1) * frames, p] = a[p]
+    design[:, points] = b.reshape(-1)
+    design *= root[:, None]
+    solutions, cost = [], 0.0
+    for c in range(3):
+        x, residual = scipy_nnls(design, values[..., c].reshape(-1) * root)
+        solutions.append(x)
+        cost += residual**2
+    return np.stack(solutions, -1), cost
+
+
+@pytest.mark.parametrize("clamp", [False, True])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_projection_equals_the_joint_nonnegative_least_squares(seed, clamp):
+    a, b, values, weight = _problem(seed, clamp=clamp)
+    albedo, weights, cost = project_weights(
+        (jnp.asarray(a), jnp.asarray(b)), jnp.asarray(values), jnp.asarray(weight), 0
+    )
+    joint, joint_cost = _joint(a, b, values, weight)
+    np.testing.assert_allclose(np.asarray(albedo), joint[:-1], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(weights[1]), joint[-1], atol=1e-9)
+    assert np.asarray(weights[0]) == pytest.approx(0)  # the per-point lobe's global row
+    assert float(cost) == pytest.approx(joint_cost, rel=1e-9)
+    if clamp:
+        assert np.any(np.asarray(albedo)[0] == 0)
+
+
+def test_projected_cost_gradient_matches_finite_differences():
+    rng = np.random.default_rng(5)
+    points, frames = 20, 5
+    normal = rng.normal(size=(points, frames, 3)) * 0.2 + np.array([0, 0, -1.0])
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    view = np.broadcast_to(np.array([0.0, 0.0, -1.0]), normal.shape)
+    values = rng.uniform(0.1, 0.8, (points, frames, 3))
+    weight = jnp.ones((points, frames))
+
+    def cost(sigma):
+        brdf = PAPER.build(jnp.atleast_1d(sigma))
+
+        def columns(n, v):
+            from ctjax._vector import Vec3
+
+            n, v = Vec3.from_array(n), Vec3.from_array(v)
+            return tuple(lobe.radiance(n, v, v) for lobe in brdf.lobes)
+
+        cols = jax.vmap(jax.vmap(columns))(jnp.asarray(normal), jnp.asarray(view))
+        return project_weights(cols, jnp.asarray(values), weight, 0)[2]
+
+    for sigma in (0.15, 0.3):
+        gradient = float(jax.grad(cost)(sigma))
+        step = 1e-6
+        finite = (float(cost(sigma + step)) - float(cost(sigma - step))) / (2 * step)
+        assert gradient == pytest.approx(finite, rel=1e-5)
+
+
+@pytest.fixture(scope="module")
+def textured(tmp_path_factory):
+    """Per-channel textured captures with true depth and poses, 160x128, 6 frames."""
+    root = tmp_path_factory.mktemp("albedo")
+    return {
+        (seed, contrast): synthesize(
+            root / f"s{seed}-{contrast}",
+            SynthOptions(width=160, height=128, frames=6, seed=seed, texture_contrast=contrast),
+        )
+        for seed, contrast in ((1, 1.0), (2, 0.5))
+    }
+
+
+def _map_errors(root, estimate):
+    capture = load_capture(root)
+    errors, coverage = [], []
+    for frame in capture.frames:
+        estimated = estimate.arrays[f"albedo/{frame.name}"]
+        truth = np.load(root / "albedo" / f"{frame.name}.npy")
+        assert estimated.shape == truth.shape and estimated.dtype == np.float32
+        surface = np.all(np.isfinite(truth), -1)
+        both = surface & np.all(np.isfinite(estimated), -1)
+        coverage.append(both.sum() / surface.sum())
+        errors.append(np.abs(estimated[both] / truth[both] - 1).ravel())
+    return np.concatenate(errors), min(coverage)
+
+
+@pytest.mark.parametrize("key", [(1, 1.0), (2, 0.5)])
+def test_the_map_recovers_the_brdf_and_the_texture(textured, key):
+    root = textured[key]
+    capture = load_capture(root)
+    truth = capture.truth
+    estimate = fit_capture(capture)  # several frames with depth and poses: the map
+    result = estimate.to_json()
+    assert result["albedo"] == "map"
+    assert result["sigma"] == pytest.approx(truth["sigma"], rel=0.02)
+    np.testing.assert_allclose(result["F_tilde"], truth["F_tilde"], rtol=0.03)
+    # Over every observation, texture interpolated across frames included.
+    assert result["rgb_rmse_calibration"] < 3.0
+    errors, coverage = _map_errors(root, estimate)
+    # 160x128 makes the synthetic texture finer than a pixel: looser than at 320x256.
+    assert np.median(errors) < 0.015 and np.percentile(errors, 90) < 0.05
+    assert coverage > 0.95
+    # The paper's uniform albedo on the same textured capture is far off.
+    uniform = fit_capture(capture, albedo="uniform").to_json()
+    assert uniform["albedo"] == "uniform"
+    assert abs(uniform["sigma"] / truth["sigma"] - 1) > 3 * abs(
+        result["sigma"] / truth["sigma"] - 1
+    )
+
+
+def test_fit_command_writes_the_albedo_maps(textured, tmp_path, capsys):
+    root = textured[(1, 1.0)]
+    out, maps = tmp_path / "fit.json", tmp_path / "maps"
+    assert main(["fit", str(root), "--json", str(out), "--albedo-maps", str(maps)]) == 0
+    result = json.loads(out.read_text())
+    assert result["albedo"] == "map" and len(result["rho_tilde"]) == 3
+    capture = load_capture(root)
+    for frame in capture.frames:
+        albedo = np.load(maps / f"{frame.name}.npy")
+        assert albedo.shape == (*frame.image.shape[:2], 3) and albedo.dtype == np.float32
+        assert np.all(np.isnan(albedo[~frame.geometry_mask]))
+    median = np.nanmedian(np.concatenate([np.load(p).reshape(-1, 3) for p in maps.iterdir()]), 0)
+    np.testing.assert_allclose(result["rho_tilde"], median, rtol=1e-6)
+    assert "albedo" in capsys.readouterr().out
+
+
+def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path, capsys):
+    root = textured[(2, 0.5)]
+    out = tmp_path / "fit.json"
+    argv = ["fit", str(root), "--json", str(out), "--albedo", "uniform", "--albedo-maps", "m"]
+    assert main(argv) == 2
+    assert "--albedo-maps needs the albedo map" in capsys.readouterr().err
+    (root.parent / "nopose").mkdir()
+    for item in root.iterdir():
+        if item.name != "poses.json":
+            (root.parent / "nopose" / item.name).symlink_to(item)
+    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--albedo", "map"]) == 2
+    assert "no pose" in capsys.readouterr().err
+    # Without poses the default is the paper's uniform albedo.
+    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--ring-px", "10"]) == 0
+    assert json.loads(out.read_text())["albedo"] == "uniform"
