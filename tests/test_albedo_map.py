@@ -54,7 +54,7 @@ def _joint(a, b, values, weight):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_projection_equals_the_joint_nonnegative_least_squares(seed, clamp):
     a, b, values, weight = _problem(seed, clamp=clamp)
-    albedo, weights, cost = project_weights(
+    albedo, weights, cost = jax.jit(project_weights, static_argnums=3)(
         (jnp.asarray(a), jnp.asarray(b)), jnp.asarray(values), jnp.asarray(weight), 0
     )
     joint, joint_cost = _joint(a, b, values, weight)
@@ -75,6 +75,7 @@ def test_projected_cost_gradient_matches_finite_differences():
     values = rng.uniform(0.1, 0.8, (points, frames, 3))
     weight = jnp.ones((points, frames))
 
+    @jax.jit
     def cost(sigma):
         brdf = PAPER.build(jnp.atleast_1d(sigma))
 
@@ -87,8 +88,9 @@ def test_projected_cost_gradient_matches_finite_differences():
         cols = jax.vmap(jax.vmap(columns))(jnp.asarray(normal), jnp.asarray(view))
         return project_weights(cols, jnp.asarray(values), weight, 0)[2]
 
+    gradient_of = jax.jit(jax.grad(cost))
     for sigma in (0.15, 0.3):
-        gradient = float(jax.grad(cost)(sigma))
+        gradient = float(gradient_of(sigma))
         step = 1e-6
         finite = (float(cost(sigma + step)) - float(cost(sigma - step))) / (2 * step)
         assert gradient == pytest.approx(finite, rel=1e-5)

@@ -26,6 +26,8 @@ sigma and w, and counts for nothing in their fit. Given the fit, its albedo is s
 determined by its one observation (see `albedo_maps`).
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -58,6 +60,8 @@ _NEGLIGIBLE = 1e-12
 # Albedo maps are left NaN where the diffuse column is below this (N.L / pi in every view
 # below ~0.05 / pi): the albedo would be noise divided by nearly 0.
 MIN_COSINE = 0.05
+# Grid points evaluated at once by the BnB: each is a pass over every observation's corners.
+_GRID_BATCH = 4
 # The paper's light: at the camera centre, L = V.
 _PAPER_LIGHT = ColocatedLight()
 
@@ -278,6 +282,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom):
             candidates=candidates,
             zoom=zoom,
             dtype=dtype,
+            batch=_GRID_BATCH,
         )
         params, half_width = search.params, search.half_width
     else:
@@ -339,9 +344,18 @@ def fit_brdf_map(
 
 
 @eqx.filter_jit
-def _accumulate(brdf, light, per_point, samples: ShadingSamples, corner_weight, values):
+def _accumulate(
+    brdf, light, per_point, corner_point, corner_normal, corner_pixel, corner_weight, values
+):
     """One frame's contribution to the albedo normal equations of N points: sum a (I - rest)
-    and sum a^2 per channel (`corner_weight` (N, 4) 0 where not observed)."""
+    and sum a^2 per channel (corners (N, 4, ...), `corner_weight` 0 where not observed)."""
+    samples = _shading_samples(
+        light,
+        corner_point.reshape(-1, 3),
+        corner_normal.reshape(-1, 3),
+        corner_pixel.reshape(-1, 2),
+        corner_point.dtype,
+    )
     columns = jax.vmap(lambda n, l, v, e: e * brdf.columns(n, l, v))(
         samples.normal, samples.light, samples.view, samples.irradiance
     )  # (N * 4, K)
@@ -350,6 +364,11 @@ def _accumulate(brdf, light, per_point, samples: ShadingSamples, corner_weight, 
     global_ = jnp.arange(columns.shape[-1]) != per_point
     rest = (columns * global_) @ brdf.weights
     return a[:, None] * (values - rest), a * a
+
+
+def _padded(array: np.ndarray, padding: int, dtype) -> jax.Array:
+    zeros = np.zeros((padding, *array.shape[1:]), array.dtype)
+    return jnp.asarray(np.concatenate([array, zeros]), dtype)
 
 
 def albedo_maps(
@@ -381,6 +400,7 @@ def albedo_maps(
     maps, views = [], []
     for index, frame in enumerate(capture.frames):
         rows, cols = np.nonzero(frame.geometry_mask)
+        padding = camera.width * camera.height - len(rows)
         world = world_points(camera, frame, rows, cols)
         numerator = np.zeros((len(rows), 3))
         denominator = np.zeros(len(rows))
@@ -392,24 +412,22 @@ def albedo_maps(
                 if other == index
                 else observe(camera, data[other], world, tolerance)
             )
-            samples = _shading_samples(
-                light,
-                obs.corner_point.reshape(-1, 3),
-                obs.corner_normal.reshape(-1, 3),
-                obs.corner_pixel.reshape(-1, 2),
-                dtype,
-            )
+            # Padded to every pixel of the frame: one compilation for the whole capture.
+            as_jax = functools.partial(_padded, padding=padding, dtype=dtype)
             num, den = _accumulate(
                 brdf,
                 light,
                 per_point,
-                samples,
-                jnp.asarray(obs.corner_weight, dtype),
-                jnp.asarray(obs.values, dtype),
+                as_jax(obs.corner_point),
+                as_jax(obs.corner_normal),
+                as_jax(obs.corner_pixel),
+                as_jax(obs.corner_weight),
+                as_jax(obs.values),
             )
-            numerator += np.asarray(num) * obs.weight[:, None]
-            denominator += np.asarray(den) * obs.weight
-            cosine += np.asarray(den) * obs.seen
+            num, den = np.asarray(num)[: len(rows)], np.asarray(den)[: len(rows)]
+            numerator += num * obs.weight[:, None]
+            denominator += den * obs.weight
+            cosine += den * obs.seen
             seen_count += obs.seen
         enough = (cosine > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
         with np.errstate(invalid="ignore", divide="ignore"):

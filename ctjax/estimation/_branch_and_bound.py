@@ -67,6 +67,7 @@ def grid_search(
     candidates: int = 4,
     zoom: int = 2,
     dtype=None,
+    batch: int | None = None,
 ) -> GridSearchResult:
     """Minimise `cost(params)` over the box [lo, hi] by zooming grids (see module doc).
 
@@ -76,6 +77,8 @@ def grid_search(
     point of the same basin), and searches `zoom` sub-intervals around each at the next level
     (`candidates=1, zoom=1` is exactly the paper's BnB, which zooms into the best
     sub-interval). D = 1 or 2 in practice: a level costs `candidates * grid^D` evaluations.
+    `batch` evaluates the grid `batch` points at a time (`jax.lax.map`) instead of all at
+    once: for costs over many samples, whose batched intermediates would not stay in cache.
     """
     # The box is configuration (it sets the number of levels): concrete, not traced.
     lo = np.atleast_1d(np.asarray(lo, float))
@@ -99,7 +102,11 @@ def grid_search(
     for _ in range(levels):
         spacing = widths / grid
         centres = starts[:, None, :] + unit_grid[None, :, :] * widths  # (M, G^D, D)
-        costs = jax.vmap(jax.vmap(safe_cost))(centres)  # (M, G^D)
+        if batch is None:
+            costs = jax.vmap(jax.vmap(safe_cost))(centres)  # (M, G^D)
+        else:
+            flat = centres.reshape(-1, dims)
+            costs = jax.lax.map(safe_cost, flat, batch_size=batch).reshape(centres.shape[:2])
         evaluations += centres.shape[0] * centres.shape[1]
         flat_centres, flat_costs = centres.reshape(-1, dims), costs.reshape(-1)
         is_minimum = _local_minima(costs, dims, grid).reshape(-1)
