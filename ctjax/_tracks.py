@@ -31,6 +31,9 @@ from ._camera import Camera
 from ._errors import CtjaxError
 from ._geometry import points_from_depth
 
+# Frames a point is looked for in besides its own: the nearest in camera position. Bounds
+# memory and time on long videos; a short capture uses all of its frames.
+DEFAULT_NEIGHBOURS = 12
 # The image noise the observation weights assume: 1 8-bit level (linear units).
 NOISE = 1 / 255
 # Default relative depth agreement for a point to count as seen (1% of its depth: 0.7 mm at
@@ -245,17 +248,16 @@ def observe_own(camera: Camera, data: FrameData, rows, cols, saturation_level=1.
 
 
 def _masked(obs: Observation) -> Observation:
-    seen = obs.seen
-    corner = seen[:, None, None]
-    return Observation(
-        np.where(corner, obs.corner_point, _AHEAD),
-        np.where(corner, obs.corner_normal, _FACING),
-        np.where(corner, obs.corner_pixel, 0.0),
-        np.where(seen[:, None], obs.corner_weight, 0.0),
-        np.where(seen[:, None], obs.values, 0.0),
-        seen,
-        np.where(seen, obs.weight, 0.0),
-    )
+    """`obs` with the observations that do not count set to the harmless geometry, in place
+    (only those rows are written: most observations count)."""
+    hidden = ~obs.seen
+    obs.corner_point[hidden] = _AHEAD
+    obs.corner_normal[hidden] = _FACING
+    obs.corner_pixel[hidden] = 0.0
+    obs.corner_weight[hidden] = 0.0
+    obs.values[hidden] = 0.0
+    obs.weight[hidden] = 0.0
+    return obs
 
 
 def world_points(camera: Camera, frame, rows, cols) -> np.ndarray:
@@ -268,13 +270,13 @@ def follow(
     capture,
     anchors: list[tuple[np.ndarray, np.ndarray]],
     *,
-    neighbours: int | None = None,
+    neighbours: int | None = DEFAULT_NEIGHBOURS,
     tolerance: float = DEFAULT_TOLERANCE,
     saturation_level: float = 1.0,
 ) -> Tracks:
     """Tracks of the anchor pixels `anchors[f] = (rows, cols)` of every frame f (pixels with
-    depth and a normal), followed into each frame's `neighbours` nearest frames (all by
-    default). Every frame needs depth, normals and a pose (`require_poses`)."""
+    depth and a normal), followed into each frame's `neighbours` nearest frames (all when
+    None). Every frame needs depth, normals and a pose (`require_poses`)."""
     require_poses(capture)
     camera = capture.camera
     count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)

@@ -68,6 +68,7 @@ class ShadingSamples(eqx.Module):
 # Tracks for the albedo map: anchored within this many pixels of S, at most this many points.
 DEFAULT_TRACK_RADIUS_PX = 12.0
 DEFAULT_MAX_TRACKS = 40_000
+DEFAULT_NEIGHBOURS = 12  # = ctjax._tracks.DEFAULT_NEIGHBOURS
 
 
 def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
@@ -245,7 +246,7 @@ class Observations:
         *,
         radius_px: float = DEFAULT_TRACK_RADIUS_PX,
         max_points: int | None = DEFAULT_MAX_TRACKS,
-        neighbours: int | None = None,
+        neighbours: int | None = DEFAULT_NEIGHBOURS,
         tolerance: float | None = None,
         seed: int = 0,
     ):

@@ -36,6 +36,7 @@ import numpy as np
 from .._errors import CtjaxError
 from .._numerics import safe_normalize
 from .._tracks import (
+    DEFAULT_NEIGHBOURS,
     DEFAULT_TOLERANCE,
     FrameData,
     Tracks,
@@ -60,6 +61,8 @@ _NEGLIGIBLE = 1e-12
 # Albedo maps are left NaN where the diffuse column is below this (N.L / pi in every view
 # below ~0.05 / pi): the albedo would be noise divided by nearly 0.
 MIN_COSINE = 0.05
+# Pixels whose albedo is estimated at once (bounds memory at 1080p).
+_MAP_CHUNK = 1 << 17
 # Grid points evaluated at once by the BnB: each is a pass over every observation's corners.
 _GRID_BATCH = 4
 # The paper's light: at the camera centre, L = V.
@@ -371,13 +374,53 @@ def _padded(array: np.ndarray, padding: int, dtype) -> jax.Array:
     return jnp.asarray(np.concatenate([array, zeros]), dtype)
 
 
+def _albedo_of(
+    capture, data, brdf, light, per_point, index, rows, cols, count, tolerance, dtype, chunk
+):
+    """Albedo (N, 3; NaN where not estimated) and view count (N,) of pixels of frame
+    `index`, from all the frames that see them (see `albedo_maps`)."""
+    camera = capture.camera
+    world = world_points(camera, capture.frames[index], rows, cols)
+    numerator = np.zeros((len(rows), 3))
+    denominator = np.zeros(len(rows))
+    cosine = np.zeros(len(rows))
+    seen_count = np.zeros(len(rows), int)
+    # Padded to a whole chunk: one compilation for every frame and chunk.
+    as_jax = functools.partial(_padded, padding=chunk - len(rows), dtype=dtype)
+    for other in partners(capture, index, count):
+        obs = (
+            observe_own(camera, data[index], rows, cols)
+            if other == index
+            else observe(camera, data[other], world, tolerance)
+        )
+        num, den = _accumulate(
+            brdf,
+            light,
+            per_point,
+            as_jax(obs.corner_point),
+            as_jax(obs.corner_normal),
+            as_jax(obs.corner_pixel),
+            as_jax(obs.corner_weight),
+            as_jax(obs.values),
+        )
+        num, den = np.asarray(num)[: len(rows)], np.asarray(den)[: len(rows)]
+        numerator += num * obs.weight[:, None]
+        denominator += den * obs.weight
+        cosine += den * obs.seen
+        seen_count += obs.seen
+    enough = (cosine > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        albedo = np.maximum(numerator / denominator[:, None], 0)
+    return np.where(enough[:, None], albedo, np.nan), seen_count
+
+
 def albedo_maps(
     capture,
     brdf,
     light: AbstractLight = _PAPER_LIGHT,
     *,
     per_point: int = 0,
-    neighbours: int | None = None,
+    neighbours: int | None = DEFAULT_NEIGHBOURS,
     tolerance: float | None = None,
     dtype=None,
 ):
@@ -386,7 +429,7 @@ def albedo_maps(
     where not estimated), and of (H, W) view counts.
 
     Every pixel with depth and a normal is followed into the frames that see it (its
-    `neighbours` nearest, all by default; see `ctjax._tracks`); its albedo is the weighted
+    `neighbours` nearest, all when None; see `ctjax._tracks`); its albedo is the weighted
     least-squares one over those observations with the global lobes subtracted, clamped at
     0. NaN where no observation counts (clipped in its own frame and seen in no other) or
     the point is grazing in every view (N.L below `MIN_COSINE`). A point seen in one frame
@@ -397,45 +440,32 @@ def albedo_maps(
     camera = capture.camera
     data = [FrameData.of(f) for f in capture.frames]
     count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
+    chunk = min(_MAP_CHUNK, camera.width * camera.height)
     maps, views = [], []
     for index, frame in enumerate(capture.frames):
         rows, cols = np.nonzero(frame.geometry_mask)
-        padding = camera.width * camera.height - len(rows)
-        world = world_points(camera, frame, rows, cols)
-        numerator = np.zeros((len(rows), 3))
-        denominator = np.zeros(len(rows))
-        cosine = np.zeros(len(rows))
+        albedo = np.full((len(rows), 3), np.nan)
         seen_count = np.zeros(len(rows), int)
-        for other in partners(capture, index, count):
-            obs = (
-                observe_own(camera, data[index], rows, cols)
-                if other == index
-                else observe(camera, data[other], world, tolerance)
-            )
-            # Padded to every pixel of the frame: one compilation for the whole capture.
-            as_jax = functools.partial(_padded, padding=padding, dtype=dtype)
-            num, den = _accumulate(
+        for start in range(0, len(rows), chunk):
+            part = slice(start, start + chunk)
+            albedo[part], seen_count[part] = _albedo_of(
+                capture,
+                data,
                 brdf,
                 light,
                 per_point,
-                as_jax(obs.corner_point),
-                as_jax(obs.corner_normal),
-                as_jax(obs.corner_pixel),
-                as_jax(obs.corner_weight),
-                as_jax(obs.values),
+                index,
+                rows[part],
+                cols[part],
+                count,
+                tolerance,
+                dtype,
+                chunk,
             )
-            num, den = np.asarray(num)[: len(rows)], np.asarray(den)[: len(rows)]
-            numerator += num * obs.weight[:, None]
-            denominator += den * obs.weight
-            cosine += den * obs.seen
-            seen_count += obs.seen
-        enough = (cosine > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            albedo = np.maximum(numerator / denominator[:, None], 0)
         full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
-        full[rows, cols] = np.where(enough[:, None], albedo, np.nan)
+        full[rows, cols] = albedo
         count_map = np.zeros((camera.height, camera.width), int)
-        count_map[rows, cols] = np.where(enough, seen_count, 0)
+        count_map[rows, cols] = np.where(np.isfinite(albedo[:, 0]), seen_count, 0)
         maps.append(full)
         views.append(count_map)
     return maps, views

@@ -13,7 +13,7 @@ import numpy as np
 from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
-from .._tracks import require_poses
+from .._tracks import DEFAULT_NEIGHBOURS, require_poses
 from ..lights import ColocatedLight
 from ..observations import Observations
 from ._albedo_map import albedo_maps, fit_brdf_map, track_shading
@@ -67,7 +67,7 @@ def fit_albedo_map(
     *,
     tolerance: float = 1e-3,
     max_points: int | None = None,
-    neighbours: int | None = None,
+    neighbours: int | None = DEFAULT_NEIGHBOURS,
 ) -> Estimate:
     """The BRDF with an albedo map (see the module doc), under the paper's light (L = V).
 
@@ -78,7 +78,7 @@ def fit_albedo_map(
     points; `details` the standard errors of the global parameters (albedos eliminated), the
     counts, the maps' coverage and the Lambertian fit of the same tracks (with its own map).
     `max_points` bounds the tracked points (`Observations.tracks`), `neighbours` the frames
-    each point is looked for in (nearest in camera position; all by default).
+    each point is looked for in (nearest in camera position; all when None).
     """
     masks = MaskOptions() if masks is None else masks
     obs = Observations.of(capture, masks)
