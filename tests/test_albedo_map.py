@@ -178,3 +178,33 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
     # Without poses the default is the paper's uniform albedo.
     assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--ring-px", "10"]) == 0
     assert json.loads(out.read_text())["albedo"] == "uniform"
+
+
+def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):
+    from ctjax.estimation._albedo_map import fit_brdf_map, track_shading
+    from ctjax.fitting import fit_model_map, paper_model
+    from ctjax.observations import Observations
+
+    capture = load_capture(textured[(2, 0.5)])
+    tracks = Observations.of(capture).tracks(max_points=4000)
+    lm = fit_model_map(paper_model(sigma=0.3), tracks)  # LM over sigma alone
+    bnb = fit_brdf_map(track_shading(tracks))
+    assert lm.converged and lm.details["parameters"] == ["brdf.lobes[1].distribution.sigma"]
+    result = lm.to_json()
+    assert result["sigma"] == pytest.approx(float(bnb.params[0]), rel=0.005)
+    np.testing.assert_allclose(result["F_tilde"], np.asarray(bnb.weights[1]), rtol=0.01)
+    np.testing.assert_allclose(result["rho_tilde"], np.asarray(bnb.weights[0]), rtol=0.01)
+    assert result["sigma"] == pytest.approx(capture.truth["sigma"], rel=0.02)
+    assert lm.arrays["track_albedo"].shape == (len(tracks), 3)
+
+
+def test_the_lm_fitter_with_the_map_refuses_image_effects(textured):
+    import ctjax
+    from ctjax.fitting import fit_model_map, paper_model
+    from ctjax.observations import Observations
+
+    tracks = Observations.of(load_capture(textured[(2, 0.5)])).tracks(max_points=500)
+    model = paper_model()
+    model = ctjax.ShadingModel(model.brdf, model.light, (ctjax.CameraGamma(2.2),))
+    with pytest.raises(ctjax.CtjaxError, match="image effects"):
+        fit_model_map(model, tracks)

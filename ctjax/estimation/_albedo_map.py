@@ -148,20 +148,15 @@ def _sums(columns, values, weight, per_point):
     return a, others, values, s_aa, s_ai, s_ag, s_gh, s_gi
 
 
-def project_weights(
+def projected_residuals(
     columns: tuple[Float[Array, "P M"], ...],
     values: Float[Array, "P M C"],
     weight: Float[Array, "P M"],
     per_point: int = 0,
 ):
-    """The albedo of every point and the global weights, eliminated in closed form.
-
-    `columns[k]` is lobe k's value for unit weight at each observation, `weight` each
-    observation's least-squares weight (0: not observed); `per_point` the lobe whose weight
-    is per point (the diffuse one). Returns `(albedo (P, C), weights (K, C), cost)`:
-    `weights[per_point]` is 0 (the albedo is per point), the cost is the weighted sum of
-    squared residuals (finite or +inf).
-    """
+    """`project_weights`, returning the weighted residuals (P, M, C) instead of their cost:
+    the residual function of a least-squares solver over the nonlinear parameters alone
+    (variable projection; differentiable, the clamped albedos held at 0)."""
     a, others, masked, s_aa, s_ai, s_ag, s_gh, s_gi = _sums(columns, values, weight, per_point)
     ok = s_aa > _NEGLIGIBLE * jnp.max(s_aa)
     inverse = jnp.where(ok, 1 / jnp.where(ok, s_aa, 1), 0)
@@ -186,9 +181,27 @@ def project_weights(
         rest = jnp.zeros_like(masked)
     albedo = jnp.where(ok[:, None], jnp.maximum(albedo, 0), 0)
     residual = masked - a[..., None] * albedo[:, None, :] - rest
-    cost = jnp.sum(residual * residual)
     full = jnp.insert(weights, per_point, jnp.zeros(channels, values.dtype), axis=0)
-    return albedo, full, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+    return albedo, full, residual
+
+
+def project_weights(
+    columns: tuple[Float[Array, "P M"], ...],
+    values: Float[Array, "P M C"],
+    weight: Float[Array, "P M"],
+    per_point: int = 0,
+):
+    """The albedo of every point and the global weights, eliminated in closed form.
+
+    `columns[k]` is lobe k's value for unit weight at each observation, `weight` each
+    observation's least-squares weight (0: not observed); `per_point` the lobe whose weight
+    is per point (the diffuse one). Returns `(albedo (P, C), weights (K, C), cost)`:
+    `weights[per_point]` is 0 (the albedo is per point), the cost is the weighted sum of
+    squared residuals (finite or +inf).
+    """
+    albedo, weights, residual = projected_residuals(columns, values, weight, per_point)
+    cost = jnp.sum(residual * residual)
+    return albedo, weights, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
 
 def _columns(family, params, shading: TrackShading):

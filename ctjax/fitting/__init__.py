@@ -5,6 +5,8 @@ from .._model import paper_model as paper_model
 from .._result import Estimate as Estimate
 from ..observations import PixelSamples as PixelSamples
 from ..observations import capture_samples as capture_samples
+from ._albedo_map import TrackSamples as TrackSamples
+from ._albedo_map import fit_model_map as fit_model_map
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns
