@@ -16,15 +16,31 @@ def points_from_depth(camera: Camera, depth: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], axis=-1)
 
 
-def normals_from_depth(camera: Camera, depth: np.ndarray) -> np.ndarray:
-    """Unit normals (H, W, 3) facing the camera, from z-depth by central differences.
+# Side of the window of the local plane fit that gives normals from depth (pixels).
+NORMAL_WINDOW_PX = 7
 
-    One-sided differences at the image border and next to missing depth; NaN where a pixel
-    has no valid neighbour along a direction. float32, camera frame.
+
+def normals_from_depth(
+    camera: Camera, depth: np.ndarray, window_px: int = NORMAL_WINDOW_PX
+) -> np.ndarray:
+    """Unit normals (H, W, 3) facing the camera, from z-depth, float32, camera frame.
+
+    The tangents dP/du and dP/dv of the camera-frame points P are those of the least-squares
+    plane through each `window_px` x `window_px` neighbourhood (Savitzky-Golay), so depth
+    noise is averaged rather than differentiated: with a 7 px window the tangents' noise is
+    about 10x below central differences'. It is unbiased for any quadric (odd moments of the
+    window vanish) and exact for a plane (every tangent is a combination of differences of
+    its points). A sharp lobe reads micrometres of depth noise through the normals: 5 um of
+    noise at 0.2 mm per pixel is about 1 degree by central differences, which moved a fitted
+    F_tilde by 13% (tests/independent.py). Where the window is not whole (near missing depth
+    or the image border) central differences are used, one-sided next to a hole; NaN where a
+    pixel has no valid neighbour along a direction. `window_px=1`: central differences only.
     """
     points = points_from_depth(camera, depth)
     du = _derivative(points, axis=1)
     dv = _derivative(points, axis=0)
+    if window_px > 1:
+        du, dv = _plane_fit(points, du, dv, window_px)
     # x right, y down, z forward: dP/dv x dP/du points towards the camera (-z).
     normal = np.cross(dv, du)
     norm = np.linalg.norm(normal, axis=-1, keepdims=True)
@@ -33,6 +49,31 @@ def normals_from_depth(camera: Camera, depth: np.ndarray) -> np.ndarray:
     facing_away = np.sum(normal * points, axis=-1) > 0
     normal[facing_away] *= -1
     return normal.astype(np.float32)
+
+
+def _plane_fit(points, du, dv, window_px: int):
+    """The tangents of the least-squares plane over each whole window (see
+    `normals_from_depth`); `du`, `dv` kept where the window is not whole."""
+    import cv2
+
+    if window_px % 2 == 0 or window_px < 3:
+        raise ValueError(f"window_px must be odd and at least 3, got {window_px}")
+    radius = window_px // 2
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    slope = x / np.sum(x * x)  # d/dx of the plane: sum x P / sum x^2 (correlation)
+    box = np.full(window_px, 1 / window_px)
+    valid = np.all(np.isfinite(points), axis=-1)
+    filled = np.ascontiguousarray(np.where(valid[..., None], points, 0.0))
+    border = cv2.BORDER_CONSTANT
+    whole = (
+        cv2.boxFilter(
+            valid.astype(np.float64), -1, (window_px, window_px), normalize=False, borderType=border
+        )
+        > window_px * window_px - 0.5
+    )
+    fit_u = cv2.sepFilter2D(filled, cv2.CV_64F, slope, box, borderType=border)
+    fit_v = cv2.sepFilter2D(filled, cv2.CV_64F, box, slope, borderType=border)
+    return np.where(whole[..., None], fit_u, du), np.where(whole[..., None], fit_v, dv)
 
 
 def _derivative(points: np.ndarray, axis: int) -> np.ndarray:

@@ -10,9 +10,11 @@ Correspondence: the anchor pixel's camera-frame point (from depth) goes to the w
 anchor frame's pose and into every other frame by that frame's inverse pose; the value there
 is the bilinear sample of that frame's image. An observation counts only when
 
-- it lands inside the image, on four neighbours that all have depth and a normal and no
-  clipped channel (a clipped value is not the model's; a missing neighbour is a silhouette or
-  a masked highlight);
+- it lands inside the image, on four neighbours that all have depth and a normal (a missing
+  neighbour is a silhouette or a masked highlight);
+- for a channel, none of the four neighbours is clipped in it (a clipped value is not the
+  model's): the BRDF fit keeps only observations with no clipped channel, the albedo maps
+  use every channel that counts;
 - the frame's own depth there agrees with the point's depth in that frame within
   `tolerance` (relative): otherwise the point is hidden (occlusion) or the geometry or pose
   is wrong there (SfM at silhouettes, estimated poses).
@@ -137,25 +139,31 @@ def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray, how=cv2.INTER_LINEA
 @dataclasses.dataclass(frozen=True)
 class FrameData:
     """What observing a frame needs: its image, depth and normals, the depth with NaN where
-    an observation is not usable (no geometry or a clipped channel), the inverse pose."""
+    there is no geometry, which channels are clipped (as 0/1 floats, to be sampled like the
+    image), the inverse pose."""
 
     image: np.ndarray
     depth: np.ndarray
     normals: np.ndarray
     usable_depth: np.ndarray
+    clipped: np.ndarray
     world_to_camera: np.ndarray
 
     @classmethod
     def of(cls, frame, saturation_level: float = 1.0) -> "FrameData":
-        usable = frame.geometry_mask & np.all(frame.image < saturation_level, axis=-1)
-        depth = np.where(usable, frame.depth, np.nan).astype(np.float32)
-        return cls(frame.image, frame.depth, frame.normals, depth, np.linalg.inv(frame.pose))
+        depth = np.where(frame.geometry_mask, frame.depth, np.nan).astype(np.float32)
+        clipped = (frame.image >= saturation_level).astype(np.float32)
+        return cls(
+            frame.image, frame.depth, frame.normals, depth, clipped, np.linalg.inv(frame.pose)
+        )
 
 
 @dataclasses.dataclass(frozen=True)
 class Observation:
     """N points seen in one frame: corners (N, 4, ...) as in `Tracks`, values (N, 3),
-    whether each counts (N,) and its least-squares weight (N,)."""
+    whether each counts (N,: seen, no clipped channel), which of its channels count (N, 3:
+    seen, that channel not clipped at any of the four corners) and its least-squares weight
+    (N,; 0 where no channel counts)."""
 
     corner_point: np.ndarray
     corner_normal: np.ndarray
@@ -163,6 +171,7 @@ class Observation:
     corner_weight: np.ndarray
     values: np.ndarray
     seen: np.ndarray
+    channel_seen: np.ndarray
     weight: np.ndarray
 
 
@@ -212,6 +221,8 @@ def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float
     corner_weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1)
     corner_point, corner_normal = _corners(camera, data, rows, cols)
     seen &= np.all(np.isfinite(corner_point) & np.isfinite(corner_normal), axis=(-2, -1))
+    # A channel counts where none of the four corners is clipped in it.
+    channel_seen = seen[:, None] & (_sample(data.clipped, u, v) == 0)
     return _masked(
         Observation(
             corner_point,
@@ -219,7 +230,8 @@ def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float
             np.stack([cols, rows], -1).astype(float),
             corner_weight,
             values,
-            seen,
+            np.all(channel_seen, axis=-1),
+            channel_seen,
             observation_weight(np.where(seen, spread, 0.0)),
         )
     )
@@ -229,8 +241,8 @@ def observe_own(camera: Camera, data: FrameData, rows, cols, saturation_level=1.
     """The anchors' own observations: their pixels, exactly (one corner of weight 1)."""
     point, normal = _corners(camera, data, rows, cols)
     values = data.image[rows, cols].astype(np.float64)
-    seen = np.all(values < saturation_level, axis=-1) & np.all(np.isfinite(point), axis=-1)
-    seen &= np.all(np.isfinite(normal), axis=-1)
+    geometry = np.all(np.isfinite(point), axis=-1) & np.all(np.isfinite(normal), axis=-1)
+    channel_seen = geometry[:, None] & (values < saturation_level)
     repeat = lambda a: np.repeat(a[:, None], 4, axis=1)  # noqa: E731
     weight = np.zeros((len(rows), 4))
     weight[:, 0] = 1
@@ -241,16 +253,17 @@ def observe_own(camera: Camera, data: FrameData, rows, cols, saturation_level=1.
             repeat(np.stack([cols, rows], -1).astype(float)),
             weight,
             values,
-            seen,
+            np.all(channel_seen, axis=-1),
+            channel_seen,
             np.ones(len(rows)),
         )
     )
 
 
 def _masked(obs: Observation) -> Observation:
-    """`obs` with the observations that do not count set to the harmless geometry, in place
-    (only those rows are written: most observations count)."""
-    hidden = ~obs.seen
+    """`obs` with the observations of which no channel counts set to the harmless geometry,
+    in place (only those rows are written: most observations count)."""
+    hidden = ~np.any(obs.channel_seen, axis=-1)
     obs.corner_point[hidden] = _AHEAD
     obs.corner_normal[hidden] = _FACING
     obs.corner_pixel[hidden] = 0.0
@@ -308,8 +321,9 @@ def follow(
                 "corner_pixel": stack("corner_pixel"),
                 "corner_weight": stack("corner_weight"),
                 "values": stack("values"),
+                # The BRDF fit drops an observation with any clipped channel.
                 "observed": stack("seen"),
-                "weight": stack("weight"),
+                "weight": stack("weight") * stack("seen"),
                 "frame": np.where(stack("seen"), frames[None, :], -1),
                 "anchor_frame": np.full(len(rows), index),
                 "anchor_row": rows,

@@ -395,7 +395,7 @@ def _albedo_of(
     camera = capture.camera
     world = world_points(camera, capture.frames[index], rows, cols)
     numerator = np.zeros((len(rows), 3))
-    denominator = np.zeros(len(rows))
+    denominator = np.zeros((len(rows), 3))
     cosine = np.zeros(len(rows))
     seen_count = np.zeros(len(rows), int)
     # Padded to a whole chunk: one compilation for every frame and chunk.
@@ -417,14 +417,17 @@ def _albedo_of(
             as_jax(obs.values),
         )
         num, den = np.asarray(num)[: len(rows)], np.asarray(den)[: len(rows)]
-        numerator += num * obs.weight[:, None]
-        denominator += den * obs.weight
-        cosine += den * obs.seen
-        seen_count += obs.seen
-    enough = (cosine > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
+        # Per channel: a channel clipped in this view says nothing of that channel's albedo.
+        weight = obs.weight[:, None] * obs.channel_seen
+        numerator += num * weight
+        denominator += den[:, None] * weight
+        seen = np.any(obs.channel_seen, axis=-1)
+        cosine += den * seen
+        seen_count += seen
+    enough = (cosine[:, None] > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        albedo = np.maximum(numerator / denominator[:, None], 0)
-    return np.where(enough[:, None], albedo, np.nan), seen_count
+        albedo = np.maximum(numerator / denominator, 0)
+    return np.where(enough, albedo, np.nan), seen_count
 
 
 def albedo_maps(
@@ -444,9 +447,11 @@ def albedo_maps(
     Every pixel with depth and a normal is followed into the frames that see it (its
     `neighbours` nearest, all when None; see `ctjax._tracks`); its albedo is the weighted
     least-squares one over those observations with the global lobes subtracted, clamped at
-    0. NaN where no observation counts (clipped in its own frame and seen in no other) or
-    the point is grazing in every view (N.L below `MIN_COSINE`). A point seen in one frame
-    only gets the albedo of that one observation, given the fitted BRDF.
+    0, per channel: an observation counts for the channels it has not clipped. NaN in a
+    channel where no observation counts for it (clipped there in its own frame and in every
+    other that sees it), and in all three where the point is grazing in every view (N.L
+    below `MIN_COSINE`). A point seen in one frame only gets the albedo of that one
+    observation, given the fitted BRDF.
     """
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
@@ -478,7 +483,7 @@ def albedo_maps(
         full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
         full[rows, cols] = albedo
         count_map = np.zeros((camera.height, camera.width), int)
-        count_map[rows, cols] = np.where(np.isfinite(albedo[:, 0]), seen_count, 0)
+        count_map[rows, cols] = np.where(np.any(np.isfinite(albedo), -1), seen_count, 0)
         maps.append(full)
         views.append(count_map)
     return maps, views

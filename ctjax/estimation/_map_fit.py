@@ -106,10 +106,10 @@ def fit_albedo_map(
         ):
             raise CtjaxError("the BRDF fit with an albedo map did not produce finite estimates")
     maps, counts = albedo_maps(capture, fit.brdf, per_point=per_point, neighbours=neighbours)
-    finite = np.concatenate([m[np.all(np.isfinite(m), axis=-1)] for m in maps])
-    if len(finite) == 0:
-        raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated")
-    median = np.median(finite, axis=0)
+    estimated = np.concatenate([m[np.any(np.isfinite(m), axis=-1)] for m in maps])
+    if not np.all(np.any(np.isfinite(estimated), axis=0)):
+        raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated in some channel")
+    median = np.nanmedian(estimated, axis=0)  # per channel: NaN where that channel clipped
     weights = np.asarray(fit.weights).copy()
     weights[per_point] = median
     brdf = fit.brdf.with_weights(weights.astype(np.asarray(fit.weights).dtype))
