@@ -109,11 +109,13 @@ def require_poses(capture) -> None:
         )
 
 
-def partners(capture, index: int, count: int | None) -> list[int]:
+def partners(capture, index: int, count: int | None, among=None) -> list[int]:
     """The frames a point of frame `index` is looked for in: itself first, then the `count`
-    others nearest in camera position (all of them when `count` is None)."""
+    others nearest in camera position (all of them when `count` is None), from the frames
+    `among` (all by default)."""
     centre = capture.frames[index].pose[:3, 3]
-    others = [i for i in range(len(capture.frames)) if i != index]
+    among = range(len(capture.frames)) if among is None else among
+    others = [i for i in among if i != index]
     distance = [float(np.linalg.norm(capture.frames[i].pose[:3, 3] - centre)) for i in others]
     order = [others[i] for i in np.argsort(distance, kind="stable")]
     return [index, *(order if count is None else order[:count])]
@@ -286,16 +288,21 @@ def follow(
     neighbours: int | None = DEFAULT_NEIGHBOURS,
     tolerance: float = DEFAULT_TOLERANCE,
     saturation_level: float = 1.0,
+    frames=None,
 ) -> Tracks:
     """Tracks of the anchor pixels `anchors[f] = (rows, cols)` of every frame f (pixels with
     depth and a normal), followed into each frame's `neighbours` nearest frames (all when
-    None). Every frame needs depth, normals and a pose (`require_poses`)."""
+    None). With `frames` (indices), only those frames' anchors, followed into those frames
+    only (a held-out split). Every frame needs depth, normals and a pose (`require_poses`)."""
     require_poses(capture)
     camera = capture.camera
-    count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
-    data = [FrameData.of(f, saturation_level) for f in capture.frames]
+    frames = list(range(len(capture))) if frames is None else sorted(frames)
+    count = len(frames) - 1 if neighbours is None else min(neighbours, len(frames) - 1)
+    data = {i: FrameData.of(capture.frames[i], saturation_level) for i in frames}
     parts = []
     for index, (rows, cols) in enumerate(anchors):
+        if index not in data:
+            continue
         frame = capture.frames[index]
         rows, cols = np.asarray(rows, int), np.asarray(cols, int)
         keep = frame.geometry_mask[rows, cols]
@@ -307,13 +314,13 @@ def follow(
             observe_own(camera, data[index], rows, cols, saturation_level)
             if other == index
             else observe(camera, data[other], world, tolerance)
-            for other in partners(capture, index, count)
+            for other in partners(capture, index, count, frames)
         ]
 
         def stack(name, slots=slots):
             return np.stack([getattr(o, name) for o in slots], axis=1)
 
-        frames = np.array(partners(capture, index, count))
+        seen_in = np.array(partners(capture, index, count, frames))
         parts.append(
             {
                 "corner_point": stack("corner_point"),
@@ -324,7 +331,7 @@ def follow(
                 # The BRDF fit drops an observation with any clipped channel.
                 "observed": stack("seen"),
                 "weight": stack("weight") * stack("seen"),
-                "frame": np.where(stack("seen"), frames[None, :], -1),
+                "frame": np.where(stack("seen"), seen_in[None, :], -1),
                 "anchor_frame": np.full(len(rows), index),
                 "anchor_row": rows,
                 "anchor_col": cols,

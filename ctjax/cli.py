@@ -269,12 +269,17 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
         return _calibrate_light_field(args)
     capture = load_capture(args.capture)
     falloff = _falloff(args.falloff, capture)
-    result = calibrate_near_light(capture, calibration=args.calib, falloff=falloff)
+    result = calibrate_near_light(
+        capture, calibration=args.calib, falloff=falloff, albedo=args.albedo
+    )
     summary = result.to_json()
     atomic_write_json(args.json, summary)
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
+    if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
+        offset += " +- " + ", ".join(f"{v:.2f}" for v in summary["offset_stderr_mm"])
     print(
-        f"light offset ({offset}) mm, falloff {'+'.join(summary['falloff']) or 'none'}; "
+        f"light offset ({offset}) mm, falloff {'+'.join(summary['falloff']) or 'none'}, "
+        f"albedo {summary['albedo']}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
@@ -546,6 +551,12 @@ def _light_command(commands) -> None:
         default="optimistix",
         help="field: the per-pixel LM solver, optimistix's (the reference) or a batched 2x2 "
         "one written out (closed-form: several times faster)",
+    )
+    light.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="near: one albedo per surface point (map; the default when every frame has "
+        "depth and a pose) or one for the capture (uniform, the paper's)",
     )
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     light.set_defaults(run=_cmd_calibrate_light)

@@ -13,6 +13,7 @@ import numpy as np
 
 from ._errors import CtjaxError
 from ._result import Estimate
+from .fitting._albedo_map import TrackSamples, heldout_map_rmse
 from .fitting._fit import pixel_predict, rmse_levels
 from .io import Capture
 from .observations import Observations, PixelSamples
@@ -54,12 +55,34 @@ def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
     of a smooth image quantised to 8 bits takes nearly integer values.
     """
     obs = Observations.of(capture)
-    differences = []
+    residuals = []
     for index in frames:
         frame = obs.frames[index]
         rendered = np.asarray(model.render(obs.camera, frame.normals, frame.depth))
-        residual = (rendered - frame.image) * 255
-        usable = obs.usable[index]
+        residuals.append((rendered - frame.image, obs.usable[index]))
+    return _second_differences_floor(residuals)
+
+
+def noise_floor_map_levels(capture, frames: Sequence[int], model) -> float:
+    """The noise floor (8-bit levels) on textured tissue: `noise_floor_levels` on residual
+    images under the albedo map (each pixel's albedo fitted to every frame that sees it,
+    `ctjax.estimation.map_residuals`), so that the texture is not counted as noise."""
+    from .estimation._albedo_map import map_residuals
+    from .fitting._albedo_map import diffuse_lobe
+
+    obs = Observations.of(capture)
+    images = map_residuals(
+        obs.capture, model.brdf, model.light, frames, per_point=diffuse_lobe(model)
+    )
+    return _second_differences_floor([(r, np.all(np.isfinite(r), axis=-1)) for r in images])
+
+
+def _second_differences_floor(residuals) -> float:
+    """The noise (8-bit levels) of residual images [(H, W, 3), usable (H, W)] (linear
+    units) from their second differences (see `noise_floor_levels`)."""
+    differences = []
+    for residual, usable in residuals:
+        residual = np.where(usable[..., None], residual, 0.0) * 255
         for r, u in ((residual, usable), (np.swapaxes(residual, 0, 1), usable.T)):
             second = r[:-2] - 2 * r[1:-1] + r[2:]
             both = u[:-2] & u[1:-1] & u[2:]
@@ -142,6 +165,77 @@ class HeldOut:
         return dataclasses.replace(
             fit,
             rmse=rmse,
+            noise_floor=self.noise_floor(fit.model) if noise_floor else fit.noise_floor,
+            frames=self.frames,
+        )
+
+
+@dataclasses.dataclass
+class HeldOutTracks:
+    """The held-out protocol with an albedo map: surface points of the calibration frames
+    followed within the calibration frames (`train`, what models are fitted on) and points
+    of the held-out frames followed into every frame (`test`). A model is judged on the
+    held-out frames' views of `test` (`judged`): each predicted with the model fixed and the
+    point's albedo (a nuisance) fitted to its other views (`heldout_map_rmse`), so what is
+    judged is how the model explains the change of a point's shading from view to view,
+    never the texture, and no view is fitted to itself."""
+
+    capture: Observations
+    calibration: list[int]
+    heldout: list[int]
+    train: TrackSamples
+    test: TrackSamples
+    judged: np.ndarray
+
+    @classmethod
+    def split(
+        cls,
+        capture: "Capture | Observations",
+        calibration: int | None = None,
+        *,
+        max_points: int | None = 12_000,
+        heldout_points: int | None = 20_000,
+        seed: int = 0,
+    ) -> "HeldOutTracks":
+        """Split `capture` (`calibration`: the number of calibration frames, default 60%);
+        at most `max_points` and `heldout_points` tracked points (anchored near S and as
+        many elsewhere, see `Observations.tracks`)."""
+        obs = Observations.of(capture)
+        calib, heldout = split_frames(len(obs), calibration, source=obs.root)
+        if len(calib) < 2:
+            raise CtjaxError(
+                f"{obs.root}: a fit with an albedo map needs at least 2 calibration frames (a "
+                f"point's albedo is one unknown for its views); got {len(calib)}"
+            )
+        train = obs.tracks(frames=calib, max_points=max_points, seed=seed)
+        test = obs.tracks(max_points=heldout_points, seed=seed + 1, anchor_frames=heldout)
+        judged = np.isin(test.frame, heldout) & test.observed
+        return cls(obs, calib, heldout, TrackSamples.of(train), TrackSamples.of(test), judged)
+
+    @property
+    def frames(self) -> dict[str, list[int]]:
+        return {"calibration": self.calibration, "heldout": self.heldout}
+
+    def heldout_rmse(self, model) -> float:
+        """RMSE (8-bit levels) of `model` on the held-out views (see the class doc)."""
+        return heldout_map_rmse(model, self.test, self.judged)
+
+    def rmse(self, model) -> dict[str, float]:
+        return {
+            "calibration": heldout_map_rmse(model, self.train),
+            "heldout": self.heldout_rmse(model),
+        }
+
+    def noise_floor(self, model) -> float:
+        """The noise floor (8-bit levels) of the held-out frames under the albedo map."""
+        return noise_floor_map_levels(self.capture, self.heldout, model)
+
+    def judge(self, fit: Estimate, *, noise_floor: bool = True) -> Estimate:
+        """`fit` (fitted on `train`) with both RMSEs (each view predicted from the
+        albedo of the point's other views), the noise floor and its frames."""
+        return dataclasses.replace(
+            fit,
+            rmse=self.rmse(fit.model),
             noise_floor=self.noise_floor(fit.model) if noise_floor else fit.noise_floor,
             frames=self.frames,
         )

@@ -10,6 +10,7 @@ public estimator accepts a `Capture` or its `Observations`.
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -249,6 +250,8 @@ class Observations:
         neighbours: int | None = DEFAULT_NEIGHBOURS,
         tolerance: float | None = None,
         seed: int = 0,
+        frames: Sequence[int] | None = None,
+        anchor_frames: Sequence[int] | None = None,
     ):
         """Surface points followed across frames (`ctjax._tracks.Tracks`): the albedo map's
         samples. Anchored at every pixel with geometry within `radius_px` of S in each frame
@@ -256,7 +259,9 @@ class Observations:
         measured, plus as many pixels drawn at random from the rest; at most `max_points`
         in all (a random subset, deterministic for a seed). Each is followed into its
         frame's `neighbours` nearest frames (all by default) within the relative depth
-        `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`)."""
+        `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`). `frames`: only these frames'
+        points, followed into these frames only (one side of a held-out split);
+        `anchor_frames`: only these frames' points, followed into every frame."""
         import cv2
 
         from . import _tracks
@@ -264,8 +269,13 @@ class Observations:
         _tracks.require_poses(self.capture)
         rng = np.random.default_rng(seed)
         anchors = []
-        for frame, s in zip(self.capture.frames, self.sets, strict=True):
+        chosen_frames = range(len(self)) if frames is None else frames
+        if anchor_frames is not None:
+            chosen_frames = [i for i in chosen_frames if i in anchor_frames]
+        for index, (frame, s) in enumerate(zip(self.capture.frames, self.sets, strict=True)):
             geometry = frame.geometry_mask
+            if index not in chosen_frames:
+                geometry = np.zeros_like(geometry)
             if s.specular.any():
                 distance = cv2.distanceTransform((~s.specular).astype(np.uint8), cv2.DIST_L2, 5)
                 near = geometry & (distance <= radius_px)
@@ -282,7 +292,9 @@ class Observations:
                 (r[mask], c[mask]) for r, c in anchors for mask in [rng.random(len(r)) < keep]
             ]
         options = {} if tolerance is None else {"tolerance": tolerance}
-        return _tracks.follow(self.capture, anchors, neighbours=neighbours, **options)
+        return _tracks.follow(
+            self.capture, anchors, neighbours=neighbours, frames=frames, **options
+        )
 
     def ring(self, dtype=None) -> ShadingSamples:
         """Every frame's ring S~ under the paper's light (L = V, unit irradiance): the BnB's

@@ -30,6 +30,10 @@ class Scene:
     distance_mm: float = 68.0
     noise_levels: float = 1.0
     texture_strength: float = 1.0
+    # The light: at the camera centre (the paper's), or a point light at this offset (mm,
+    # camera frame), with inverse-square falloff normalised at `inverse_square_mm` if given.
+    light_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inverse_square_mm: float | None = None
 
 
 def _surface(seed: int, distance: float):
@@ -135,16 +139,29 @@ def _cast(height, pose, fx, fy, cx, cy, width, h_px, distance):
 
 
 def _shade(scene: Scene, depth, normal, albedo, fx, fy, cx, cy):
-    """The paper's eq. (1)-(2), light at the camera centre (L = V)."""
+    """The paper's eq. (1)-(2) with the light at `scene.light_offset_mm`:
+    E (rho/pi N.L + F D(N.H) / (pi N.L N.V)), E the inverse-square factor (or 1)."""
     h, w = depth.shape
     u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     point = np.stack([(u - cx) / fx * depth, (v - cy) / fy * depth, depth], -1)
-    view = -point / np.linalg.norm(point, axis=-1, keepdims=True)
-    cos = np.clip(np.sum(normal * view, -1), 1e-6, 1)  # N.L = N.V = N.H
+    unit = lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True)  # noqa: E731
+    view = unit(-point)
+    to_light = np.asarray(scene.light_offset_mm, float) - point
+    light = unit(to_light)
+    half = unit(light + view)
+    n_l, n_v = np.sum(normal * light, -1), np.sum(normal * view, -1)
+    lit = (n_l > 0) & (n_v > 0)
+    cos = np.clip(np.sum(normal * half, -1), 1e-6, 1)
     tan2 = (1 - cos**2) / cos**2
     beckmann = np.exp(-tan2 / scene.sigma**2) / (scene.sigma**2 * cos**4)
-    specular = beckmann / (np.pi * cos * cos)
-    return albedo * (cos / np.pi)[..., None] + np.asarray(scene.F) * specular[..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        specular = np.where(lit, beckmann / (np.pi * n_l * n_v), 0.0)
+    diffuse = np.where(lit, n_l / np.pi, 0.0)
+    irradiance = np.ones_like(depth)
+    if scene.inverse_square_mm is not None:
+        irradiance = scene.inverse_square_mm**2 / np.sum(to_light * to_light, -1)
+    shading = albedo * diffuse[..., None] + np.asarray(scene.F) * specular[..., None]
+    return irradiance[..., None] * shading
 
 
 def render_capture(

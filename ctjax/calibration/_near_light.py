@@ -19,16 +19,24 @@ import optimistix as optx
 from .._errors import CtjaxError
 from .._json import falloff_json
 from .._result import Estimate
+from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
     LEVENBERG_MARQUARDT,
     ShadingModel,
     fit_model,
+    fit_model_map,
     paper_model,
     pixel_columns,
     pixel_predict,
     roughness_variants,
 )
-from ..heldout import HeldOut, median_depth_mm, simplest_within
+from ..heldout import (
+    SIMPLEST_WITHIN,
+    HeldOut,
+    HeldOutTracks,
+    median_depth_mm,
+    simplest_within,
+)
 from ..io import Capture
 from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
 from ..observations import Observations
@@ -57,35 +65,7 @@ def _starts(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
     return starts
 
 
-def calibrate_near_light(
-    capture: "Capture | Observations",
-    *,
-    calibration: int | None = None,
-    falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
-    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
-    max_samples: int = 12_000,
-    heldout_samples: int = 40_000,
-    max_steps: int = 100,
-    seed: int = 0,
-) -> Estimate:
-    """Fit the near-light model on the calibration frames; report errors on held-out frames.
-
-    `falloff`: the light's falloff factors (e.g. `(InverseSquare(70.0),)`), or several
-    such tuples to choose from; by default every subset of `falloff_choices` is fitted and
-    the simplest one within 1% of the lowest held-out RMSE is kept. `solver`: the
-    least-squares solver (optimistix's interface).
-
-    Returns an `Estimate` of the `ShadingModel` with its `PointLight`; `details` holds the
-    chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
-    RMSE of every falloff set tried.
-    """
-    started = time.perf_counter()
-    capture = Observations.of(capture)
-    if any(f.depth is None for f in capture.frames):
-        raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
-    heldout = HeldOut.split(
-        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
-    )
+def _choices(capture, falloff) -> list[tuple[AbstractFalloff, ...]]:
     if falloff is None:
         choices = falloff_choices(capture)
     elif all(isinstance(f, AbstractFalloff) for f in falloff):
@@ -96,6 +76,56 @@ def calibrate_near_light(
         for factor in choice:
             if not isinstance(factor, AbstractFalloff):
                 raise CtjaxError(f"a falloff must be an AbstractFalloff, got {factor!r}")
+    return choices
+
+
+def calibrate_near_light(
+    capture: "Capture | Observations",
+    *,
+    calibration: int | None = None,
+    falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
+    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
+    albedo: str | None = None,
+    max_samples: int = 12_000,
+    heldout_samples: int = 40_000,
+    max_steps: int = 100,
+    seed: int = 0,
+) -> Estimate:
+    """Fit the near-light model on the calibration frames; report errors on held-out frames.
+
+    `falloff`: the light's falloff factors (e.g. `(InverseSquare(70.0),)`), or several
+    such tuples to choose from; by default every subset of `falloff_choices` is fitted and
+    the simplest one within 1% of the lowest held-out RMSE is kept. `solver`: the
+    least-squares solver (optimistix's interface). `albedo`: `"map"` (one albedo per surface
+    point, eliminated in closed form: textured tissue; the default when every frame has
+    depth and a pose, see `near_light_map`) or `"uniform"` (one albedo, the paper's model).
+
+    Returns an `Estimate` of the `ShadingModel` with its `PointLight`; `details` holds the
+    chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
+    RMSE of every falloff set tried.
+    """
+    capture = Observations.of(capture)
+    if any(f.depth is None for f in capture.frames):
+        raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
+    albedo = default_albedo(capture) if albedo is None else albedo
+    if albedo not in ALBEDO_CHOICES:
+        raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
+    if albedo == "map":
+        return near_light_map(
+            capture,
+            calibration=calibration,
+            falloff=falloff,
+            solver=solver,
+            max_points=max_samples,
+            heldout_points=heldout_samples // 2,
+            max_steps=max_steps,
+            seed=seed,
+        )
+    started = time.perf_counter()
+    heldout = HeldOut.split(
+        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
+    )
+    choices = _choices(capture, falloff)
     fits = [
         fit_model(
             _starts(choice),
@@ -118,7 +148,99 @@ def calibrate_near_light(
         "falloff": falloff_json(fit.model.light),
         "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
     }
+    fit.details["albedo"] = "uniform"
     fit.seconds = {"total": time.perf_counter() - started}
     if not fit.converged:
         fit.warnings.append(f"the solver did not converge: {fit.status.message}")
     return fit
+
+
+def _at_the_lens(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
+    light = PointLight(jnp.zeros(3), falloff=tuple(falloff))
+    return roughness_variants(eqx.tree_at(lambda m: m.light, paper_model(1.0, 0.3, 0.2), light))
+
+
+def near_light_map(
+    capture: "Capture | Observations",
+    *,
+    calibration: int | None = None,
+    falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
+    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
+    max_points: int = 12_000,
+    heldout_points: int = 20_000,
+    max_steps: int = 100,
+    refine: int = 3,
+    seed: int = 0,
+) -> Estimate:
+    """The near-light model on textured tissue: one albedo per surface point.
+
+    Surface points of the calibration frames are followed across them
+    (`HeldOutTracks`); for each falloff set, LM runs over the light's offset, the falloff's
+    and the BRDF's nonlinear parameters from the `refine` best of several starting offsets
+    and roughnesses, every point's albedo and F_tilde eliminated in closed form
+    (`fit_model_map`). The falloff set is chosen on held-out frames (`heldout_map_rmse`).
+
+    Whether the data show an offset at all is decided twice: the offset's standard error
+    (from the Jacobian of the projected residuals at the solution, in the capture's length
+    unit) and the held-out error of the same model with the light at the lens. If the
+    light at the lens explains the held-out frames as well (within 1%), or the offset is
+    within 2 standard errors of 0, the estimate is the light at the lens, reported with
+    `offset_bound_mm` (the fitted offset's norm plus 2 standard errors): the data cannot
+    tell an offset below it from none.
+    """
+    started = time.perf_counter()
+    capture = Observations.of(capture)
+    heldout = HeldOutTracks.split(
+        capture, calibration, max_points=max_points, heldout_points=heldout_points, seed=seed
+    )
+    choices = _choices(capture, falloff)
+
+    def fit(starts, freeze=()):
+        return fit_model_map(
+            starts, heldout.train, solver=solver, max_steps=max_steps, refine=refine, freeze=freeze
+        )
+
+    fits = [fit(_starts(choice)) for choice in choices]
+    errors = [heldout.heldout_rmse(f.model) for f in fits]
+    chosen = simplest_within(choices, errors)
+    offset_fit = heldout.judge(fits[chosen], noise_floor=False)
+    if not np.isfinite(offset_fit.heldout_rmse):
+        raise CtjaxError("the near-light fit did not produce finite estimates")
+    offset = np.asarray(offset_fit.model.light.position_mm, float)
+    stderr = np.asarray(offset_fit.details["stderr"].get("light.position_mm", [np.inf] * 3))
+    lens_fit = heldout.judge(
+        fit(_at_the_lens(choices[chosen]), freeze=("light.position_mm",)), noise_floor=False
+    )
+    significant = bool(np.all(np.isfinite(stderr)) and np.linalg.norm(offset / stderr) > 2)
+    better = offset_fit.heldout_rmse < (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse
+    detected = significant and better
+    result = offset_fit if detected else lens_fit
+    result.noise_floor = heldout.noise_floor(result.model)
+    result.details |= {
+        "model": "near",
+        "albedo": "map",
+        "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
+        "falloff": falloff_json(result.model.light),
+        "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
+        "offset_detected": detected,
+        "offset_fitted_mm": offset.tolist(),
+        "offset_stderr_mm": stderr.tolist(),
+        "offset_heldout_rmse": offset_fit.heldout_rmse,
+        "lens_heldout_rmse": lens_fit.heldout_rmse,
+        "length_unit": "mm",
+        "rmse_note": "each view of a tracked point predicted with the model fixed and the "
+        "point's albedo fitted to its other views (held-out: the held-out frames' views)",
+    }
+    if not detected:
+        bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
+        result.details["offset_bound_mm"] = bound
+        result.warnings.append(
+            f"no light offset detected: the light at the lens explains the held-out frames "
+            f"as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} levels); "
+            f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
+            f"mm: an offset below {bound:.2g} mm cannot be told from none"
+        )
+    result.seconds = {"total": time.perf_counter() - started}
+    if not result.converged:
+        result.warnings.append(f"the solver did not converge: {result.status.message}")
+    return result

@@ -11,8 +11,10 @@ from ._brdf import BRDFFit as BRDFFit
 from ._brdf import design_columns as design_columns
 from ._brdf import design_matrix as design_matrix
 from ._brdf import fit_brdf as fit_brdf
+from ._capture_fit import ALBEDO_CHOICES as ALBEDO_CHOICES
 from ._capture_fit import MaskOptions as MaskOptions
 from ._capture_fit import capture_sets as capture_sets
+from ._capture_fit import default_albedo as default_albedo
 from ._capture_fit import fit_capture as fit_capture
 from ._closed_form import nnls as nnls
 from ._closed_form import nnls_columns as nnls_columns

@@ -363,8 +363,9 @@ def fit_brdf_map(
 def _accumulate(
     brdf, light, per_point, corner_point, corner_normal, corner_pixel, corner_weight, values
 ):
-    """One frame's contribution to the albedo normal equations of N points: sum a (I - rest)
-    and sum a^2 per channel (corners (N, 4, ...), `corner_weight` 0 where not observed)."""
+    """One frame's view of N points: the diffuse column `a` (N,) and the global lobes'
+    prediction `rest` (N, 3), for the albedo normal equations (sum a (I - rest), sum a^2);
+    corners (N, 4, ...), `corner_weight` 0 where not observed."""
     samples = _shading_samples(
         light,
         corner_point.reshape(-1, 3),
@@ -379,7 +380,7 @@ def _accumulate(
     a = columns[:, per_point]
     global_ = jnp.arange(columns.shape[-1]) != per_point
     rest = (columns * global_) @ brdf.weights
-    return a[:, None] * (values - rest), a * a
+    return a, rest
 
 
 def _padded(array: np.ndarray, padding: int, dtype) -> jax.Array:
@@ -391,13 +392,15 @@ def _albedo_of(
     capture, data, brdf, light, per_point, index, rows, cols, count, tolerance, dtype, chunk
 ):
     """Albedo (N, 3; NaN where not estimated) and view count (N,) of pixels of frame
-    `index`, from all the frames that see them (see `albedo_maps`)."""
+    `index`, from all the frames that see them (see `albedo_maps`), and the own frame's
+    residual (N, 3) under the albedo of the other views alone (NaN where they have none)."""
     camera = capture.camera
     world = world_points(camera, capture.frames[index], rows, cols)
     numerator = np.zeros((len(rows), 3))
     denominator = np.zeros((len(rows), 3))
     cosine = np.zeros(len(rows))
     seen_count = np.zeros(len(rows), int)
+    own = None
     # Padded to a whole chunk: one compilation for every frame and chunk.
     as_jax = functools.partial(_padded, padding=chunk - len(rows), dtype=dtype)
     for other in partners(capture, index, count):
@@ -406,7 +409,7 @@ def _albedo_of(
             if other == index
             else observe(camera, data[other], world, tolerance)
         )
-        num, den = _accumulate(
+        a, rest = _accumulate(
             brdf,
             light,
             per_point,
@@ -416,18 +419,27 @@ def _albedo_of(
             as_jax(obs.corner_weight),
             as_jax(obs.values),
         )
-        num, den = np.asarray(num)[: len(rows)], np.asarray(den)[: len(rows)]
+        a, rest = np.asarray(a)[: len(rows)], np.asarray(rest)[: len(rows)]
         # Per channel: a channel clipped in this view says nothing of that channel's albedo.
         weight = obs.weight[:, None] * obs.channel_seen
-        numerator += num * weight
-        denominator += den[:, None] * weight
+        numerator += a[:, None] * (obs.values - rest) * weight
+        denominator += (a * a)[:, None] * weight
+        if other == index:
+            own = (a, rest, obs.values, weight, a[:, None] * (obs.values - rest) * weight)
         seen = np.any(obs.channel_seen, axis=-1)
-        cosine += den * seen
+        cosine += a * a * seen
         seen_count += seen
     enough = (cosine[:, None] > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        albedo = np.maximum(numerator / denominator, 0)
-    return np.where(enough, albedo, np.nan), seen_count
+        albedo = np.where(enough, np.maximum(numerator / denominator, 0), np.nan)
+        # The own observation against the albedo of the other views alone.
+        a, rest, values, weight, own_numerator = own
+        others = denominator - (a * a)[:, None] * weight
+        enough_others = enough & (others > 1e-3 * denominator)
+        albedo_others = np.maximum((numerator - own_numerator) / others, 0)
+        residual = values - rest - a[:, None] * albedo_others
+        residual = np.where(enough_others & (weight > 0), residual, np.nan)
+    return albedo, seen_count, residual
 
 
 def albedo_maps(
@@ -466,7 +478,7 @@ def albedo_maps(
         seen_count = np.zeros(len(rows), int)
         for start in range(0, len(rows), chunk):
             part = slice(start, start + chunk)
-            albedo[part], seen_count[part] = _albedo_of(
+            albedo[part], seen_count[part], _ = _albedo_of(
                 capture,
                 data,
                 brdf,
@@ -487,3 +499,48 @@ def albedo_maps(
         maps.append(full)
         views.append(count_map)
     return maps, views
+
+
+def map_residuals(
+    capture,
+    brdf,
+    light: AbstractLight = _PAPER_LIGHT,
+    frames=None,
+    *,
+    per_point: int = 0,
+    neighbours: int | None = DEFAULT_NEIGHBOURS,
+    dtype=None,
+):
+    """Residual images (H, W, 3; linear units, NaN where not usable) of `frames` (all by
+    default) under the albedo map, each pixel against the albedo fitted to the OTHER frames
+    that see it (`albedo_maps` without its own view): its own noise is then not partly
+    fitted away (which made the noise floor 14% low), and the other views' noise, averaged
+    and interpolated, adds little. NaN where no other view counts."""
+    dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
+    camera = capture.camera
+    data = [FrameData.of(f) for f in capture.frames]
+    count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
+    chunk = min(_MAP_CHUNK, camera.width * camera.height)
+    out = []
+    for index in range(len(capture)) if frames is None else frames:
+        rows, cols = np.nonzero(capture.frames[index].geometry_mask)
+        image = np.full((camera.height, camera.width, 3), np.nan)
+        for start in range(0, len(rows), chunk):
+            part = slice(start, start + chunk)
+            _, _, residual = _albedo_of(
+                capture,
+                data,
+                brdf,
+                light,
+                per_point,
+                index,
+                rows[part],
+                cols[part],
+                count,
+                DEFAULT_TOLERANCE,
+                dtype,
+                chunk,
+            )
+            image[rows[part], cols[part]] = residual
+        out.append(image)
+    return out

@@ -77,6 +77,53 @@ def _weights_frozen(name: str) -> bool:
 
 
 @eqx.filter_jit
+def projected_cost(model, samples: TrackSamples, per_point: int):
+    """The weighted sum of squared residuals of `model`'s nonlinear parameters with every
+    albedo and the global weights eliminated (what `fit_model_map` minimises)."""
+    _, _, residual = projected_residuals(
+        _columns(model, samples), samples.values, samples.weight, per_point
+    )
+    return jnp.sum(residual * residual)
+
+
+@eqx.filter_jit
+def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
+    """Weighted sum of squared residuals and sum of weights of the `judged` observations
+    (P, M), each predicted by `model` (all its parameters fixed) with its point's albedo
+    fitted to the point's OTHER views (per channel, clamped at 0)."""
+    columns = _columns(model, samples)
+    weights = model.brdf.weights
+    w = samples.weight
+    a = columns[per_point]
+    rest = sum(c[..., None] * weights[k] for k, c in enumerate(columns) if k != per_point)
+    target = samples.values - rest
+    s_aa = jnp.sum(w * a * a, axis=1, keepdims=True)  # (P, 1)
+    s_ai = jnp.einsum("pm,pm,pmc->pc", w, a, target)[:, None, :]  # (P, 1, C)
+    others = s_aa - w * a * a  # (P, M): the other views' normal equations
+    other_ai = s_ai - (w * a)[..., None] * target
+    ok = judged & (w > 0) & (others > 1e-6 * jnp.maximum(s_aa, 1e-300))
+    albedo = jnp.maximum(other_ai / jnp.where(ok, others, 1)[..., None], 0)
+    residual = jnp.where(ok[..., None], target - a[..., None] * albedo, 0)
+    channels = samples.values.shape[-1]
+    return jnp.sum(w[..., None] * residual * residual), jnp.sum(jnp.where(ok, w, 0)) * channels
+
+
+def heldout_map_rmse(
+    model, samples: TrackSamples, judged=None, per_point: int | None = None
+) -> float:
+    """RMSE (8-bit levels) of a fitted `model` predicting views it was not fitted on: every
+    `judged` observation (P, M; all observed by default) of a tracked point predicted with
+    all of the model's parameters fixed and the point's albedo (a nuisance) fitted to its
+    other views, never to the view judged. A model that is right gives about the noise
+    (a little more: the albedo is itself estimated; less where bilinear sampling averages
+    the noise). Weighted as in the fit."""
+    per_point = diffuse_lobe(model) if per_point is None else per_point
+    judged = samples.weight > 0 if judged is None else jnp.asarray(judged)
+    ssr, total = _predicted_views(strongly_typed(model), samples, judged, per_point)
+    return 255 * math.sqrt(float(ssr) / float(total)) if float(total) > 0 else math.nan
+
+
+@eqx.filter_jit
 def _least_squares(model, samples, names, per_point, solver, max_steps):
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
@@ -113,6 +160,7 @@ def fit_model_map(
     freeze: Sequence[str] = (),
     solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
     max_steps: int = 100,
+    refine: int | None = None,
 ) -> Estimate:
     """Fit `ShadingModel`s (one or several starts of the same structure) to tracked surface
     points with one albedo per point (the diffuse lobe's weight) and the other lobes' weights
@@ -123,7 +171,11 @@ def fit_model_map(
     Returns an `Estimate` of the best start: the model with its global weights and, in the
     diffuse lobe, the median albedo of the points seen twice or more; `rmse["calibration"]`
     the weighted RMSE (8-bit levels) over the observations; `arrays["track_albedo"]` every
-    point's albedo (P, 3); `details["albedo"] = "map"`.
+    point's albedo (P, 3); `details["albedo"] = "map"`, `details["stderr"]` the standard
+    error of every fitted parameter by name (physical units, from the Jacobian of the
+    projected residuals at the solution: the albedos' uncertainty is accounted for, as the
+    global block of the joint covariance is). With `refine`, LM runs from the `refine`
+    starts of lowest projected cost only (each costs one closed-form projection).
     """
     starts = [starts] if isinstance(starts, eqx.Module) else list(starts)
     for start in starts:
@@ -135,10 +187,14 @@ def fit_model_map(
     samples = tracks if isinstance(tracks, TrackSamples) else TrackSamples.of(tracks)
     views = np.asarray(jnp.sum(samples.weight > 0, axis=1))
     per_point = diffuse_lobe(starts[0])
+    starts = [strongly_typed(start) for start in starts]
+    if refine is not None and len(starts) > refine:
+        costs = [float(projected_cost(m, samples, per_point)) for m in starts]
+        starts = [starts[i] for i in np.argsort(costs)[:refine]]
     best = None
     for start in starts:
         fitted, albedo, weights, cost, result, steps = _least_squares(
-            strongly_typed(start), samples, tuple(freeze), per_point, solver, max_steps
+            start, samples, tuple(freeze), per_point, solver, max_steps
         )
         cost = float(cost)
         if np.isfinite(cost) and (best is None or cost < best[3]):
@@ -154,14 +210,66 @@ def fit_model_map(
     fitted = eqx.tree_at(lambda m: m.brdf, fitted, brdf)
     total_weight = float(jnp.sum(samples.weight)) * samples.values.shape[-1]
     rmse = 255 * math.sqrt(cost / max(total_weight, 1e-300))
-    parameters = [
-        p.name for p in free_parameters(fitted, lambda n: n in tuple(freeze) or _weights_frozen(n))
-    ]
+    frozen = lambda n: n in tuple(freeze) or _weights_frozen(n)  # noqa: E731
+    parameters = [p.name for p in free_parameters(fitted, frozen)]
+    errors = _standard_errors(fitted, samples, tuple(freeze), per_point)
     return Estimate(
         fitted,
         {"calibration": rmse},
         Status(int(result)),
         cost=cost,
-        details={"steps": steps, "parameters": parameters, "albedo": "map"},
+        details={"steps": steps, "parameters": parameters, "albedo": "map", "stderr": errors},
         arrays={"track_albedo": albedo},
     )
+
+
+@eqx.filter_jit
+def _covariance(model, samples, names, per_point):
+    freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
+    parameters = free_parameters(model, freeze)
+    if not parameters:
+        return jnp.zeros((0, 0)), 0.0, 0
+    values = [jnp.asarray(p.get(model)) for p in parameters]
+    shapes = [v.shape for v in values]
+    flat = jnp.concatenate([v.reshape(-1) for v in values])
+
+    def residuals(theta):
+        parts, start = [], 0
+        for shape in shapes:
+            size = math.prod(shape)
+            parts.append(theta[start : start + size].reshape(shape))
+            start += size
+        fitted = eqx.tree_at(lambda m: [p.get(m) for p in parameters], model, parts)
+        _, _, residual = projected_residuals(
+            _columns(fitted, samples), samples.values, samples.weight, per_point
+        )
+        return residual.reshape(-1)
+
+    jacobian = jax.jacfwd(residuals)(flat)
+    residual = residuals(flat)
+    observed = jnp.sum(samples.weight > 0) * samples.values.shape[-1]
+    points = jnp.sum(jnp.any(samples.weight > 0, axis=1)) * samples.values.shape[-1]
+    globals_ = (len(model.brdf.lobes) - 1) * samples.values.shape[-1]
+    dof = jnp.maximum(observed - points - globals_ - flat.shape[0], 1)
+    information = jacobian.T @ jacobian
+    covariance = jnp.sum(residual * residual) / dof * jnp.linalg.pinv(information, hermitian=True)
+    rank = jnp.linalg.matrix_rank(information)
+    return covariance, rank, flat.shape[0]
+
+
+def _standard_errors(model, samples, names, per_point) -> dict[str, list | float]:
+    """Standard error of every free nonlinear parameter (see `fit_model_map`); inf where
+    the data do not determine it (rank-deficient information)."""
+    freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
+    parameters = free_parameters(model, freeze)
+    covariance, rank, size = _covariance(model, samples, names, per_point)
+    variance = np.abs(np.diagonal(np.asarray(covariance)))
+    if int(rank) < size:
+        variance = np.full(size, np.inf)
+    out, start = {}, 0
+    for p in parameters:
+        count = int(np.size(p.get(model)))
+        value = np.sqrt(variance[start : start + count])
+        out[p.name] = value.tolist() if np.ndim(p.get(model)) else float(value[0])
+        start += count
+    return out
