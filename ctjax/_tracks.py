@@ -154,7 +154,7 @@ class FrameData:
     @classmethod
     def of(cls, frame, saturation_level: float = 1.0) -> "FrameData":
         depth = np.where(frame.geometry_mask, frame.depth, np.nan).astype(np.float32)
-        clipped = (frame.image >= saturation_level).astype(np.float32)
+        clipped = frame.image >= saturation_level  # (H, W, 3) bool
         return cls(
             frame.image, frame.depth, frame.normals, depth, clipped, np.linalg.inv(frame.pose)
         )
@@ -223,8 +223,9 @@ def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float
     corner_weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1)
     corner_point, corner_normal = _corners(camera, data, rows, cols)
     seen &= np.all(np.isfinite(corner_point) & np.isfinite(corner_normal), axis=(-2, -1))
-    # A channel counts where none of the four corners is clipped in it.
-    channel_seen = seen[:, None] & (_sample(data.clipped, u, v) == 0)
+    # A channel counts where none of the four corners (of nonzero weight) is clipped in it.
+    clipped = data.clipped[rows, cols] & (corner_weight > 0)[..., None]  # (N, 4, 3)
+    channel_seen = seen[:, None] & ~np.any(clipped, axis=1)
     return _masked(
         Observation(
             corner_point,

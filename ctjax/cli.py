@@ -245,6 +245,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         capture,
         calibration=args.calib,
         add=tuple(args.add),
+        albedo=args.albedo,
         max_samples=args.max_samples,
         progress=lambda m: print(f"[ctjax diagnose] {m}", flush=True),
     )
@@ -517,8 +518,15 @@ def _diag_command(commands) -> None:
         type=_positive_int,
         default=12_000,
         metavar="N",
-        help="calibration pixels each model is fitted on, a random subset (default %(default)s; "
-        "fewer run faster)",
+        help="calibration pixels (or tracked points, with the albedo map) each model is fitted "
+        "on, a random subset (default %(default)s; fewer run faster)",
+    )
+    diag.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="one albedo per surface point (map; the default when every frame has depth and a "
+        "pose) or one for the capture (uniform, the paper's; then the albedo_texture "
+        "candidate tries the map)",
     )
     diag.set_defaults(run=_cmd_diagnose)
 

@@ -209,8 +209,10 @@ class HeldOutTracks:
             )
         train = obs.tracks(frames=calib, max_points=max_points, seed=seed)
         test = obs.tracks(max_points=heldout_points, seed=seed + 1, anchor_frames=heldout)
-        judged = np.isin(test.frame, heldout) & test.observed
-        return cls(obs, calib, heldout, TrackSamples.of(train), TrackSamples.of(test), judged)
+        samples = TrackSamples.of(test)  # padded: the rows past the tracks are not judged
+        judged = np.zeros(samples.weight.shape, bool)
+        judged[: len(test)] = np.isin(test.frame, heldout) & test.observed
+        return cls(obs, calib, heldout, TrackSamples.of(train), samples, judged)
 
     @property
     def frames(self) -> dict[str, list[int]]:
@@ -231,11 +233,16 @@ class HeldOutTracks:
         return noise_floor_map_levels(self.capture, self.heldout, model)
 
     def judge(self, fit: Estimate, *, noise_floor: bool = True) -> Estimate:
-        """`fit` (fitted on `train`) with both RMSEs (each view predicted from the
-        albedo of the point's other views), the noise floor and its frames."""
+        """`fit` (fitted on `train`) with its held-out RMSE (each held-out view predicted
+        from the albedo of the point's other views; the calibration RMSE stays the fit's own
+        over its observations), the noise floor and its frames."""
+        rmse = {
+            "calibration": fit.rmse.get("calibration", math.nan),
+            "heldout": self.heldout_rmse(fit.model),
+        }
         return dataclasses.replace(
             fit,
-            rmse=self.rmse(fit.model),
+            rmse=rmse,
             noise_floor=self.noise_floor(fit.model) if noise_floor else fit.noise_floor,
             frames=self.frames,
         )

@@ -282,7 +282,10 @@ class Observations:
             else:
                 near = np.zeros_like(geometry)
             rest = np.flatnonzero(geometry & ~near)
-            drawn = rng.choice(rest, min(len(rest), int(near.sum())), replace=False)
+            # As many elsewhere as near S (a frame without S: its share of `max_points`).
+            share = (max_points or DEFAULT_MAX_TRACKS) // (2 * len(self))
+            wanted = int(near.sum()) if near.any() else share
+            drawn = rng.choice(rest, min(len(rest), wanted), replace=False)
             chosen = np.union1d(np.flatnonzero(near), drawn)
             anchors.append(np.unravel_index(chosen, geometry.shape))
         total = sum(len(r) for r, _ in anchors)

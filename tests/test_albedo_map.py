@@ -198,16 +198,27 @@ def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):
     assert lm.arrays["track_albedo"].shape == (len(tracks), 3)
 
 
-def test_the_lm_fitter_with_the_map_refuses_image_effects(textured):
+class _Clip(__import__("ctjax").effects.AbstractImageEffect):
+    """An image effect without an inverse."""
+
+    def __call__(self, rgb):
+        return jnp.minimum(rgb, 0.9)
+
+
+def test_the_lm_fitter_with_the_map_undoes_invertible_image_effects(textured):
     import ctjax
     from ctjax.fitting import fit_model_map, paper_model
     from ctjax.observations import Observations
 
     tracks = Observations.of(load_capture(textured[(2, 0.5)])).tracks(max_points=500)
     model = paper_model()
-    model = ctjax.ShadingModel(model.brdf, model.light, (ctjax.CameraGamma(2.2),))
-    with pytest.raises(ctjax.CtjaxError, match="image effects"):
-        fit_model_map(model, tracks)
+    with pytest.raises(ctjax.CtjaxError, match="no inverse"):
+        fit_model_map(ctjax.ShadingModel(model.brdf, model.light, (_Clip(),)), tracks)
+    # No gamma in the capture: a fitted gamma stays at 1.
+    gamma = ctjax.ShadingModel(model.brdf, model.light, (ctjax.CameraGamma(1.5),))
+    fit = fit_model_map(gamma, tracks)
+    assert fit.converged
+    assert float(fit.model.effects[0].gamma) == pytest.approx(1.0, abs=0.05)
 
 
 @pytest.mark.parametrize(("depth_noise_mm", "tolerance"), [(0.0, 0.01), (0.005, 0.02)])

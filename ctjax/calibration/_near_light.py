@@ -236,7 +236,8 @@ def near_light_map(
         result.details["offset_bound_mm"] = bound
         result.warnings.append(
             f"no light offset detected: the light at the lens explains the held-out frames "
-            f"as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} levels); "
+            f"at least as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} "
+            "levels); "
             f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
             f"mm: an offset below {bound:.2g} mm cannot be told from none"
         )

@@ -13,18 +13,20 @@ import time
 
 import numpy as np
 
-from .._errors import CtjaxError
+from .._errors import CtjaxError, ParameterError
 from .._result import Estimate
+from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
     ShadingModel,
     fit_model,
+    fit_model_map,
     free_parameters,
     paper_model,
     pixel_columns,
     pixel_predict,
     roughness_variants,
 )
-from ..heldout import HeldOut, median_depth_mm
+from ..heldout import HeldOut, HeldOutTracks, median_depth_mm, noise_floor_map_levels
 from ..io import Capture
 from ..observations import Observations
 from ._candidates import CANDIDATES, AbstractCandidate, candidate
@@ -96,25 +98,63 @@ def _new_parameters(base: ShadingModel, fitted: ShadingModel) -> dict:
     return out
 
 
-def _fit(starts, samples, max_steps) -> Estimate:
+def _fit(starts, heldout, max_steps) -> Estimate:
+    """LM from the 3 best of `starts` and their roughness variants: with one albedo per
+    surface point on tracks (`HeldOutTracks`), or one albedo on pixels (`HeldOut`)."""
     starts = [variant for start in starts for variant in roughness_variants(start)]
+    if isinstance(heldout, HeldOutTracks):
+        return fit_model_map(
+            starts, heldout.train, max_steps=max_steps, refine=3, standard_errors=False
+        )
     return fit_model(
-        starts, samples, pixel_predict, columns=pixel_columns, max_steps=max_steps, refine=3
+        starts, heldout.train, pixel_predict, columns=pixel_columns, max_steps=max_steps, refine=3
     )
 
 
 def _base_model(heldout, add, candidates, context, max_steps, say) -> Estimate:
-    say(f"fitting the base model on frames {heldout.calibration} ({len(heldout.train)} pixels)")
+    say(
+        f"fitting the base model ({context['albedo']} albedo) on frames {heldout.calibration} "
+        f"({len(heldout.train.values)} {'points' if context['albedo'] == 'map' else 'pixels'})"
+    )
     base_starts = [paper_model(1.0, 0.3, s) for s in (0.08, 0.2, 0.45)]
-    base = _fit(base_starts, heldout.train, max_steps)
+    base = _fit(base_starts, heldout, max_steps)
     for extra in add:
         effect = candidate(extra, (*candidates, *CANDIDATES)) if isinstance(extra, str) else extra
         starts = effect(base.model, context)
         if not starts:
             raise CtjaxError(f"effect {effect.name} does not apply to this model")
         say(f"adding {effect.name} to the base model")
-        base = _fit(starts, heldout.train, max_steps)
+        base = _fit(starts, heldout, max_steps)
     return heldout.judge(base)
+
+
+def _candidate_fit(effect, starts, base, heldout, capture, settings) -> Estimate | None:
+    """The candidate's fit, judged on held-out frames; None when it failed. A candidate
+    fitted with the albedo map (`albedo = "map"`) gets its own tracks (the base has one
+    albedo); one that ends worse than the base it contains on the same calibration data
+    is reported as the base (its starts include the base's solution: a worse end is the
+    solver's, not the effect's)."""
+    calibration, max_points, heldout_points, max_steps, seed = settings
+    if getattr(effect, "albedo", None) == "map":
+        tracks = HeldOutTracks.split(
+            capture, calibration, max_points=max_points, heldout_points=heldout_points, seed=seed
+        )
+        fit = _fit(starts, tracks, max_steps)
+        return tracks.judge(fit, noise_floor=False) if np.isfinite(fit.cost) else None
+    try:
+        fit = _fit(starts, heldout, max_steps)
+    except ParameterError:  # e.g. an image effect the albedo map cannot undo
+        return None
+    if not np.isfinite(fit.cost):
+        return None
+    if fit.cost > base.cost:
+        fit = dataclasses.replace(
+            fit,
+            model=base.model,
+            cost=base.cost,
+            warnings=[*fit.warnings, "no better than the base"],
+        )
+    return heldout.judge(fit, noise_floor=False)
 
 
 def diagnose(
@@ -123,23 +163,72 @@ def diagnose(
     calibration: int | None = None,
     add: tuple[str | AbstractCandidate, ...] = (),
     candidates: tuple[AbstractCandidate, ...] = CANDIDATES,
+    albedo: str | None = None,
     max_samples: int = 12_000,
     heldout_samples: int = 40_000,
     max_steps: int = 80,
     seed: int = 0,
     progress=None,
 ) -> Diagnosis:
-    """Fit the paper's model (plus `add`) and rank every candidate effect by held-out RMSE."""
+    """Fit the paper's model (plus `add`) and rank every candidate effect by held-out RMSE.
+
+    `albedo`: `"map"` (one albedo per surface point, eliminated in closed form, for the base
+    and every candidate) or `"uniform"` (the paper's one albedo; the `albedo_texture`
+    candidate then tries the map). By default the paper's model first, and the map when
+    `albedo_texture` is its verdict (the texture is what it misses most): textured tissue is
+    diagnosed with the map, untextured with the paper's model (and its faster fits). With the
+    map, `max_samples` bounds the calibration frames' tracked points and half of
+    `heldout_samples` the held-out frames' (see `HeldOutTracks`).
+    """
     started = time.perf_counter()
     say = progress or (lambda message: None)
     capture = Observations.of(capture)
     if not capture.capture.has_geometry or any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: diagnose needs depth for every frame (depth/NAME.npy)")
-    heldout = HeldOut.split(
-        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
+    if albedo is not None and albedo not in ALBEDO_CHOICES:
+        raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
+    options = dict(
+        calibration=calibration,
+        add=add,
+        candidates=candidates,
+        max_samples=max_samples,
+        heldout_samples=heldout_samples,
+        max_steps=max_steps,
+        seed=seed,
+        progress=progress,
     )
-    context = {"median_depth_mm": median_depth_mm(capture)}
+    if albedo is None:
+        # The paper's model first; the map when texture is what it misses most.
+        uniform = diagnose(capture, albedo="uniform", **options)
+        if uniform.verdict != "albedo_texture":
+            return uniform
+        say("the albedo texture is what the paper's model misses most: diagnosing with the map")
+        mapped = diagnose(capture, albedo="map", **options)
+        return dataclasses.replace(mapped, seconds=time.perf_counter() - started)
+    settings = (calibration, max_samples, heldout_samples // 2, max_steps, seed)
+    context = {
+        "median_depth_mm": median_depth_mm(capture),
+        "albedo": albedo,
+        "albedo_map_possible": default_albedo(capture) == "map",
+    }
+    if albedo == "map":
+        heldout = HeldOutTracks.split(
+            capture,
+            calibration,
+            max_points=max_samples,
+            heldout_points=heldout_samples // 2,
+            seed=seed,
+        )
+    else:
+        heldout = HeldOut.split(
+            capture,
+            calibration,
+            max_samples=max_samples,
+            heldout_samples=heldout_samples,
+            seed=seed,
+        )
     base = _base_model(heldout, add, candidates, context, max_steps, say)
+    base.details["albedo"] = albedo
     noise = base.noise_floor
     say(f"base model: held-out RMSE {base.heldout_rmse:.2f} levels, noise floor {noise:.2f}")
 
@@ -151,10 +240,9 @@ def diagnose(
         starts = effect(base.model, context)
         if not starts:
             continue
-        fit = _fit(starts, heldout.train, max_steps)
-        if not np.isfinite(fit.cost):
+        fit = _candidate_fit(effect, starts, base, heldout, capture, settings)
+        if fit is None:
             continue
-        fit = heldout.judge(fit, noise_floor=False)
         improvement = (base.heldout_rmse - fit.heldout_rmse) / base.heldout_rmse
         fit.details = {
             "effect": effect.name,
@@ -169,8 +257,12 @@ def diagnose(
     results.sort(key=lambda c: c.heldout_rmse)
     if results and results[0].heldout_rmse < base.heldout_rmse:
         # Every estimate of the noise is biased up by what the model misses: the best
-        # model gives the tightest one.
-        noise = min(noise, heldout.noise_floor(results[0].model))
+        # model gives the tightest one (the texture, under the map's floor).
+        best = results[0]
+        if best.details["effect"] == "albedo_texture":
+            noise = min(noise, noise_floor_map_levels(capture, heldout.heldout, best.model))
+        else:
+            noise = min(noise, heldout.noise_floor(best.model))
     verdict = "none"
     if (
         results

@@ -132,7 +132,10 @@ def _per_point_index(family: BRDFFamily) -> int:
 
 def _sums(columns, values, weight, per_point):
     """The per-point sums of products the projection needs, each observation weighted."""
-    w = jnp.sqrt(weight)
+    # Double where: weights may depend on fitted parameters (undone image effects), and the
+    # slope of sqrt at an unobserved slot's 0 would make their gradient NaN.
+    positive = weight > 0
+    w = jnp.where(positive, jnp.sqrt(jnp.where(positive, weight, 1)), 0)
     a = columns[per_point] * w
     others = [c * w for k, c in enumerate(columns) if k != per_point]
     values = values * w[..., None]
@@ -494,7 +497,7 @@ def albedo_maps(
             )
         full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
         full[rows, cols] = albedo
-        count_map = np.zeros((camera.height, camera.width), int)
+        count_map = np.zeros((camera.height, camera.width), np.uint16)
         count_map[rows, cols] = np.where(np.any(np.isfinite(albedo), -1), seen_count, 0)
         maps.append(full)
         views.append(count_map)

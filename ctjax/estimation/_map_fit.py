@@ -106,10 +106,13 @@ def fit_albedo_map(
         ):
             raise CtjaxError("the BRDF fit with an albedo map did not produce finite estimates")
     maps, counts = albedo_maps(capture, fit.brdf, per_point=per_point, neighbours=neighbours)
-    estimated = np.concatenate([m[np.any(np.isfinite(m), axis=-1)] for m in maps])
-    if not np.all(np.any(np.isfinite(estimated), axis=0)):
-        raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated in some channel")
-    median = np.nanmedian(estimated, axis=0)  # per channel: NaN where that channel clipped
+    median = np.zeros(3)
+    for c in range(3):  # per channel (NaN where that channel clipped), one at a time
+        values = np.concatenate([m[..., c][np.isfinite(m[..., c])] for m in maps])
+        if values.size == 0:
+            raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated in {'RGB'[c]}")
+        median[c] = np.median(values)
+        del values
     weights = np.asarray(fit.weights).copy()
     weights[per_point] = median
     brdf = fit.brdf.with_weights(weights.astype(np.asarray(fit.weights).dtype))

@@ -8,6 +8,7 @@ value it asks for, the residuals are those of the best albedos and global weight
 form (Golub and Pereyra's exact variable-projection Jacobian).
 """
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -22,6 +23,7 @@ from .._result import Estimate
 from .._status import Status
 from .._tracks import Tracks
 from .._vector import Vec3
+from ..effects import AbstractImageEffect
 from ..estimation._albedo_map import projected_residuals
 from ..lobes import Lambertian
 from ._fit import LEVENBERG_MARQUARDT
@@ -41,8 +43,13 @@ class TrackSamples(eqx.Module):
     weight: jax.Array
 
     @classmethod
-    def of(cls, tracks: Tracks, dtype=None) -> "TrackSamples":
+    def of(cls, tracks: Tracks, dtype=None, *, pad: bool = True) -> "TrackSamples":
+        """`tracks` as arrays; with `pad`, the points padded with unobserved rows to the
+        next power of two (at least 1024), so that captures of similar size share the
+        fitters' compilations."""
         dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
+        if pad:
+            tracks = _padded_tracks(tracks)
         as_jax = lambda a: jnp.asarray(a, dtype)  # noqa: E731
         flat = lambda a: as_jax(a.reshape(-1, a.shape[-1]))  # noqa: E731
         pixel = flat(tracks.corner_pixel)
@@ -54,6 +61,28 @@ class TrackSamples(eqx.Module):
             as_jax(tracks.values),
             as_jax(tracks.weight),
         )
+
+
+def _padded_tracks(tracks: Tracks) -> Tracks:
+    points = len(tracks)
+    size = max(1024, 1 << max(points - 1, 1).bit_length())
+    if size == points:
+        return tracks
+    # Unobserved rows: the harmless geometry of `ctjax._tracks` (ahead, facing the camera).
+    extra = size - points
+    fill = {
+        "corner_point": np.array([0.0, 0.0, 1.0]),
+        "corner_normal": np.array([0.0, 0.0, -1.0]),
+        "frame": -1,
+    }
+    parts = {}
+    for field in dataclasses.fields(tracks):
+        array = getattr(tracks, field.name)
+        pad = np.zeros((extra, *array.shape[1:]), array.dtype)
+        if field.name in fill:
+            pad[...] = fill[field.name]
+        parts[field.name] = np.concatenate([array, pad])
+    return Tracks(**parts)
 
 
 def diffuse_lobe(model) -> int:
@@ -76,13 +105,85 @@ def _weights_frozen(name: str) -> bool:
     return name.startswith("brdf.lobes[") and name.endswith("].weight")
 
 
+# The largest slope of the image effects an observation's weight follows (a camera gamma
+# is infinitely steep at 0).
+_MAX_SLOPE = 1e3
+# Measurements are read as at least a quarter of an 8-bit level where effects are undone.
+_DARKEST = 0.25 / 255
+
+
+def _linear(model, samples: TrackSamples):
+    """The measured values with the model's image effects undone (their `inverse`), where
+    the lobes' sum is linear in the albedo again, and the observation weights times the
+    effects' squared slope there (mean over channels), so that residuals read in the
+    image's units to first order. Without effects: the values and weights as they are."""
+    effects = tuple(getattr(model, "effects", ()))
+    if not effects:
+        return samples.values, samples.weight
+
+    def undo(rgb):
+        for effect in reversed(effects):
+            rgb = effect.inverse(rgb)
+        return rgb
+
+    def apply(rgb):
+        for effect in effects:
+            rgb = effect(rgb)
+        return rgb
+
+    # Unobserved slots (0) and black pixels at a harmless value: a gamma's slope is
+    # infinite at 0, and its derivative in gamma takes log(0).
+    observed = (samples.weight > 0)[..., None]
+    values = jnp.where(observed, jnp.maximum(samples.values, _DARKEST), 0.5)
+    flat = values.reshape(-1, samples.values.shape[-1])
+    linear = jax.vmap(undo)(flat)
+    slope = jax.vmap(lambda x: jax.jvp(apply, (x,), (jnp.ones_like(x),))[1])(linear)
+    slope = jnp.clip(jnp.abs(slope), 0, _MAX_SLOPE)
+    scale = jnp.mean(slope * slope, axis=-1).reshape(samples.weight.shape)
+    return linear.reshape(samples.values.shape), samples.weight * scale
+
+
+def _apply_effects(model, linear):
+    """The model's image effects applied to linear RGB (..., 3)."""
+    effects = tuple(getattr(model, "effects", ()))
+
+    def apply(rgb):
+        for effect in effects:
+            rgb = effect(rgb)
+        return rgb
+
+    flat = linear.reshape(-1, linear.shape[-1])
+    return jax.vmap(apply)(flat).reshape(linear.shape)
+
+
+def _root(weight):
+    positive = weight > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, weight, 1)), 0)
+
+
+def _projected(model, samples: TrackSamples, per_point: int):
+    """`projected_residuals` of `model` on `samples`. With image effects the albedos and
+    global weights are eliminated where the model is linear (the measurements with the
+    effects undone, `_linear`), and the residuals are the image's: the effects applied to
+    that prediction, minus the measurements, weighted as observed."""
+    values, weight = _linear(model, samples)
+    columns = _columns(model, samples)
+    albedo, weights, residual = projected_residuals(columns, values, weight, per_point)
+    if not tuple(getattr(model, "effects", ())):
+        return albedo, weights, residual
+    linear = sum(
+        c[..., None] * (albedo[:, None, :] if k == per_point else weights[k])
+        for k, c in enumerate(columns)
+    )
+    image = _apply_effects(model, linear)
+    return albedo, weights, (samples.values - image) * _root(samples.weight)[..., None]
+
+
 @eqx.filter_jit
 def projected_cost(model, samples: TrackSamples, per_point: int):
     """The weighted sum of squared residuals of `model`'s nonlinear parameters with every
     albedo and the global weights eliminated (what `fit_model_map` minimises)."""
-    _, _, residual = projected_residuals(
-        _columns(model, samples), samples.values, samples.weight, per_point
-    )
+    _, _, residual = _projected(model, samples, per_point)
     return jnp.sum(residual * residual)
 
 
@@ -93,17 +194,21 @@ def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     fitted to the point's OTHER views (per channel, clamped at 0)."""
     columns = _columns(model, samples)
     weights = model.brdf.weights
-    w = samples.weight
+    values, w = _linear(model, samples)
     a = columns[per_point]
     rest = sum(c[..., None] * weights[k] for k, c in enumerate(columns) if k != per_point)
-    target = samples.values - rest
+    target = values - rest
     s_aa = jnp.sum(w * a * a, axis=1, keepdims=True)  # (P, 1)
     s_ai = jnp.einsum("pm,pm,pmc->pc", w, a, target)[:, None, :]  # (P, 1, C)
     others = s_aa - w * a * a  # (P, M): the other views' normal equations
     other_ai = s_ai - (w * a)[..., None] * target
     ok = judged & (w > 0) & (others > 1e-6 * jnp.maximum(s_aa, 1e-300))
     albedo = jnp.maximum(other_ai / jnp.where(ok, others, 1)[..., None], 0)
-    residual = jnp.where(ok[..., None], target - a[..., None] * albedo, 0)
+    residual = target - a[..., None] * albedo
+    w = samples.weight
+    if tuple(getattr(model, "effects", ())):  # the image's residual (see `_projected`)
+        residual = samples.values - _apply_effects(model, rest + a[..., None] * albedo)
+    residual = jnp.where(ok[..., None], residual, 0)
     channels = samples.values.shape[-1]
     return jnp.sum(w[..., None] * residual * residual), jnp.sum(jnp.where(ok, w, 0)) * channels
 
@@ -130,18 +235,14 @@ def _least_squares(model, samples, names, per_point, solver, max_steps):
 
     def residuals(u, _):
         fitted = constrained(model, parameters, u)
-        _, _, residual = projected_residuals(
-            _columns(fitted, samples), samples.values, samples.weight, per_point
-        )
+        _, _, residual = _projected(fitted, samples, per_point)
         return 255 * residual.reshape(-1)  # 8-bit levels: so are the tolerances
 
     solution = optx.least_squares(
         residuals, solver, unconstrained(model, parameters), max_steps=max_steps, throw=False
     )
     fitted = constrained(model, parameters, solution.value)
-    albedo, weights, residual = projected_residuals(
-        _columns(fitted, samples), samples.values, samples.weight, per_point
-    )
+    albedo, weights, residual = _projected(fitted, samples, per_point)
     cost = jnp.sum(residual * residual)
     return (
         fitted,
@@ -161,29 +262,37 @@ def fit_model_map(
     solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
     max_steps: int = 100,
     refine: int | None = None,
+    standard_errors: bool = True,
 ) -> Estimate:
     """Fit `ShadingModel`s (one or several starts of the same structure) to tracked surface
     points with one albedo per point (the diffuse lobe's weight) and the other lobes' weights
     shared, both eliminated in closed form; LM runs over the remaining parameters (`freeze`
-    holds more fixed). Models with image effects are refused (an effect after the sum of
-    lobes makes the albedo nonlinear).
+    holds more fixed). Image effects (a camera gamma, an ambient term) are undone on the
+    measurements (`AbstractImageEffect.inverse`: the albedo is linear again there), each
+    observation weighted by the effects' squared slope; an effect without an inverse is
+    refused.
 
     Returns an `Estimate` of the best start: the model with its global weights and, in the
     diffuse lobe, the median albedo of the points seen twice or more; `rmse["calibration"]`
     the weighted RMSE (8-bit levels) over the observations; `arrays["track_albedo"]` every
-    point's albedo (P, 3); `details["albedo"] = "map"`, `details["stderr"]` the standard
-    error of every fitted parameter by name (physical units, from the Jacobian of the
+    point's albedo (P, 3; given `TrackSamples`, padded rows included);
+    `details["albedo"] = "map"`, `details["stderr"]` the standard error of every fitted
+    parameter by name (physical units, from the Jacobian of the
     projected residuals at the solution: the albedos' uncertainty is accounted for, as the
     global block of the joint covariance is). With `refine`, LM runs from the `refine`
     starts of lowest projected cost only (each costs one closed-form projection).
+    `standard_errors=False` skips them (one compilation less per model structure).
     """
     starts = [starts] if isinstance(starts, eqx.Module) else list(starts)
     for start in starts:
-        if getattr(start, "effects", ()):
-            raise ParameterError(
-                "fit_model_map fits models without image effects (an effect after the lobes "
-                "makes the albedo nonlinear); fit the effect with fit_model"
-            )
+        for effect in getattr(start, "effects", ()):
+            if type(effect).inverse is AbstractImageEffect.inverse:
+                raise ParameterError(
+                    f"fit_model_map needs image effects it can undo: {type(effect).__name__} "
+                    "has no inverse (an effect after the lobes makes the albedo nonlinear; "
+                    "the map fit undoes it on the measurements)"
+                )
+    points = None if isinstance(tracks, TrackSamples) else len(tracks)
     samples = tracks if isinstance(tracks, TrackSamples) else TrackSamples.of(tracks)
     views = np.asarray(jnp.sum(samples.weight > 0, axis=1))
     per_point = diffuse_lobe(starts[0])
@@ -212,14 +321,14 @@ def fit_model_map(
     rmse = 255 * math.sqrt(cost / max(total_weight, 1e-300))
     frozen = lambda n: n in tuple(freeze) or _weights_frozen(n)  # noqa: E731
     parameters = [p.name for p in free_parameters(fitted, frozen)]
-    errors = _standard_errors(fitted, samples, tuple(freeze), per_point)
+    errors = _standard_errors(fitted, samples, tuple(freeze), per_point) if standard_errors else {}
     return Estimate(
         fitted,
         {"calibration": rmse},
         Status(int(result)),
         cost=cost,
         details={"steps": steps, "parameters": parameters, "albedo": "map", "stderr": errors},
-        arrays={"track_albedo": albedo},
+        arrays={"track_albedo": albedo[:points]},
     )
 
 
@@ -240,9 +349,7 @@ def _covariance(model, samples, names, per_point):
             parts.append(theta[start : start + size].reshape(shape))
             start += size
         fitted = eqx.tree_at(lambda m: [p.get(m) for p in parameters], model, parts)
-        _, _, residual = projected_residuals(
-            _columns(fitted, samples), samples.values, samples.weight, per_point
-        )
+        _, _, residual = _projected(fitted, samples, per_point)
         return residual.reshape(-1)
 
     jacobian = jax.jacfwd(residuals)(flat)

@@ -1,8 +1,10 @@
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate
 from .._convert import POSITIVE, as_rgb, check_positive, check_shape, named
 from .._numerics import positive_part
 from .._typing import Array, Float, Scalar
@@ -29,3 +31,19 @@ class Lambertian(AbstractLobe):
         # Zero on back-facing surfaces (N.V <= 0) as well, like every lobe.
         visible = jnp.where(normal @ view > 0, 1, 0)
         return positive_part(normal @ light) * visible / math.pi
+
+
+class AlbedoTextureCandidate(AbstractCandidate):
+    """A spatially varying albedo: the Lambertian lobe's weight per surface point and
+    channel (textured tissue), estimated from every frame that sees the point (the albedo
+    map). Offered when the base model has one albedo for the capture (`--albedo
+    uniform`): the model is the same, what changes is how it is fitted (`albedo = "map"`)."""
+
+    name = "albedo_texture"
+    albedo: ClassVar[str] = "map"
+
+    def __call__(self, model, context):
+        # The map follows surface points across frames: it needs depth and poses.
+        if context.get("albedo") != "uniform" or not context.get("albedo_map_possible"):
+            return []
+        return [model]
