@@ -25,6 +25,7 @@ from ..fitting import (
     ShadingModel,
     fit_model,
     fit_model_map,
+    map_standard_errors,
     paper_model,
     pixel_columns,
     pixel_predict,
@@ -197,7 +198,13 @@ def near_light_map(
 
     def fit(starts, freeze=()):
         return fit_model_map(
-            starts, heldout.train, solver=solver, max_steps=max_steps, refine=refine, freeze=freeze
+            starts,
+            heldout.train,
+            solver=solver,
+            max_steps=max_steps,
+            refine=refine,
+            freeze=freeze,
+            standard_errors=False,  # the chosen fit's only, below
         )
 
     fits = [fit(_starts(choice)) for choice in choices]
@@ -207,6 +214,7 @@ def near_light_map(
     if not np.isfinite(offset_fit.heldout_rmse):
         raise CtjaxError("the near-light fit did not produce finite estimates")
     offset = np.asarray(offset_fit.model.light.position_mm, float)
+    offset_fit.details["stderr"] = map_standard_errors(offset_fit.model, heldout.train)
     stderr = np.asarray(offset_fit.details["stderr"].get("light.position_mm", [np.inf] * 3))
     lens_fit = heldout.judge(
         fit(_at_the_lens(choices[chosen]), freeze=("light.position_mm",)), noise_floor=False

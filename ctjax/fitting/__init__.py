@@ -7,6 +7,7 @@ from ..observations import PixelSamples as PixelSamples
 from ..observations import capture_samples as capture_samples
 from ._albedo_map import TrackSamples as TrackSamples
 from ._albedo_map import fit_model_map as fit_model_map
+from ._albedo_map import map_standard_errors as map_standard_errors
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns

@@ -380,3 +380,10 @@ def _standard_errors(model, samples, names, per_point) -> dict[str, list | float
         out[p.name] = value.tolist() if np.ndim(p.get(model)) else float(value[0])
         start += count
     return out
+
+
+def map_standard_errors(model, tracks: "Tracks | TrackSamples", freeze: Sequence[str] = ()):
+    """`fit_model_map`'s `details["stderr"]` for a fitted `model` (e.g. one fitted with
+    `standard_errors=False`, when only the chosen one of several needs them)."""
+    samples = tracks if isinstance(tracks, TrackSamples) else TrackSamples.of(tracks)
+    return _standard_errors(strongly_typed(model), samples, tuple(freeze), diffuse_lobe(model))
