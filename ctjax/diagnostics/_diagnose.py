@@ -136,9 +136,16 @@ def _candidate_fit(effect, starts, base, heldout, capture, settings) -> Estimate
     solver's, not the effect's)."""
     calibration, max_points, heldout_points, max_steps, seed = settings
     if getattr(effect, "albedo", None) == "map":
-        tracks = HeldOutTracks.split(
-            capture, calibration, max_points=max_points, heldout_points=heldout_points, seed=seed
-        )
+        try:
+            tracks = HeldOutTracks.split(
+                capture,
+                calibration,
+                max_points=max_points,
+                heldout_points=heldout_points,
+                seed=seed,
+            )
+        except CtjaxError:  # e.g. too few calibration frames for a map
+            return None
         fit = _fit(starts, tracks, max_steps)
         return tracks.judge(fit, noise_floor=False) if np.isfinite(fit.cost) else None
     try:
