@@ -468,20 +468,38 @@ def albedo_maps(
     below `MIN_COSINE`). A point seen in one frame only gets the albedo of that one
     observation, given the fitted BRDF.
     """
+    camera = capture.camera
+    maps, views = [], []
+    for _, rows, cols, albedo, seen_count, _ in _frames_of(
+        capture, brdf, light, None, per_point, neighbours, tolerance, dtype
+    ):
+        full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
+        full[rows, cols] = albedo
+        count_map = np.zeros((camera.height, camera.width), np.uint16)
+        count_map[rows, cols] = np.where(np.any(np.isfinite(albedo), -1), seen_count, 0)
+        maps.append(full)
+        views.append(count_map)
+    return maps, views
+
+
+def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, dtype):
+    """For each frame of `frames` (all when None): its pixels with geometry (rows, cols)
+    and their albedo, view count and own residual (`_albedo_of`), in chunks of at most
+    `_MAP_CHUNK` pixels (bounded memory; one compilation for every frame and chunk)."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     camera = capture.camera
     data = [FrameData.of(f) for f in capture.frames]
     count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
     chunk = min(_MAP_CHUNK, camera.width * camera.height)
-    maps, views = [], []
-    for index, frame in enumerate(capture.frames):
-        rows, cols = np.nonzero(frame.geometry_mask)
+    for index in range(len(capture)) if frames is None else frames:
+        rows, cols = np.nonzero(capture.frames[index].geometry_mask)
         albedo = np.full((len(rows), 3), np.nan)
         seen_count = np.zeros(len(rows), int)
+        residual = np.full((len(rows), 3), np.nan)
         for start in range(0, len(rows), chunk):
             part = slice(start, start + chunk)
-            albedo[part], seen_count[part], _ = _albedo_of(
+            albedo[part], seen_count[part], residual[part] = _albedo_of(
                 capture,
                 data,
                 brdf,
@@ -495,13 +513,7 @@ def albedo_maps(
                 dtype,
                 chunk,
             )
-        full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
-        full[rows, cols] = albedo
-        count_map = np.zeros((camera.height, camera.width), np.uint16)
-        count_map[rows, cols] = np.where(np.any(np.isfinite(albedo), -1), seen_count, 0)
-        maps.append(full)
-        views.append(count_map)
-    return maps, views
+        yield index, rows, cols, albedo, seen_count, residual
 
 
 def map_residuals(
@@ -519,31 +531,12 @@ def map_residuals(
     that see it (`albedo_maps` without its own view): its own noise is then not partly
     fitted away (which made the noise floor 14% low), and the other views' noise, averaged
     and interpolated, adds little. NaN where no other view counts."""
-    dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     camera = capture.camera
-    data = [FrameData.of(f) for f in capture.frames]
-    count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
-    chunk = min(_MAP_CHUNK, camera.width * camera.height)
     out = []
-    for index in range(len(capture)) if frames is None else frames:
-        rows, cols = np.nonzero(capture.frames[index].geometry_mask)
+    for _, rows, cols, _, _, residual in _frames_of(
+        capture, brdf, light, frames, per_point, neighbours, None, dtype
+    ):
         image = np.full((camera.height, camera.width, 3), np.nan)
-        for start in range(0, len(rows), chunk):
-            part = slice(start, start + chunk)
-            _, _, residual = _albedo_of(
-                capture,
-                data,
-                brdf,
-                light,
-                per_point,
-                index,
-                rows[part],
-                cols[part],
-                count,
-                DEFAULT_TOLERANCE,
-                dtype,
-                chunk,
-            )
-            image[rows[part], cols[part]] = residual
+        image[rows, cols] = residual
         out.append(image)
     return out
