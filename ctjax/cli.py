@@ -277,7 +277,8 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     atomic_write_json(args.json, summary)
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
-        offset += " +- " + ", ".join(f"{v:.2f}" for v in summary["offset_stderr_mm"])
+        errors = summary["offset_stderr_mm"]
+        offset += " +- " + ", ".join("?" if v is None else f"{v:.2f}" for v in errors)
     print(
         f"light offset ({offset}) mm, falloff {'+'.join(summary['falloff']) or 'none'}, "
         f"albedo {summary['albedo']}; "

@@ -65,8 +65,9 @@ def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
 
 def noise_floor_map_levels(capture, frames: Sequence[int], model) -> float:
     """The noise floor (8-bit levels) on textured tissue: `noise_floor_levels` on residual
-    images under the albedo map (each pixel's albedo fitted to every frame that sees it,
-    `ctjax.estimation.map_residuals`), so that the texture is not counted as noise."""
+    images under the albedo map (each pixel against the albedo the other frames that see it
+    give, `ctjax.estimation._albedo_map.map_residuals`), so that the texture is not counted
+    as noise."""
     from .estimation._albedo_map import map_residuals
     from .fitting._albedo_map import diffuse_lobe
 
@@ -223,6 +224,8 @@ class HeldOutTracks:
         return heldout_map_rmse(model, self.test, self.judged)
 
     def rmse(self, model) -> dict[str, float]:
+        """RMSE (8-bit levels) of a model fitted elsewhere: every view of `train` and the
+        held-out views of `test`, each predicted from the albedo of the point's other views."""
         return {
             "calibration": heldout_map_rmse(model, self.train),
             "heldout": self.heldout_rmse(model),

@@ -215,7 +215,8 @@ def near_light_map(
         raise CtjaxError("the near-light fit did not produce finite estimates")
     offset = np.asarray(offset_fit.model.light.position_mm, float)
     offset_fit.details["stderr"] = map_standard_errors(offset_fit.model, heldout.train)
-    stderr = np.asarray(offset_fit.details["stderr"].get("light.position_mm", [np.inf] * 3))
+    reported = offset_fit.details["stderr"].get("light.position_mm", [None] * 3)
+    stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     lens_fit = heldout.judge(
         fit(_at_the_lens(choices[chosen]), freeze=("light.position_mm",)), noise_floor=False
     )
@@ -232,7 +233,7 @@ def near_light_map(
         "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
         "offset_detected": detected,
         "offset_fitted_mm": offset.tolist(),
-        "offset_stderr_mm": stderr.tolist(),
+        "offset_stderr_mm": reported,  # None where the data do not determine it
         "offset_heldout_rmse": offset_fit.heldout_rmse,
         "lens_heldout_rmse": lens_fit.heldout_rmse,
         "length_unit": "mm",

@@ -365,7 +365,7 @@ def _covariance(model, samples, names, per_point):
 
 
 def _standard_errors(model, samples, names, per_point) -> dict[str, list | float]:
-    """Standard error of every free nonlinear parameter (see `fit_model_map`); inf where
+    """Standard error of every free nonlinear parameter (see `fit_model_map`); None where
     the data do not determine it (rank-deficient information)."""
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
@@ -376,8 +376,8 @@ def _standard_errors(model, samples, names, per_point) -> dict[str, list | float
     out, start = {}, 0
     for p in parameters:
         count = int(np.size(p.get(model)))
-        value = np.sqrt(variance[start : start + count])
-        out[p.name] = value.tolist() if np.ndim(p.get(model)) else float(value[0])
+        value = [float(v) if np.isfinite(v) else None for v in np.sqrt(variance[start:][:count])]
+        out[p.name] = value if np.ndim(p.get(model)) else value[0]
         start += count
     return out
 
