@@ -93,6 +93,7 @@ def problems(width, height, frames, noise, seed=0, dtype=np.float64):
         jnp.asarray(values, dtype),
         jnp.ones((len(ray), frames), dtype),
         jnp.ones((len(ray), frames), dtype),
+        jnp.zeros((len(ray), frames, 3), dtype),  # one albedo: the BRDF's own
         vec(start),
         vec(start),
     )

@@ -301,7 +301,7 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
 
     capture = load_capture(args.capture)
     result = calibrate_light_field(
-        capture, calibration=args.calib, solver=_field_solver(args.engine)
+        capture, calibration=args.calib, solver=_field_solver(args.engine), albedo=args.albedo
     )
     summary = result.to_json()
     atomic_write_json(args.json, summary)
@@ -313,11 +313,14 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
     print(
         f"light field over {summary['solved_pixels']} pixels (converged {counts['converged']}, "
         f"max steps {counts['max_steps']}, failed {counts['failed']}), median "
-        f"{summary['median_angle_from_view_deg']:.2f} deg from the view direction; "
+        f"{summary['median_angle_from_view_deg']:.2f} deg from the view direction, "
+        f"albedo {summary['albedo']}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
         + (f" and {args.npz}" if args.npz is not None else "")
     )
+    for warning in result.warnings:
+        print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -331,6 +334,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         capture,
         calibration=args.calib,
         cook_torrance=_cook_torrance_estimator(args.light),
+        albedo=args.albedo,
         per_pixel_sfs=args.per_pixel_sfs,
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
     )
@@ -344,7 +348,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         f"{summary['lambertian_rgb_rmse_calibration']:.2f} / "
         f"{summary['lambertian_rgb_rmse_test']:.2f}, Cook-Torrance "
         f"{summary['cook_torrance_rgb_rmse_calibration']:.2f} / "
-        f"{summary['cook_torrance_rgb_rmse_test']:.2f}"
+        f"{summary['cook_torrance_rgb_rmse_test']:.2f} (albedo {summary['albedo']})"
     )
     if summary["lambertian_sfs_error_mm"] is not None:
         models = [("Lambertian", "lambertian"), ("Cook-Torrance", "cook_torrance")]
@@ -564,8 +568,8 @@ def _light_command(commands) -> None:
     light.add_argument(
         "--albedo",
         choices=("map", "uniform"),
-        help="near: one albedo per surface point (map; the default when every frame has "
-        "depth and a pose) or one for the capture (uniform, the paper's)",
+        help="one albedo per surface point (map; the default when every frame has depth and "
+        "a pose) or one for the capture (uniform, the paper's)",
     )
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     light.set_defaults(run=_cmd_calibrate_light)
@@ -585,6 +589,12 @@ def _evaluate_command(commands) -> None:
         default="near",
         help="Cook-Torrance's light: near (point light offset), colocated (paper's BRDF fit "
         "with L = V) or field (the paper's per-pixel light field)",
+    )
+    evaluate.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="one albedo per surface point for both models (map; the default when every "
+        "frame has depth and a pose) or one per model (uniform, the paper's)",
     )
     evaluate.add_argument(
         "--per-pixel-sfs",

@@ -128,14 +128,81 @@ def _fmt(value) -> str:
     return str(value)
 
 
-def _write_report(out: Path, summary: dict, figures: dict[str, Path]) -> Path:
-    fit, truth, ev = summary["brdf_fit"], summary["truth"], summary["evaluation"]
-    sfm, near, field = summary["reconstruction"], summary["near_light"], summary["light_field"]
-    parameters = _table(
-        [("", "estimated from the images", "truth")]
-        + [(k, _fmt(fit[k]), _fmt(truth[k])) for k in ("rho_tilde", "F_tilde", "sigma")]
-        + [("light offset (mm), near model", _fmt(near["offset_mm"]), _fmt(truth["light_mm"]))]
+def _relative(estimate, truth) -> str:
+    estimate, truth = np.atleast_1d(estimate), np.atleast_1d(truth)
+    if estimate.shape != truth.shape or np.any(truth == 0):
+        return ""
+    return ", ".join(f"{100 * (e / t - 1):+.1f}%" for e, t in zip(estimate, truth, strict=True))
+
+
+def _estimate_rows(summary: dict) -> list[tuple]:
+    """(estimate, parameter, value, truth, error) for every estimate used downstream."""
+    truth = summary["truth"]
+    rows = [("estimate", "parameter", "estimated from the images", "truth", "error")]
+    estimates = (
+        ("BRDF fit (L = V)", summary["brdf_fit"]),
+        ("near light (used by the evaluation)", summary["near_light"]),
+        ("light field (paper)", summary["light_field"]),
     )
+    for name, estimate in estimates:
+        for key in ("rho_tilde", "F_tilde", "sigma"):
+            value, true = estimate[key], truth[key]
+            rows.append((name, key, _fmt(value), _fmt(true), _relative(value, true)))
+    near = summary["near_light"]
+    offset = np.asarray(near["offset_mm"]) - np.asarray(truth["light_mm"])
+    rows.append(
+        (
+            "near light (used by the evaluation)",
+            "light offset (mm)",
+            _fmt(near["offset_mm"]),
+            _fmt(truth["light_mm"]),
+            f"{np.linalg.norm(offset):.2f} mm",
+        )
+    )
+    field = summary["light_field"]
+    rows.append(
+        (
+            "light field (paper)",
+            "median angle L to V (deg)",
+            _fmt(field["median_angle_from_view_deg"]),
+            _fmt(truth["field_angle_deg"]),
+            "",
+        )
+    )
+    return rows
+
+
+def _true_field_angle(truth, light_mm) -> float:
+    """Median angle (deg) between the true light direction and V over the first frame."""
+    from ._geometry import points_from_depth
+
+    frame = truth.frames[0]
+    point = points_from_depth(truth.camera, frame.depth)[frame.geometry_mask]
+    to_light = np.asarray(light_mm, float) - point
+    cosine = np.sum(to_light * -point, -1) / (
+        np.linalg.norm(to_light, axis=-1) * np.linalg.norm(point, axis=-1)
+    )
+    return float(np.median(np.degrees(np.arccos(np.clip(cosine, -1, 1)))))
+
+
+def _warnings(fit: dict, near, field, evaluation) -> list[tuple[str, str]]:
+    """Every warning of the pipeline's steps, by step."""
+    out = [("fit", w) for w in fit.get("warnings", [])]
+    out += [("calibrate-light near", w) for w in near.warnings]
+    out += [("calibrate-light field", w) for w in field.warnings]
+    out += [("evaluate", n) for n in evaluation.notes]
+    return out
+
+
+def _write_report(out: Path, summary: dict, figures: dict[str, Path]) -> Path:
+    ev = summary["evaluation"]
+    sfm, near, field = summary["reconstruction"], summary["near_light"], summary["light_field"]
+    parameters = _table(_estimate_rows(summary))
+    warnings = "".join(
+        f"<li><b>{html.escape(source)}</b>: {html.escape(text)}</li>"
+        for source, text in summary["warnings"]
+    )
+    warnings = f"<ul>{warnings}</ul>" if warnings else "<p>none</p>"
     errors = _table(
         [("", "Lambertian", "Cook-Torrance")]
         + [
@@ -196,10 +263,17 @@ Cook-Torrance reflectance, light at the tip, 1 level of noise, 8 bits); only the
 the camera's intrinsics went into the pipeline: structure-from-motion (pycolmap), the specular
 set S and its ring S~, the paper's BRDF estimate (branch-and-bound over sigma), the light
 (a near point light, and the paper's per-pixel light field) and the paper's evaluation of
-Lambertian against Cook-Torrance. The ground truth is used only to score.</p>
-<h2>Estimated parameters</h2>{parameters}
-<p>Note: the tissue texture multiplies the albedo per pixel; the paper's model (and ctjax's
-estimate) assumes one albedo, which biases F_tilde on textured tissue.</p>
+Lambertian against Cook-Torrance.</p>
+<p><b>What the ground truth is used for.</b> (1) The metric scale: structure-from-motion
+recovers the shape up to scale, and the demo gives it the working distance
+({_fmt(summary["scale_mm"])} mm, the median true depth of the first frame), as a user gives
+a known size (the distance to the tissue, a tool's width); (2) scoring: the truth column
+below and the reference depth of the shape-from-shading errors. Nothing else.</p>
+<h2>Estimates used downstream, beside the truth</h2>{parameters}
+<p>Every estimate has one albedo per surface point (the albedo map, from all frames):
+rho_tilde is its median, the truth's the texture's base albedo. The near light is what the
+evaluation uses.</p>
+<h2>Warnings</h2>{warnings}
 <h2>Shape from images (SfM)</h2>{shape}
 <h2>Light</h2>{light}
 <h2>Evaluation (paper section 7; calibration frames {ev["calibration_frames"]}, test frames
@@ -216,6 +290,49 @@ shading, which limits both here.</p>
     path = out / "report.html"
     path.write_text(page)
     return path
+
+
+def _normal_error_deg(capture, truth) -> list[float]:
+    """Median and 90th percentile (deg) of the reconstructed normals' error."""
+    cosine = [
+        np.sum(f.normals * t.normals, axis=-1)[f.geometry_mask]
+        for f, t in zip(capture.frames, truth.frames, strict=True)
+    ]
+    angles = np.degrees(np.arccos(np.clip(np.concatenate(cosine), -1, 1)))
+    return [round(float(np.median(angles)), 3), round(float(np.percentile(angles, 90)), 3)]
+
+
+def _figures(out: Path, capture, truth, sets, near, field, evaluation) -> dict[str, Path]:
+    figures_dir = out / "figures"
+    figures_dir.mkdir(exist_ok=True)
+    figures = {"inputs": _figure_inputs(capture, truth, sets, figures_dir / "inputs.png")}
+    path = figures_dir / "light.png"
+    figures["light"] = _figure_light(field, near.to_json(), capture, path)
+    figures.update(evaluation_plots(capture, evaluation, figures_dir))
+    return figures
+
+
+# What the demo's summary keeps of the BRDF fit.
+_FIT_KEYS = (
+    "rho_tilde",
+    "F_tilde",
+    "sigma",
+    "rgb_rmse",
+    "albedo",
+    "n_points",
+    "n_ring_pixels",
+    "warnings",
+)
+
+
+def _truth(truth) -> dict:
+    """The synthetic capture's true BRDF, light position and light field angle."""
+    light = truth.truth.get("light", {}).get("position_mm", [0.0, 0.0, 0.0])
+    return {
+        **{k: truth.truth[k] for k in ("rho_tilde", "F_tilde", "sigma")},
+        "light_mm": light,
+        "field_angle_deg": _true_field_angle(truth, light),
+    }
 
 
 def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
@@ -282,49 +399,26 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         reference=truth,
         progress=lambda m: _log(f"  {m}"),
     )
-    cosine = [
-        np.sum(f.normals * t.normals, axis=-1)[f.geometry_mask]
-        for f, t in zip(capture.frames, truth.frames, strict=True)
-    ]
-    angles = np.degrees(np.arccos(np.clip(np.concatenate(cosine), -1, 1)))
-    figures_dir = out / "figures"
-    figures_dir.mkdir(exist_ok=True)
-    figures = {"inputs": _figure_inputs(capture, truth, sets, figures_dir / "inputs.png")}
-    near_json = near.to_json()
-    figures["light"] = _figure_light(field, near_json, capture, figures_dir / "light.png")
-    figures.update(evaluation_plots(capture, evaluation, figures_dir))
-    light_truth = truth.truth.get("light", {}).get("position_mm", [0.0, 0.0, 0.0])
+    figures = _figures(out, capture, truth, sets, near, field, evaluation)
     summary = {
         "capture": str(images_dir),
         "ground_truth": str(truth_dir),
         "frames": options.frames,
         "size": f"{options.width}x{options.height}",
-        "truth": {
-            **{k: truth.truth[k] for k in ("rho_tilde", "F_tilde", "sigma")},
-            "light_mm": light_truth,
-        },
-        "reconstruction": sfm,
-        "sfm_normal_error_deg": [
-            round(float(np.median(angles)), 3),
-            round(float(np.percentile(angles, 90)), 3),
+        "truth": _truth(truth),
+        "scale_mm": working_distance,
+        "truth_used_for": [
+            "the metric scale of the reconstruction: the working distance (median true "
+            "depth of the first frame), as a user gives a known size",
+            "scoring: the truth columns and the shape-from-shading reference depth",
         ],
-        "brdf_fit": {
-            k: fit[k]
-            for k in (
-                "rho_tilde",
-                "F_tilde",
-                "sigma",
-                "rgb_rmse",
-                "albedo",
-                "n_points",
-                "n_ring_pixels",
-                "warnings",
-            )
-            if k in fit
-        },
-        "near_light": near_json,
+        "reconstruction": sfm,
+        "sfm_normal_error_deg": _normal_error_deg(capture, truth),
+        "brdf_fit": {k: fit[k] for k in _FIT_KEYS if k in fit},
+        "near_light": near.to_json(),
         "light_field": field.to_json(),
         "evaluation": evaluation.to_json(),
+        "warnings": _warnings(fit, near, field, evaluation),
         "timings_s": {**step.seconds, "total": round(time.perf_counter() - started, 2)},
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default) + "\n")

@@ -251,6 +251,31 @@ class HeldOutTracks:
         )
 
 
+def split_for(
+    capture: "Capture | Observations",
+    calibration: int | None = None,
+    *,
+    albedo: str = "uniform",
+    max_samples: int | None = 12_000,
+    heldout_samples: int | None = 40_000,
+    seed: int = 0,
+) -> "HeldOut | HeldOutTracks":
+    """The held-out protocol for `albedo`: with `"map"`, `HeldOutTracks` (at most
+    `max_samples` tracked points in the calibration frames, half `heldout_samples` anchored
+    in the held-out ones); with `"uniform"`, `HeldOut`'s pixel samples."""
+    if albedo == "map":
+        return HeldOutTracks.split(
+            capture,
+            calibration,
+            max_points=max_samples,
+            heldout_points=None if heldout_samples is None else heldout_samples // 2,
+            seed=seed,
+        )
+    return HeldOut.split(
+        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
+    )
+
+
 def simplest_within(
     choices: Sequence[Sequence], heldout_rmse: Sequence[float], tolerance: float = SIMPLEST_WITHIN
 ) -> int:

@@ -46,28 +46,43 @@ class PixelProblem(eqx.Module):
     """One pixel's data over F frames (a batch of pixels under vmap): the unit view
     direction V (camera frame; the same in every frame, it depends on the pixel only), the
     unit normal and measured linear RGB in each frame, a weight per frame (1 where the
-    pixel is in S-bar in that frame, else 0), the start direction and the prior direction."""
+    pixel is in S-bar in that frame, else 0), the light's irradiance factor, the albedo of
+    the surface point the pixel sees in each frame (with an albedo map; unused with one
+    albedo), the start direction and the prior direction."""
 
     view: Vec3
     normal: Vec3  # components (F,)
     values: Float[Array, "F 3"]
     weight: Float[Array, " F"]
     irradiance: Float[Array, " F"]
+    albedo: Float[Array, "F 3"]
     start: Vec3
     prior: Vec3
 
 
-def pixel_residuals(y, problem: PixelProblem, brdf: BRDF, prior_scale) -> Float[Array, " R"]:
+def _with_albedo(brdf: BRDF, per_point: int | None, albedo) -> BRDF:
+    """`brdf` with lobe `per_point`'s weight replaced by `albedo` (None: as it is)."""
+    if per_point is None:
+        return brdf
+    return brdf.with_weights(brdf.weights.at[per_point].set(albedo))
+
+
+def pixel_residuals(
+    y, problem: PixelProblem, brdf: BRDF, prior_scale, per_point: int | None = None
+) -> Float[Array, " R"]:
     """Eq. (8)'s residuals of one pixel in 8-bit levels, every frame (F x 3), then the
-    prior's three (`(L - L_prior) * prior_scale`, `prior_scale` = 1 / prior_deg in 1/rad)."""
+    prior's three (`(L - L_prior) * prior_scale`, `prior_scale` = 1 / prior_deg in 1/rad).
+    With `per_point` (the diffuse lobe's index; an albedo map), that lobe's weight in each
+    frame is the albedo of the surface point seen there."""
     light = tangent_direction(problem.start, y)
 
-    def one_frame(normal, values, weight, irradiance):
-        predicted = irradiance * brdf.radiance(normal, light, problem.view)
+    def one_frame(normal, values, weight, irradiance, albedo):
+        local = _with_albedo(brdf, per_point, albedo)
+        predicted = irradiance * local.radiance(normal, light, problem.view)
         return 255 * weight * (predicted - values)
 
     shading = jax.vmap(one_frame)(
-        problem.normal, problem.values, problem.weight, problem.irradiance
+        problem.normal, problem.values, problem.weight, problem.irradiance, problem.albedo
     )
     prior = (light - problem.prior).to_array() * prior_scale
     return jnp.concatenate([shading.reshape(-1), prior])
@@ -90,28 +105,32 @@ def solve_pixels(
     prior_scale: float,
     solver: ClosedFormLM | optx.AbstractLeastSquaresSolver,
     max_steps: int = 24,
+    per_point: int | None = None,
 ) -> PixelSolution:
     """Eq. (8) per pixel by `solver` (`ClosedFormLM`, or an optimistix solver such as
     `optx.LevenbergMarquardt` with at most `max_steps` steps), vmapped over the pixels of
-    `problems` (a batch of `PixelProblem`s), from their start directions. Works in the dtype
-    of `problems` (the BRDF is cast to it), float32 or float64."""
+    `problems` (a batch of `PixelProblem`s), from their start directions. With `per_point`
+    (the diffuse lobe's index), that lobe's weight is each problem's per-frame albedo. Works
+    in the dtype of `problems` (the BRDF is cast to it), float32 or float64."""
     brdf = cast_floating(brdf, problems.values.dtype)
+
+    def residuals(y, problem, scale):
+        return pixel_residuals(y, problem, brdf, scale, per_point)
 
     def one(problem):
         y0 = jnp.zeros(2, problem.values.dtype)
         y, status, steps = least_squares(
-            lambda y: pixel_residuals(y, problem, brdf, prior_scale), solver, y0, max_steps
+            lambda y: residuals(y, problem, prior_scale), solver, y0, max_steps
         )
         light = tangent_direction(problem.start, y)
-        return light.to_array(), status, steps, _data_rmse(y, problem, brdf)
+        return light.to_array(), status, steps, _data_rmse(residuals(y, problem, 0.0), problem)
 
     direction, result, steps, rmse = jax.vmap(one)(problems)
     return PixelSolution(direction, result, steps, rmse)
 
 
-def _data_rmse(y, problem: PixelProblem, brdf: BRDF):
-    """One pixel's RMSE (levels) of the shading residuals at `y`, over its observed values."""
-    residual = pixel_residuals(y, problem, brdf, 0.0)
+def _data_rmse(residual, problem: PixelProblem):
+    """One pixel's RMSE (levels) of its shading `residual`, over its observed values."""
     frames = problem.values.shape[0]
     count = 3 * jnp.maximum(jnp.sum(problem.weight), 1)
     return jnp.sqrt(jnp.sum(residual[: 3 * frames] ** 2) / count)

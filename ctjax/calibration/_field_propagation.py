@@ -30,6 +30,18 @@ class FieldObservations:
     values: np.ndarray  # (H, W, F, 3)
     weight: np.ndarray  # (H, W, F)
     irradiance: np.ndarray  # (H, W, F)
+    albedo: np.ndarray  # (H, W, F, 3): the surface point's, with an albedo map; else 0
+
+    def with_albedo(self, maps: list[np.ndarray]) -> "FieldObservations":
+        """These observations with each frame's albedo map (H, W, 3); a pixel's view
+        whose albedo is not estimated (NaN) is not used."""
+        albedo = np.stack(maps, axis=2)
+        known = np.all(np.isfinite(albedo), axis=-1)
+        return dataclasses.replace(
+            self,
+            albedo=np.nan_to_num(albedo).astype(self.values.dtype),
+            weight=self.weight * known,
+        )
 
 
 def field_observations(obs: Observations, frames: list[int], falloff, dtype) -> FieldObservations:
@@ -49,7 +61,12 @@ def field_observations(obs: Observations, frames: list[int], falloff, dtype) -> 
         irradiance.append(factor)
     stack = lambda parts: np.stack(parts, axis=2).astype(dtype)  # noqa: E731
     return FieldObservations(
-        obs.view.astype(dtype), stack(normal), stack(values), stack(weight), stack(irradiance)
+        obs.view.astype(dtype),
+        stack(normal),
+        stack(values),
+        stack(weight),
+        stack(irradiance),
+        np.zeros_like(stack(values)),
     )
 
 
@@ -65,6 +82,7 @@ def _problems(obs: FieldObservations, index, start, prior) -> PixelProblem:
         jnp.asarray(flat(obs.values)),
         jnp.asarray(flat(obs.weight)),
         jnp.asarray(flat(obs.irradiance)),
+        jnp.asarray(flat(obs.albedo)),
         vec(start[index].astype(obs.view.dtype)),
         vec(prior[index].astype(obs.view.dtype)),
     )

@@ -42,6 +42,7 @@ Conventions and choices, all measured on synthetic captures (see `benchmarks/lig
   as `LightField` does for interpolation); normalised after evaluation.
 """
 
+import dataclasses
 import math
 import time
 
@@ -53,16 +54,28 @@ from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
 from .._status import Status
+from ..estimation import ALBEDO_CHOICES, default_albedo
+from ..estimation._albedo_map import albedo_maps
 from ..estimation._capture_fit import MaskOptions
 from ..fitting import (
+    TrackSamples,
     fit_model,
+    fit_model_map,
     paper_model,
     pixel_columns,
     pixel_predict,
     roughness_variants,
     strongly_typed,
 )
-from ..heldout import HeldOut, simplest_within
+from ..fitting._albedo_map import diffuse_lobe
+from ..heldout import (
+    SIMPLEST_WITHIN,
+    HeldOut,
+    HeldOutTracks,
+    simplest_within,
+    split_for,
+    split_frames,
+)
 from ..io import Capture
 from ..lights import AbstractFalloff, ColocatedLight, InverseSquare, LightField
 from ..lobes import BRDF
@@ -82,7 +95,16 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
-    """The BRDF (rho~, F~, sigma) under `model`'s light on `samples`."""
+    """The BRDF (rho~, F~, sigma) under `model`'s light on `samples`: pixel samples (one
+    albedo) or `TrackSamples` (an albedo per surface point, eliminated in closed form)."""
+    if isinstance(samples, TrackSamples):
+        return fit_model_map(
+            roughness_variants(model),
+            samples,
+            max_steps=max_steps,
+            refine=3,
+            standard_errors=False,
+        )
     return fit_model(
         roughness_variants(model),
         samples,
@@ -119,7 +141,8 @@ def _first_brdf(heldout: HeldOut, falloff, brdf: BRDF | None) -> Estimate:
 def _field_round(obs, boundary, todo, brdf, solve, knot_px, field):
     """Steps 2-3 once: the per-pixel directions (propagated from S when `field` is None,
     else started from it), their spline, every pixel solved again towards the spline, and
-    the spline of that: (field, per-pixel directions, per-pixel solution)."""
+    the spline of that: (field, per-pixel directions, per-pixel solution). `solve` is
+    `solve(problems, brdf)`."""
     view = obs.view.astype(float)
     if field is None:
         directions = propagate(obs, boundary, todo, brdf, solve)
@@ -194,6 +217,24 @@ def _result(heldout, final, field, pixel_directions, todo, status, boundary, vie
     return fit
 
 
+def _warn_unless_better(result: Estimate, albedo: str) -> None:
+    """A warning unless the field beats the light at the lens (L = V) on held-out frames."""
+    colocated = result.details["rgb_rmse_heldout_colocated"]
+    if result.heldout_rmse > (1 - SIMPLEST_WITHIN) * colocated:
+        result.warnings.append(
+            f"the field does not explain the held-out frames better than the light at the "
+            f"lens, L = V ({result.heldout_rmse:.3f} vs {colocated:.3f} levels): these data "
+            "show no departure from L = V that the field captures; the simpler model will do"
+            + (
+                " (with an albedo per surface point, most of a smooth field's shading is "
+                "absorbed by the albedos: a light offset from the lens is better found by "
+                "the near-light model, calibrate-light --model near)"
+                if albedo == "map"
+                else ""
+            )
+        )
+
+
 def calibrate_light_field(
     capture: "Capture | Observations",
     calibration: int | None = None,
@@ -205,6 +246,7 @@ def calibrate_light_field(
     brdf_rounds: int = 3,
     brdf: BRDF | None = None,
     falloff: tuple[AbstractFalloff, ...] | None = None,
+    albedo: str | None = None,
     masks: MaskOptions | None = None,
     max_samples: int = 12_000,
     heldout_samples: int = 40_000,
@@ -214,10 +256,10 @@ def calibrate_light_field(
     """The paper's per-pixel light field from the calibration frames (default: the first
     60%), judged on the held-out frames.
 
-    1. BRDF: the paper's model with L = V fitted on the calibration frames' usable pixels
-       (or `brdf` as given). Without `falloff`, it is also fitted with an inverse-square
-       falloff from the lens, kept only if 1% better on the held-out frames; `falloff`
-       (e.g. `()` or `(InverseSquare(70.0),)`) forces the choice.
+    1. BRDF: the paper's model with L = V fitted on the calibration frames (or `brdf` as
+       given). Without `falloff`, it is also fitted with an inverse-square falloff from
+       the lens, kept only if 1% better on the held-out frames; `falloff` (e.g. `()` or
+       `(InverseSquare(70.0),)`) forces the choice.
     2. Per pixel of S-bar (usable, not specular, in at least one calibration frame), L on
        eq. (8) over all calibration frames by `solver` (optimistix's LM with at most
        `max_steps` steps, the reference; or `ClosedFormLM(iterations)`, several times faster
@@ -230,6 +272,16 @@ def calibrate_light_field(
     4. With `brdf_rounds` > 1, the BRDF is refitted under the field and steps 2-3 repeated
        from the field.
 
+    `albedo`: `"map"` (one albedo per surface point: textured tissue; the default when
+    every frame has depth and a pose) or `"uniform"` (one albedo, the paper's). With the
+    map, step 1 fits surface points tracked across the calibration frames with every
+    point's albedo eliminated in closed form (`fit_model_map`), and before each round of
+    steps 2-3 every calibration pixel's albedo is estimated from the calibration frames
+    that see its surface point under the current light (`albedo_maps`): the per-pixel
+    problem then has the albedo of the point each frame shows there, and only the light's
+    direction is left to explain the shading. Without it, texture is read as light
+    directions (measured: ~45 degrees from V on a textured capture lit from the lens).
+
     Returns an `Estimate` of the `ShadingModel` with its `LightField`: `status` is the
     worst per-pixel status, `arrays` hold the smooth field `directions` (H, W, 3), eq. (7)'s
     `theta`, `phi`, the per-pixel solution `pixel_directions` (NaN where not solved),
@@ -240,57 +292,100 @@ def calibrate_light_field(
     """
     say = progress or (lambda message: None)
     started = time.perf_counter()
-    timings = {}
     capture = Observations.of(capture, masks)
     if any(f.depth is None or f.normals is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the light field needs depth and normals for every frame")
-    heldout = HeldOut.split(
-        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
-    )
-    calib = heldout.calibration
+    albedo = default_albedo(capture) if albedo is None else albedo
+    if albedo not in ALBEDO_CHOICES:
+        raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
+    calib, _ = split_frames(len(capture), calibration, source=capture.root)
     boundary, todo = _boundary_and_todo(capture, calib)
-    height, width = boundary.shape
-    knot_px = max(8.0, max(height, width) / 8) if knot_px is None else knot_px
+    heldout = split_for(
+        capture,
+        calibration,
+        albedo=albedo,
+        max_samples=max_samples,
+        heldout_samples=heldout_samples,
+        seed=seed,
+    )
+    knot_px = max(8.0, max(boundary.shape) / 8) if knot_px is None else knot_px
     prior_scale = 1 / math.radians(prior_deg)
+    tick = time.perf_counter()
+    say(f"BRDF: the paper's model (L = V) on frames {heldout.calibration}")
+    fit = _first_brdf(heldout, falloff, brdf)
+    per_point = diffuse_lobe(fit.model) if albedo == "map" else None
+    timings = {"brdf": time.perf_counter() - tick}
 
     def solve(problems, brdf):
-        return solve_pixels(problems, brdf, prior_scale, solver, max_steps)
+        return solve_pixels(problems, brdf, prior_scale, solver, max_steps, per_point)
 
+    rounds = _Rounds(heldout, boundary, todo, solve, knot_px, per_point, timings, say)
+    final, field, pixel_directions, status, view = rounds.run(fit, brdf_rounds, brdf is None)
     tick = time.perf_counter()
-    say(f"BRDF: the paper's model (L = V) on frames {calib}")
-    fit = _first_brdf(heldout, falloff, brdf)
-    chosen = fit.model.light.falloff
-    dtype = jax.dtypes.canonicalize_dtype(np.float64)
-    obs = field_observations(capture, calib, chosen, dtype)
-    timings["brdf"] = time.perf_counter() - tick
-
-    field = None
-    for round_ in range(brdf_rounds):
-        tick = time.perf_counter()
-        field, pixel_directions, solution = _field_round(
-            obs, boundary, todo, fit.model.brdf, solve, knot_px, field
-        )
-        timings[f"field_round_{round_}"] = time.perf_counter() - tick
-        if round_ + 1 < brdf_rounds and brdf is None:
-            say("BRDF: refitted under the light field")
-            tick = time.perf_counter()
-            model = ShadingModel(fit.model.brdf, LightField(field, falloff=chosen))
-            fit = fit_field_brdf(model, heldout.train, max_steps=50)
-            timings[f"brdf_round_{round_ + 1}"] = time.perf_counter() - tick
-
-    status = np.full((height, width), Status.not_solved.value, np.int64)
-    status.reshape(-1)[np.flatnonzero(todo)] = solution["result"]
-    final = ShadingModel(fit.model.brdf, LightField(field, falloff=chosen))
-    tick = time.perf_counter()
-    result = _result(heldout, final, field, pixel_directions, todo, status, boundary, obs.view)
+    result = _result(heldout, final, field, pixel_directions, todo, status, boundary, view)
     if not np.isfinite(result.heldout_rmse):
         raise CtjaxError("the light field did not produce finite estimates")
     timings["evaluation"] = time.perf_counter() - tick
     timings["total"] = time.perf_counter() - started
     result.seconds = timings
+    result.details["albedo"] = albedo
+    _warn_unless_better(result, albedo)
     result.details["settings"] = _settings(solver, max_steps, prior_deg, knot_px, brdf_rounds)
-    result.details["settings"]["falloff"] = "+".join(f.name for f in chosen) or "none"
+    result.details["settings"]["falloff"] = "+".join(f.name for f in final.light.falloff) or "none"
     return result
+
+
+@dataclasses.dataclass
+class _Rounds:
+    """Steps 2-4 of `calibrate_light_field`: rounds of the field, each under the current
+    BRDF (and albedo map, with `per_point`), the BRDF refitted between them."""
+
+    heldout: "HeldOut | HeldOutTracks"
+    boundary: np.ndarray
+    todo: np.ndarray
+    solve: object
+    knot_px: float
+    per_point: int | None
+    timings: dict
+    say: object
+
+    def observations(self, base, model: ShadingModel):
+        """`base` with, given an albedo map, every calibration pixel's albedo under `model`."""
+        if self.per_point is None:
+            return base
+        calib = self.heldout.calibration
+        maps, _ = albedo_maps(
+            self.heldout.capture.capture,
+            model.brdf,
+            model.light,
+            per_point=self.per_point,
+            frames=calib,
+            among=calib,
+        )
+        return base.with_albedo(maps)
+
+    def run(self, fit: Estimate, brdf_rounds: int, refit: bool):
+        """(the final model, the field, per-pixel directions, per-pixel status, views)."""
+        falloff = fit.model.light.falloff
+        dtype = jax.dtypes.canonicalize_dtype(np.float64)
+        base = field_observations(self.heldout.capture, self.heldout.calibration, falloff, dtype)
+        model, field = fit.model, None
+        for round_ in range(brdf_rounds):
+            tick = time.perf_counter()
+            obs = self.observations(base, model)
+            field, pixel_directions, solution = _field_round(
+                obs, self.boundary, self.todo, model.brdf, self.solve, self.knot_px, field
+            )
+            model = ShadingModel(model.brdf, LightField(field, falloff=falloff))
+            self.timings[f"field_round_{round_}"] = time.perf_counter() - tick
+            if round_ + 1 < brdf_rounds and refit:
+                self.say("BRDF: refitted under the light field")
+                tick = time.perf_counter()
+                model = fit_field_brdf(model, self.heldout.train, max_steps=50).model
+                self.timings[f"brdf_round_{round_ + 1}"] = time.perf_counter() - tick
+        status = np.full(self.todo.shape, Status.not_solved.value, np.int64)
+        status.reshape(-1)[np.flatnonzero(self.todo)] = solution["result"]
+        return model, field, pixel_directions, status, base.view
 
 
 def _settings(solver, max_steps, prior_deg, knot_px, brdf_rounds) -> dict:

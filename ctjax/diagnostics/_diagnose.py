@@ -26,7 +26,7 @@ from ..fitting import (
     pixel_predict,
     roughness_variants,
 )
-from ..heldout import HeldOut, HeldOutTracks, median_depth_mm, noise_floor_map_levels
+from ..heldout import HeldOutTracks, median_depth_mm, noise_floor_map_levels, split_for
 from ..io import Capture
 from ..observations import Observations
 from ._candidates import CANDIDATES, AbstractCandidate, candidate
@@ -164,6 +164,33 @@ def _candidate_fit(effect, starts, base, heldout, capture, settings) -> Estimate
     return heldout.judge(fit, noise_floor=False)
 
 
+def _candidates(base, add, candidates, context, heldout, capture, settings, say) -> list:
+    """Every candidate effect not in `add`, fitted on top of `base` and judged."""
+    added = {e if isinstance(e, str) else e.name for e in add}
+    results = []
+    for effect in candidates:
+        if effect.name in added:
+            continue
+        starts = effect(base.model, context)
+        if not starts:
+            continue
+        fit = _candidate_fit(effect, starts, base, heldout, capture, settings)
+        if fit is None:
+            continue
+        improvement = (base.heldout_rmse - fit.heldout_rmse) / base.heldout_rmse
+        fit.details = {
+            "effect": effect.name,
+            "improvement": improvement,
+            "params": _new_parameters(base.model, fit.model),
+        }
+        results.append(fit)
+        say(
+            f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
+            f"({100 * improvement:+.1f}%)" + ("" if fit.converged else f" [{fit.status.name}]")
+        )
+    return results
+
+
 def diagnose(
     capture: "Capture | Observations",
     *,
@@ -218,49 +245,20 @@ def diagnose(
         "albedo": albedo,
         "albedo_map_possible": default_albedo(capture) == "map",
     }
-    if albedo == "map":
-        heldout = HeldOutTracks.split(
-            capture,
-            calibration,
-            max_points=max_samples,
-            heldout_points=heldout_samples // 2,
-            seed=seed,
-        )
-    else:
-        heldout = HeldOut.split(
-            capture,
-            calibration,
-            max_samples=max_samples,
-            heldout_samples=heldout_samples,
-            seed=seed,
-        )
+    heldout = split_for(
+        capture,
+        calibration,
+        albedo=albedo,
+        max_samples=max_samples,
+        heldout_samples=heldout_samples,
+        seed=seed,
+    )
     base = _base_model(heldout, add, candidates, context, max_steps, say)
     base.details["albedo"] = albedo
     noise = base.noise_floor
     say(f"base model: held-out RMSE {base.heldout_rmse:.2f} levels, noise floor {noise:.2f}")
 
-    added = {e if isinstance(e, str) else e.name for e in add}
-    results = []
-    for effect in candidates:
-        if effect.name in added:
-            continue
-        starts = effect(base.model, context)
-        if not starts:
-            continue
-        fit = _candidate_fit(effect, starts, base, heldout, capture, settings)
-        if fit is None:
-            continue
-        improvement = (base.heldout_rmse - fit.heldout_rmse) / base.heldout_rmse
-        fit.details = {
-            "effect": effect.name,
-            "improvement": improvement,
-            "params": _new_parameters(base.model, fit.model),
-        }
-        results.append(fit)
-        say(
-            f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
-            f"({100 * improvement:+.1f}%)" + ("" if fit.converged else f" [{fit.status.name}]")
-        )
+    results = _candidates(base, add, candidates, context, heldout, capture, settings, say)
     results.sort(key=lambda c: c.heldout_rmse)
     if results and results[0].heldout_rmse < base.heldout_rmse:
         # Every estimate of the noise is biased up by what the model misses: the best

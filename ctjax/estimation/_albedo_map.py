@@ -392,7 +392,7 @@ def _padded(array: np.ndarray, padding: int, dtype) -> jax.Array:
 
 
 def _albedo_of(
-    capture, data, brdf, light, per_point, index, rows, cols, count, tolerance, dtype, chunk
+    capture, data, brdf, light, per_point, index, rows, cols, count, among, tolerance, dtype, chunk
 ):
     """Albedo (N, 3; NaN where not estimated) and view count (N,) of pixels of frame
     `index`, from all the frames that see them (see `albedo_maps`), and the own frame's
@@ -406,7 +406,7 @@ def _albedo_of(
     own = None
     # Padded to a whole chunk: one compilation for every frame and chunk.
     as_jax = functools.partial(_padded, padding=chunk - len(rows), dtype=dtype)
-    for other in partners(capture, index, count):
+    for other in partners(capture, index, count, among):
         obs = (
             observe_own(camera, data[index], rows, cols)
             if other == index
@@ -453,11 +453,13 @@ def albedo_maps(
     per_point: int = 0,
     neighbours: int | None = DEFAULT_NEIGHBOURS,
     tolerance: float | None = None,
+    frames=None,
+    among=None,
     dtype=None,
 ):
-    """The albedo map of every frame given the fitted BRDF's global lobes and the light:
-    a list of (H, W, 3) float32 maps (rho_tilde per pixel, in the units of `rho_tilde`, NaN
-    where not estimated), and of (H, W) view counts.
+    """The albedo map of every frame (of `frames`, all by default) given the fitted BRDF's
+    global lobes and the light: a list of (H, W, 3) float32 maps (rho_tilde per pixel, in
+    the units of `rho_tilde`, NaN where not estimated), and of (H, W) view counts.
 
     Every pixel with depth and a normal is followed into the frames that see it (its
     `neighbours` nearest, all when None; see `ctjax._tracks`); its albedo is the weighted
@@ -466,12 +468,13 @@ def albedo_maps(
     channel where no observation counts for it (clipped there in its own frame and in every
     other that sees it), and in all three where the point is grazing in every view (N.L
     below `MIN_COSINE`). A point seen in one frame only gets the albedo of that one
-    observation, given the fitted BRDF.
+    observation, given the fitted BRDF. `among`: the frames a point is looked for in (all
+    by default; e.g. the calibration frames alone, so that held-out frames stay unseen).
     """
     camera = capture.camera
     maps, views = [], []
     for _, rows, cols, albedo, seen_count, _ in _frames_of(
-        capture, brdf, light, None, per_point, neighbours, tolerance, dtype
+        capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among
     ):
         full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
         full[rows, cols] = albedo
@@ -482,7 +485,7 @@ def albedo_maps(
     return maps, views
 
 
-def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, dtype):
+def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among=None):
     """For each frame of `frames` (all when None): its pixels with geometry (rows, cols)
     and their albedo, view count and own residual (`_albedo_of`), in chunks of at most
     `_MAP_CHUNK` pixels (bounded memory; one compilation for every frame and chunk)."""
@@ -490,7 +493,8 @@ def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, d
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     camera = capture.camera
     data = [FrameData.of(f) for f in capture.frames]
-    count = len(capture) - 1 if neighbours is None else min(neighbours, len(capture) - 1)
+    available = len(capture) if among is None else len(among)
+    count = available - 1 if neighbours is None else min(neighbours, available - 1)
     chunk = min(_MAP_CHUNK, camera.width * camera.height)
     for index in range(len(capture)) if frames is None else frames:
         rows, cols = np.nonzero(capture.frames[index].geometry_mask)
@@ -509,6 +513,7 @@ def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, d
                 rows[part],
                 cols[part],
                 count,
+                among,
                 tolerance,
                 dtype,
                 chunk,

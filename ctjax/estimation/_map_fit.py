@@ -60,6 +60,36 @@ def _poorly_determined(fit, per_point: int) -> list[str]:
     return warnings
 
 
+def _median_albedo(capture, maps) -> np.ndarray:
+    """The maps' median albedo per channel (NaN where that channel clipped ignored)."""
+    median = np.zeros(3)
+    for c in range(3):  # one channel at a time: bounded memory at 1080p
+        values = np.concatenate([m[..., c][np.isfinite(m[..., c])] for m in maps])
+        if values.size == 0:
+            raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated in {'RGB'[c]}")
+        median[c] = np.median(values)
+        del values
+    return median
+
+
+def _warnings(capture, fit, per_point: int, points: int, coverage) -> list[str]:
+    """Poorly determined parameters and frames the map covers thinly."""
+    warnings = []
+    poorly = _poorly_determined(fit, per_point)
+    if poorly:
+        warnings.append(
+            f"{points} tracked points cannot determine: {'; '.join(poorly)} (relative "
+            "standard error above 5%)"
+        )
+    thin = [f.name for f, c in zip(capture.frames, coverage, strict=True) if c < 0.9]
+    if thin:
+        warnings.append(
+            f"albedo map covers under 90% of the surface in frame(s) {', '.join(thin[:5])} "
+            "(clipped, or seen in no other frame: check the poses and depth)"
+        )
+    return warnings
+
+
 def fit_albedo_map(
     capture,
     masks: MaskOptions | None = None,
@@ -106,13 +136,7 @@ def fit_albedo_map(
         ):
             raise CtjaxError("the BRDF fit with an albedo map did not produce finite estimates")
     maps, counts = albedo_maps(capture, fit.brdf, per_point=per_point, neighbours=neighbours)
-    median = np.zeros(3)
-    for c in range(3):  # per channel (NaN where that channel clipped), one at a time
-        values = np.concatenate([m[..., c][np.isfinite(m[..., c])] for m in maps])
-        if values.size == 0:
-            raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated in {'RGB'[c]}")
-        median[c] = np.median(values)
-        del values
+    median = _median_albedo(capture, maps)
     weights = np.asarray(fit.weights).copy()
     weights[per_point] = median
     brdf = fit.brdf.with_weights(weights.astype(np.asarray(fit.weights).dtype))
@@ -145,19 +169,7 @@ def fit_albedo_map(
         "lambertian": {**_map_fit_json(lambertian, 0), "albedo": "map"},
         "masks": dataclasses.asdict(masks),
     }
-    warnings = []
-    poorly = _poorly_determined(fit, per_point)
-    if poorly:
-        warnings.append(
-            f"{len(tracks)} tracked points cannot determine: {'; '.join(poorly)} (relative "
-            "standard error above 5%)"
-        )
-    thin = [f.name for f, c in zip(capture.frames, coverage, strict=True) if c < 0.9]
-    if thin:
-        warnings.append(
-            f"albedo map covers under 90% of the surface in frame(s) {', '.join(thin[:5])} "
-            "(clipped, or seen in no other frame: check the poses and depth)"
-        )
+    warnings = _warnings(capture, fit, per_point, len(tracks), coverage)
     arrays = {f"albedo/{f.name}": m for f, m in zip(capture.frames, maps, strict=True)}
     return Estimate(
         ShadingModel(brdf, ColocatedLight()),

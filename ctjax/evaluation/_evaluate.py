@@ -7,6 +7,7 @@ capture's depth.
 """
 
 import dataclasses
+import inspect
 import math
 import time
 from collections.abc import Callable
@@ -18,14 +19,16 @@ from .._errors import CtjaxError
 from .._json import named_parameters
 from .._result import Estimate
 from .._status import Status
+from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
     ShadingModel,
     fit_model,
+    fit_model_map,
     pixel_columns,
     pixel_predict,
     rmse_levels,
 )
-from ..heldout import split_frames
+from ..heldout import HeldOutTracks, split_frames
 from ..io import Capture
 from ..lights import ColocatedLight
 from ..lobes import BRDF, Lambertian
@@ -89,6 +92,7 @@ class Evaluation:
     shapes: list[FrameShape]
     timings: dict
     notes: list[str]
+    albedo: str = "uniform"
 
     @property
     def light(self) -> str:
@@ -111,6 +115,7 @@ class Evaluation:
     def to_json(self) -> dict:
         out = {
             "light": self.light,
+            "albedo": self.albedo,
             "calibration_frames": self.calibration_frames,
             "test_frames": self.test_frames,
         }
@@ -127,8 +132,15 @@ class Evaluation:
             out[f"{key}_sfs_error_mm"] = _mean(errors)
             out[f"{key}_sfs_error_median_mm"] = _median(errors)
             out[f"{key}_sfs_error_near_highlights_mm"] = _mean(near)
+        rgb = (
+            "8-bit levels over the views of surface points tracked across frames, each "
+            "predicted with the model fixed and the point's albedo fitted to its other views "
+            "(both models)"
+            if self.albedo == "map"
+            else "8-bit levels over unsaturated pixels with geometry"
+        )
         out["units"] = (
-            "rgb_rmse: 8-bit levels over unsaturated pixels with geometry; sfs_error: mean "
+            f"rgb_rmse: {rgb}; sfs_error: mean "
             "(or median) |depth - reference depth|, mm, test frames, after scaling each SfS "
             "surface to the reference's bounding-box volume. SfS: lambertian = Tsai-Shah; "
             "cook_torrance = Tsai-Shah's formulation with the Cook-Torrance reflectance map "
@@ -156,33 +168,49 @@ def _median(values) -> float | None:
     return float(np.median(values)) if len(values) else None
 
 
-def fit_lambertian(capture: Capture, frames: list[int], max_samples: int = 40_000) -> Estimate:
+def fit_lambertian(
+    capture: Capture,
+    frames: list[int],
+    max_samples: int = 40_000,
+    *,
+    tracks: HeldOutTracks | None = None,
+) -> Estimate:
     """The Lambertian model (rho_tilde, light at the camera) fitted to every usable pixel of
-    `frames`: linear, so the closed form is the least-squares solution."""
-    samples = Observations.of(capture).pixels(frames, max_samples=max_samples)
+    `frames`: linear, so the closed form is the least-squares solution. With `tracks` (an
+    albedo map), one albedo per tracked surface point of `tracks.train`, eliminated in
+    closed form as for Cook-Torrance: the model's `rho_tilde` is their median."""
     start = ShadingModel(BRDF(Lambertian(1.0)), ColocatedLight())
+    if tracks is not None:
+        return fit_model_map(start, tracks.train)
+    samples = Observations.of(capture).pixels(frames, max_samples=max_samples)
     return fit_model(start, samples, pixel_predict, columns=pixel_columns, max_steps=20)
 
 
-def fit_colocated(capture: Capture, calibration: int) -> Estimate:
+def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None) -> Estimate:
     """The paper's estimate (`ctjax fit`: BnB on the ring, L = V) on the first
-    `calibration` frames, with a 10 px ring (the paper's 3 px is thin on bright tissue)."""
+    `calibration` frames, with a 10 px ring (the paper's 3 px is thin on bright tissue);
+    `albedo` as `fit_capture`'s."""
     from ..estimation import MaskOptions, fit_capture
 
     capture = Observations.of(capture).capture
     subset = dataclasses.replace(capture, frames=capture.frames[:calibration])
-    fit = fit_capture(subset, MaskOptions(ring_px=10), albedo="uniform")
+    fit = fit_capture(subset, MaskOptions(ring_px=10), albedo=albedo)
     fit.details["light"] = "colocated"
     return fit
 
 
-def _cook_torrance(capture, calibration, cook_torrance) -> Estimate:
+def _cook_torrance(capture, calibration, cook_torrance, albedo) -> Estimate:
     if isinstance(cook_torrance, Estimate):
         return cook_torrance
     if isinstance(cook_torrance, ShadingModel):
         return Estimate(cook_torrance, status=Status.given)
     if callable(cook_torrance):
-        return cook_torrance(capture, calibration=calibration)
+        try:
+            takes_albedo = "albedo" in inspect.signature(cook_torrance).parameters
+        except (TypeError, ValueError):
+            takes_albedo = False
+        options = {"albedo": albedo} if takes_albedo else {}
+        return cook_torrance(capture, calibration=calibration, **options)
     raise CtjaxError(
         "cook_torrance must be a fitted ShadingModel, an Estimate or an estimator "
         f"(capture, calibration=N) -> Estimate, got {type(cook_torrance).__name__}"
@@ -236,6 +264,7 @@ def evaluate(
     *,
     calibration: int | None = None,
     cook_torrance: Estimator | Estimate | ShadingModel | None = None,
+    albedo: str | None = None,
     sfs: bool = True,
     reference: Capture | None = None,
     per_pixel_sfs: bool = False,
@@ -245,12 +274,18 @@ def evaluate(
     test frames (RGB error and SfS).
 
     `cook_torrance`: how Cook-Torrance and its light are obtained: an estimator called as
-    `cook_torrance(capture, calibration=N)` (default: `calibrate_near_light`; also
-    `calibrate_light_field`, `fit_colocated`), or an already fitted `Estimate` or
-    `ShadingModel`, used as is. `reference`: the capture whose depth the SfS is compared
-    with (default: `capture`'s own; e.g. ground truth when `capture`'s shape came from
-    structure-from-motion). `per_pixel_sfs`: also run the paper's per-pixel Cook-Torrance
-    SfS (eq. 9 on Tsai-Shah's normals) and report it beside the joint one."""
+    `cook_torrance(capture, calibration=N[, albedo=...])` (default: `calibrate_near_light`;
+    also `calibrate_light_field`, `fit_colocated`), or an already fitted `Estimate` or
+    `ShadingModel`, used as is. `albedo`: `"map"` (one albedo per surface point, for both
+    models: the default when every frame has depth and a pose) or `"uniform"` (one per
+    model, the paper's); with the map, the RGB errors are those of tracked surface points,
+    each view predicted with the model fixed and the point's albedo fitted to its other
+    views (the held-out protocol, `HeldOutTracks`), the same freedom for both models.
+    `reference`: the capture whose depth the SfS is compared with (default: `capture`'s
+    own; e.g. ground truth when `capture`'s shape came from structure-from-motion).
+    `per_pixel_sfs`: also run the paper's per-pixel Cook-Torrance SfS (eq. 9 on Tsai-Shah's
+    normals) and report it beside the joint one. Shape from shading has one image: it uses
+    one albedo per model (with the map, the median of the points'), and says so in `notes`."""
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
     if missing:
         raise CtjaxError(
@@ -262,18 +297,22 @@ def evaluate(
 
         cook_torrance = calibrate_near_light
     capture = Observations.of(capture)
+    albedo = default_albedo(capture) if albedo is None else albedo
+    if albedo not in ALBEDO_CHOICES:
+        raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     calib, test = split_frames(len(capture), calibration, source=capture.root)
+    tracks = HeldOutTracks.split(capture, len(calib)) if albedo == "map" else None
     timings = {}
     tic = time.perf_counter()
-    progress(f"fitting the Lambertian model on frames {calib}...")
-    lambertian = fit_lambertian(capture, calib)
+    progress(f"fitting the Lambertian model on frames {calib} (albedo {albedo})...")
+    lambertian = fit_lambertian(capture, calib, tracks=tracks)
     timings["lambertian_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     progress(f"fitting Cook-Torrance with its light on frames {calib}...")
-    fitted = _cook_torrance(capture, len(calib), cook_torrance)
+    fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo)
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    lambertian, fitted = (_judged(capture, e, calib, test) for e in (lambertian, fitted))
+    lambertian, fitted = (_judged(capture, e, calib, test, tracks) for e in (lambertian, fitted))
     timings["rgb_error"] = time.perf_counter() - tic
     shapes = []
     if sfs:
@@ -296,13 +335,24 @@ def evaluate(
         for name, e in (("Lambertian", lambertian), ("Cook-Torrance", fitted))
         if not e.converged
     ]
-    return Evaluation(calib, test, lambertian, fitted, shapes, timings, notes)
+    if albedo == "map" and sfs:
+        notes.append(
+            "shape from shading uses one albedo per model (the median of the surface "
+            "points' albedos): one image cannot tell texture from shading"
+        )
+    return Evaluation(calib, test, lambertian, fitted, shapes, timings, notes, albedo)
 
 
-def _judged(capture: Observations, fit: Estimate, calib, test) -> Estimate:
-    """`fit` with its RMSE on every usable pixel of the calibration and the test frames."""
-    rmse = {
-        split: float(rmse_levels(fit.model, capture.pixels(frames), pixel_predict))
-        for split, frames in (("calibration", calib), ("test", test))
-    }
+def _judged(capture: Observations, fit: Estimate, calib, test, tracks) -> Estimate:
+    """`fit` with its RMSE on the calibration and the test frames: every usable pixel (one
+    albedo), or with `tracks` every view of the tracked points, predicted from the albedo
+    of the point's other views (an albedo map)."""
+    if tracks is not None:
+        rmse = tracks.rmse(fit.model)
+        rmse = {"calibration": rmse["calibration"], "test": rmse["heldout"]}
+    else:
+        rmse = {
+            split: float(rmse_levels(fit.model, capture.pixels(frames), pixel_predict))
+            for split, frames in (("calibration", calib), ("test", test))
+        }
     return dataclasses.replace(fit, rmse=rmse, frames={"calibration": calib, "test": test})

@@ -232,6 +232,10 @@ def heldout_map_rmse(
 def _least_squares(model, samples, names, per_point, solver, max_steps):
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
+    if not parameters:  # all linear (e.g. Lambertian alone): the projection is the fit
+        albedo, weights, residual = _projected(model, samples, per_point)
+        done = jnp.asarray(Status.successful.value)
+        return model, albedo, weights, jnp.sum(residual * residual), done, jnp.asarray(0)
 
     def residuals(u, _):
         fitted = constrained(model, parameters, u)
