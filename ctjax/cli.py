@@ -142,9 +142,12 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     for frame, s in zip(capture.frames, sets, strict=True):
         for kind in ("specular", "ring", "saturated"):
             write_mask(args.out / kind / f"{frame.name}.png", getattr(s, kind))
+        write_mask(args.out / "fov" / f"{frame.name}.png", frame.visible)
+        outside = int((~frame.visible).sum())
         print(
             f"{frame.name}: {int(s.specular.sum())} specular, {int(s.ring.sum())} ring, "
             f"{int(s.saturated.sum())} saturated pixels"
+            + (f", {outside} outside the field of view" if outside else "")
         )
     total = int(np.sum([s.ring.sum() for s in sets]))
     print(f"wrote masks of {len(sets)} frame(s) to {args.out} ({total} ring pixels in all)")

@@ -522,4 +522,4 @@ def test_fit_and_masks_are_deterministic(tiny, tmp_path, capsys):
             ((tmp_path / f"{run}.json").read_bytes(), _snapshot(tmp_path / f"masks-{run}"))
         )
     assert outputs[0][0] == outputs[1][0]
-    assert outputs[0][1] == outputs[1][1] and len(outputs[0][1]) == 6
+    assert outputs[0][1] == outputs[1][1] and len(outputs[0][1]) == 8

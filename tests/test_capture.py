@@ -178,3 +178,23 @@ def test_loader_rejects_bad_input_with_one_clear_error(capture_dir, how):
         load_capture(capture_dir)
     assert isinstance(info.value, ValueError)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600)])
+def test_outputs_respect_the_umask(tmp_path, umask, mode):
+    """Results are written atomically (a temporary file, then a rename) with the mode a plain
+    `open` gives: readable by others under the usual umask, private under a strict one."""
+    import os
+
+    from ctjax.io._atomic import atomic_write_json, atomic_write_npy
+
+    previous = os.umask(umask)
+    try:
+        atomic_write_json(tmp_path / "a.json", {"sigma": 0.2})
+        atomic_write_npy(tmp_path / "b.npy", np.zeros(3, np.float32))
+    finally:
+        os.umask(previous)
+    for name in ("a.json", "b.npy"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == mode
+    assert json.loads((tmp_path / "a.json").read_text()) == {"sigma": 0.2}
+    assert not list(tmp_path.glob(".*.tmp"))  # no temporary file left behind

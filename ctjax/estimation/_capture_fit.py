@@ -33,7 +33,8 @@ class MaskOptions:
 
 
 def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list[SpecularSets]:
-    """S, S~ and the saturated pixels of every frame (pixels without a normal excluded).
+    """S, S~ and the saturated pixels of every frame (pixels without a normal, and outside
+    the frame's field of view, excluded).
 
     Raises `CtjaxError` for a frame whose every pixel is saturated (nothing to fit).
     """
@@ -51,6 +52,7 @@ def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list
             saturation=options.saturation,
             ring_px=options.ring_px,
             min_speck_px=options.min_speck_px,
+            visible=frame.visible,
         )
         for frame in capture.frames
     ]

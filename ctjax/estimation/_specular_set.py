@@ -71,18 +71,24 @@ def specular_sets(
     ring_px: float = DEFAULT_RING_PX,
     min_speck_px: int = DEFAULT_MIN_SPECK_PX,
     saturation_level: float = 1.0,
+    visible: np.ndarray | None = None,
 ) -> SpecularSets:
     """S, S~ and the saturated pixels of one frame.
 
     `valid` (H, W) marks pixels with a valid normal (default: all). The ring holds the
     non-specular, non-saturated, valid pixels whose distance to the nearest specular pixel is
-    at most `ring_px` (Euclidean, in pixels).
+    at most `ring_px` (Euclidean, in pixels). `visible` (H, W): the scene (the endoscope's
+    field of view, off overlays; default: all): nothing outside it is in any set.
     """
     _check_image(image)
     if not np.isfinite(ring_px) or ring_px <= 0:
         raise ParameterError(f"ring_px must be positive, got {ring_px}")
-    specular = specular_mask(image, lightness, saturation, min_speck_px)
-    saturated = np.any(image >= saturation_level, axis=-1) & ~specular
+    if visible is None:
+        visible = np.ones(image.shape[:2], bool)
+    elif visible.shape != image.shape[:2]:
+        raise ParameterError(f"visible mask has shape {visible.shape}, image {image.shape[:2]}")
+    specular = specular_mask(image, lightness, saturation, min_speck_px) & visible
+    saturated = np.any(image >= saturation_level, axis=-1) & ~specular & visible
     if valid is None:
         valid = np.ones(specular.shape, bool)
     elif valid.shape != specular.shape:
@@ -91,7 +97,7 @@ def specular_sets(
         distance = cv2.distanceTransform(
             (~specular).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
         )
-        ring = (distance <= ring_px) & ~specular & ~saturated & valid
+        ring = (distance <= ring_px) & ~specular & ~saturated & valid & visible
     else:
         ring = np.zeros_like(specular)
     return SpecularSets(specular, ring, saturated)

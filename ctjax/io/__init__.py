@@ -7,5 +7,8 @@ from ._capture import Frame as Frame
 from ._capture import load_capture as load_capture
 from ._capture import read_camera as read_camera
 from ._capture import write_capture as write_capture
+from ._field_of_view import field_of_view as field_of_view
+from ._field_of_view import overlay_mask as overlay_mask
+from ._field_of_view import visible_masks as visible_masks
 from ._images import read_rgb as read_rgb
 from ._images import write_rgb as write_rgb

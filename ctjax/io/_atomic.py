@@ -1,6 +1,8 @@
 """Atomic file writes: a temporary file in the same folder, then `os.replace`.
 
-An interrupted command leaves either the old file or the new one, never half of one.
+An interrupted command leaves either the old file or the new one, never half of one. The
+file gets the mode a plain `open` would give it (0666 less the umask: 0644 under umask
+022), not `mkstemp`'s private 0600, so that a colleague or a web server can read results.
 """
 
 import io
@@ -12,11 +14,19 @@ from pathlib import Path
 import numpy as np
 
 
+def _file_mode() -> int:
+    """0666 less the process's umask (read without changing it for good)."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, _file_mode())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)

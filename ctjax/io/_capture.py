@@ -23,6 +23,7 @@ from .._camera import DISTORTION_KEYS, Camera
 from .._errors import CaptureError
 from .._geometry import normals_from_depth
 from ._atomic import atomic_write_json, atomic_write_npy
+from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_rgb, write_rgb
 
 # Normals further than this from unit length are rejected (float32 files are ~1e-7 off).
@@ -38,19 +39,32 @@ class Frame:
     depth: np.ndarray | None = None  # float32 (H, W), mm, NaN where unknown
     normals: np.ndarray | None = None  # float32 (H, W, 3), unit, facing the camera
     pose: np.ndarray | None = None  # float64 (4, 4), camera-to-world
+    # bool (H, W): the scene, inside the endoscope's field of view and off overlays (see
+    # `ctjax.io.field_of_view`); None: everything is.
+    field_of_view: np.ndarray | None = None
 
     @property
     def has_geometry(self) -> bool:
         return self.normals is not None
 
     @property
+    def visible(self) -> np.ndarray:
+        """(H, W) bool: the pixels of the scene (`field_of_view`, all when None)."""
+        if self.field_of_view is None:
+            return np.ones(self.image.shape[:2], bool)
+        return self.field_of_view
+
+    @property
     def geometry_mask(self) -> np.ndarray:
-        """Pixels with a finite normal and (where depth is known) a finite positive depth."""
+        """Pixels of the scene with a finite normal and (where depth is known) a finite
+        positive depth."""
         if self.normals is None:
             return np.zeros(self.image.shape[:2], bool)
         mask = np.all(np.isfinite(self.normals), axis=-1)
         if self.depth is not None:
             mask &= np.isfinite(self.depth) & (self.depth > 0)
+        if self.field_of_view is not None:
+            mask &= self.field_of_view
         return mask
 
 
@@ -189,7 +203,9 @@ def _undistort(camera: Camera, frame: Frame) -> Frame:
     )
 
 
-def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
+def load_capture(
+    path: str | Path, *, undistort: bool = True, field_of_view: bool = True
+) -> Capture:
     """Load a capture folder (see the module docstring for the format).
 
     Rejects bad input with one `CaptureError` naming the file: missing folder, missing or
@@ -197,7 +213,9 @@ def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
     or that face away from the camera.
     Normals are derived from depth where only depth is given. With distortion coefficients
     in camera.json and `undistort=True`, images (and depth/normals) are undistorted and the
-    returned camera has none.
+    returned camera has none. With `field_of_view=True`, each frame's `field_of_view` marks
+    the scene: the pixels inside the endoscope's image circle or polygon and off overlays
+    constant over the video (`ctjax.io.visible_masks`); None where that is every pixel.
     """
     root = Path(path)
     if not root.exists():
@@ -210,7 +228,7 @@ def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
         raise CaptureError(f"{image_dir}: images folder not found")
     image_paths = sorted(p for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not image_paths:
-        raise CaptureError(f"{image_dir}: no images (.png) in the capture")
+        raise CaptureError(f"{image_dir}: no images ({', '.join(IMAGE_SUFFIXES)}) in the capture")
     poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
     size = (camera.height, camera.width)
     frames = []
@@ -252,7 +270,18 @@ def load_capture(path: str | Path, *, undistort: bool = True) -> Capture:
     if undistort and camera.distortion is not None:
         frames = [_undistort(camera, frame) for frame in frames]
         camera = camera.without_distortion()
+    if field_of_view:
+        frames = _with_field_of_view(frames)
     return Capture(root, camera, tuple(frames), truth)
+
+
+def _with_field_of_view(frames: list[Frame]) -> list[Frame]:
+    """`frames` with their `field_of_view` (None where every pixel is of the scene)."""
+    masks = visible_masks([frame.image for frame in frames])
+    return [
+        frame if mask.all() else dataclasses.replace(frame, field_of_view=mask)
+        for frame, mask in zip(frames, masks, strict=True)
+    ]
 
 
 def write_capture(

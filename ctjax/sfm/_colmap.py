@@ -72,7 +72,8 @@ def _write_workspace(folder: Path, frames, dilate_px: int) -> None:
     for frame in frames:
         rgb = np.round(np.clip(frame.image, 0, 1) * 255).astype(np.uint8)
         cv2.imwrite(str(folder / "images" / f"{frame.name}.png"), rgb[..., ::-1])
-        hidden = highlight_mask(frame.image, dilate_px)
+        # No features on highlights, nor outside the field of view (border, overlays).
+        hidden = highlight_mask(frame.image, dilate_px) | ~frame.visible
         # COLMAP reads the mask of IMAGE.png from MASKS/IMAGE.png.png; 0 = no features.
         cv2.imwrite(
             str(folder / "masks" / f"{frame.name}.png.png"),

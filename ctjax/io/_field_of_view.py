@@ -1,0 +1,129 @@
+"""The endoscope's field of view: what in a frame is the scene, and what is not.
+
+An endoscope's image is a circle or a polygon (an octagon on some colonoscopes) inside a
+black border, and videos carry overlays: a logo, an icon, text, a timestamp, constant over
+the video. Neither is tissue: no pixel of them may reach the masks, the fits or the
+structure-from-motion features.
+
+- **Border** (`field_of_view`): the dark pixels (brightest channel at most `border_level`)
+  connected to the image's edge, after a morphological opening that keeps only regions at
+  least `border_px` wide (a dark vessel or a shadow touching the edge is not a border), with
+  their holes filled; the field of view is the rest, shrunk by `margin_px` (the dim rim of
+  the image circle, where vignetting and the lens's edge blur the values).
+- **Overlays** (`overlay_mask`): pixels constant over the frames of a video (every channel
+  within a range of 2 `tolerance`) while the scene moves under them; at least
+  `MIN_OVERLAY_FRAMES` (8) frames, and only where the scene changes (a still camera shows
+  nothing); solid regions only (an opening removes tissue pixels that stay within the
+  tolerance by chance), and not a clipped highlight's core, which can stay put while the
+  camera moves (its surroundings stay whitish in every frame; a UI element's are tissue).
+
+A synthetic or cropped capture has no border and no overlay: everything is in view.
+"""
+
+import cv2
+import numpy as np
+
+from .._errors import ParameterError
+
+# The border's brightest channel is at most this (recorded values in [0, 1]): 15 of 255.
+DEFAULT_BORDER_LEVEL = 0.06
+# A border region is at least this wide (px), at 1080p scaled to the image's width.
+DEFAULT_BORDER_PX = 9
+# The field of view is shrunk by this much (px) from the border, at 1080p scaled to the
+# image's width (at least 1 px).
+DEFAULT_MARGIN_PX = 3
+# An overlay pixel stays within this of its median value in every frame (2 of 255).
+DEFAULT_OVERLAY_TOLERANCE = 2 / 255
+# A constant blob whose surroundings' least channel stays at least this bright in every
+# frame is a clipped highlight's core, not an overlay.
+HIGHLIGHT_SURROUND = 0.5
+# Overlays are looked for in videos of at least this many frames: in a few frames a clipped
+# highlight can stay put, and texture can stay within the tolerance, by chance.
+MIN_OVERLAY_FRAMES = 8
+
+
+def _check_image(image: np.ndarray) -> None:
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise ParameterError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
+
+
+def _disk(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def field_of_view(
+    image: np.ndarray,
+    *,
+    border_level: float = DEFAULT_BORDER_LEVEL,
+    border_px: int = DEFAULT_BORDER_PX,
+    margin_px: int = DEFAULT_MARGIN_PX,
+) -> np.ndarray:
+    """(H, W) bool, True inside the endoscope's field of view (see the module doc)."""
+    _check_image(image)
+    if not 0 <= border_level < 1:
+        raise ParameterError(f"border_level must be in [0, 1), got {border_level}")
+    dark = (np.max(image, axis=-1) <= border_level).astype(np.uint8)
+    height, width = dark.shape
+    if not dark.any():
+        return np.ones((height, width), bool)
+    # Only regions at least `border_px` wide: opening removes thinner dark structures.
+    radius = max(1, round(border_px * width / 1920 / 2))
+    dark = cv2.morphologyEx(dark, cv2.MORPH_OPEN, _disk(radius))
+    count, labels = cv2.connectedComponents(dark, connectivity=8)
+    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    border = np.isin(labels, edge[edge > 0])
+    if not border.any():
+        return np.ones((height, width), bool)
+    # The scene: the largest region that is not border (its holes, dark tissue, kept).
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((~border).astype(np.uint8), 4)
+    if count <= 1:
+        return np.zeros((height, width), bool)
+    scene = labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    margin = round(margin_px * width / 1920)
+    if margin_px > 0:
+        scene = cv2.erode(scene.astype(np.uint8), _disk(max(1, margin))).astype(bool)
+    return scene
+
+
+def overlay_mask(
+    images: list[np.ndarray], *, tolerance: float = DEFAULT_OVERLAY_TOLERANCE
+) -> np.ndarray:
+    """(H, W) bool, True on overlays: pixels whose every channel stays within a range of
+    2 `tolerance` over `images` (frames of one video) while the scene changes. All False
+    with fewer than `MIN_OVERLAY_FRAMES` frames or where nothing changes (see the module
+    doc). Dilated by 2 px (an overlay's anti-aliased edge)."""
+    if len(images) < MIN_OVERLAY_FRAMES:
+        return np.zeros(images[0].shape[:2], bool) if images else np.zeros((0, 0), bool)
+    low = high = None
+    for image in images:  # running extremes: memory of two frames, however long the video
+        _check_image(image)
+        low = image.copy() if low is None else np.minimum(low, image)
+        high = image.copy() if high is None else np.maximum(high, image)
+    constant = np.all(high - low <= 2 * tolerance, axis=-1)
+    dark = np.max(high, axis=-1) <= DEFAULT_BORDER_LEVEL
+    constant &= ~dark  # the black border is the field of view's business
+    changing = ~constant & ~dark
+    if not changing.any() or constant.mean() > 0.5:
+        # A still camera (or an unchanging scene): nothing tells an overlay from tissue.
+        return np.zeros(constant.shape, bool)
+    # Overlays are solid (an icon, text strokes); tissue that happens to stay within the
+    # tolerance in every frame is scattered pixels, which an opening removes.
+    solid = cv2.morphologyEx(constant.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    overlay = np.zeros(constant.shape, bool)
+    count, labels = cv2.connectedComponents(solid, connectivity=8)
+    whiteness = np.min(low, axis=-1)  # the least white each pixel ever was
+    for label in range(1, count):
+        blob = labels == label
+        around = cv2.dilate(blob.astype(np.uint8), _disk(3)).astype(bool) & ~blob
+        # A clipped highlight's core can stay put while the camera moves; it is not an
+        # overlay: its surroundings stay whitish in every frame, a UI element's are tissue.
+        if around.any() and np.median(whiteness[around]) >= HIGHLIGHT_SURROUND:
+            continue
+        overlay |= blob
+    return cv2.dilate(overlay.astype(np.uint8), _disk(2)).astype(bool)
+
+
+def visible_masks(images: list[np.ndarray]) -> list[np.ndarray]:
+    """Every frame's pixels of the scene: inside the field of view and off the overlays."""
+    overlay = overlay_mask(images)
+    return [field_of_view(image) & ~overlay for image in images]
