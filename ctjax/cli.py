@@ -274,7 +274,11 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     capture = load_capture(args.capture)
     falloff = _falloff(args.falloff, capture)
     result = calibrate_near_light(
-        capture, calibration=args.calib, falloff=falloff, albedo=args.albedo
+        capture,
+        calibration=args.calib,
+        falloff=falloff,
+        albedo=args.albedo,
+        progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
     )
     summary = result.to_json()
     atomic_write_json(args.json, summary)
@@ -304,7 +308,11 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
 
     capture = load_capture(args.capture)
     result = calibrate_light_field(
-        capture, calibration=args.calib, solver=_field_solver(args.engine), albedo=args.albedo
+        capture,
+        calibration=args.calib,
+        solver=_field_solver(args.engine),
+        albedo=args.albedo,
+        progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
     )
     summary = result.to_json()
     atomic_write_json(args.json, summary)

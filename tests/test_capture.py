@@ -1,5 +1,6 @@
 """The capture format: write/read round trip, normals from depth, and every loader error."""
 
+import dataclasses
 import json
 import shutil
 
@@ -144,6 +145,8 @@ def _break(root, how):
         np.save(root / "depth" / "f0.npy", np.full((32, 40), np.nan, np.float32))
     elif how == "corrupt depth file":
         (root / "depth" / "f0.npy").write_bytes(b"not numpy")
+    elif how == "duplicate frames":
+        shutil.copy(root / "images" / "f0.png", root / "images" / "f2.png")
     elif how == "malformed poses":
         (root / "poses.json").write_text(json.dumps({"f0": [[1, 0], [0, 1]]}))
     else:
@@ -168,6 +171,7 @@ BAD = {
     "depth all NaN": "no finite positive depth",
     "corrupt depth file": "cannot read depth",
     "malformed poses": "4x4",
+    "duplicate frames": r"duplicate frames \(identical images\): f2 = f0",
 }
 
 
@@ -198,3 +202,23 @@ def test_outputs_respect_the_umask(tmp_path, umask, mode):
         assert (tmp_path / name).stat().st_mode & 0o777 == mode
     assert json.loads((tmp_path / "a.json").read_text()) == {"sigma": 0.2}
     assert not list(tmp_path.glob(".*.tmp"))  # no temporary file left behind
+
+
+def test_identical_frames_are_one_line_and_status_2(tmp_path):
+    """Three identical frames (a still camera): every command stops with one line naming
+    them, exit status 2, before any work."""
+    import subprocess
+    import sys
+
+    frames = _frames(3)
+    frames = [dataclasses.replace(f, image=frames[0].image) for f in frames]
+    root = write_capture(tmp_path / "still", CAMERA, frames)
+    result = subprocess.run(
+        [sys.executable, "-m", "ctjax.cli", "diagnose", str(root), "--json", str(tmp_path / "d")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "duplicate frames" in lines[0] and "f1 = f0, f2 = f0" in lines[0]

@@ -227,9 +227,11 @@ def test_fit_bad_input_is_one_clear_error(tmp_path, case):
             if case == "all saturated":
                 import cv2
 
-                cv2.imwrite(
-                    str(root / "images" / f"{name}.png"), np.full((48, 64, 3), 255, np.uint8)
-                )
+                # Over-exposed (the red channel clipped everywhere), and not duplicates.
+                level = 255 if name == "frame_000" else 200
+                image = np.full((48, 64, 3), level, np.uint8)
+                image[..., 2] = 255  # OpenCV's BGR: red
+                cv2.imwrite(str(root / "images" / f"{name}.png"), image)
                 expected = "every pixel is saturated"
             else:
                 np.save(root / "depth" / f"{name}.npy", np.full((48, 64), np.nan, np.float32))

@@ -91,6 +91,7 @@ def calibrate_near_light(
     heldout_samples: int = 40_000,
     max_steps: int = 100,
     seed: int = 0,
+    progress=None,
 ) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
@@ -103,8 +104,9 @@ def calibrate_near_light(
 
     Returns an `Estimate` of the `ShadingModel` with its `PointLight`; `details` holds the
     chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
-    RMSE of every falloff set tried.
+    RMSE of every falloff set tried. `progress`: called with a line per step.
     """
+    say = progress or (lambda message: None)
     capture = Observations.of(capture)
     if any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
@@ -121,12 +123,14 @@ def calibrate_near_light(
             heldout_points=heldout_samples // 2,
             max_steps=max_steps,
             seed=seed,
+            progress=progress,
         )
     started = time.perf_counter()
     heldout = HeldOut.split(
         capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
     )
     choices = _choices(capture, falloff)
+    say(f"fitting {len(choices)} falloff set(s) on frames {heldout.calibration}, one albedo")
     fits = [
         fit_model(
             _starts(choice),
@@ -172,6 +176,7 @@ def near_light_map(
     max_steps: int = 100,
     refine: int = 3,
     seed: int = 0,
+    progress=None,
 ) -> Estimate:
     """The near-light model on textured tissue: one albedo per surface point.
 
@@ -190,7 +195,9 @@ def near_light_map(
     tell an offset below it from none.
     """
     started = time.perf_counter()
+    say = progress or (lambda message: None)
     capture = Observations.of(capture)
+    say("tracking surface points across the frames (albedo map)")
     heldout = HeldOutTracks.split(
         capture, calibration, max_points=max_points, heldout_points=heldout_points, seed=seed
     )
@@ -207,8 +214,12 @@ def near_light_map(
             standard_errors=False,  # the chosen fit's only, below
         )
 
-    fits = [fit(_starts(choice)) for choice in choices]
-    errors = [heldout.heldout_rmse(f.model) for f in fits]
+    fits, errors = [], []
+    for choice in choices:
+        say(f"fitting the light's offset, falloff {_name(choice)}, frames {heldout.calibration}")
+        fits.append(fit(_starts(choice)))
+        errors.append(heldout.heldout_rmse(fits[-1].model))
+        say(f"  held-out RMSE {errors[-1]:.3f} levels")
     chosen = simplest_within(choices, errors)
     offset_fit = heldout.judge(fits[chosen], noise_floor=False)
     if not np.isfinite(offset_fit.heldout_rmse):
@@ -217,6 +228,7 @@ def near_light_map(
     offset_fit.details["stderr"] = map_standard_errors(offset_fit.model, heldout.train)
     reported = offset_fit.details["stderr"].get("light.position_mm", [None] * 3)
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
+    say("standard errors, and the same model with the light at the lens")
     lens_fit = heldout.judge(
         fit(_at_the_lens(choices[chosen]), freeze=("light.position_mm",)), noise_floor=False
     )
@@ -241,16 +253,21 @@ def near_light_map(
         "point's albedo fitted to its other views (held-out: the held-out frames' views)",
     }
     if not detected:
-        bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
-        result.details["offset_bound_mm"] = bound
-        result.warnings.append(
-            f"no light offset detected: the light at the lens explains the held-out frames "
-            f"at least as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} "
-            "levels); "
-            f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
-            f"mm: an offset below {bound:.2g} mm cannot be told from none"
-        )
+        _no_offset(result, offset, stderr, offset_fit, lens_fit)
     result.seconds = {"total": time.perf_counter() - started}
     if not result.converged:
         result.warnings.append(f"the solver did not converge: {result.status.message}")
     return result
+
+
+def _no_offset(result, offset, stderr, offset_fit, lens_fit) -> None:
+    """The light at the lens as the estimate: the bound on an offset, and the warning."""
+    bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
+    result.details["offset_bound_mm"] = bound
+    result.warnings.append(
+        f"no light offset detected: the light at the lens explains the held-out frames "
+        f"at least as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} "
+        "levels); "
+        f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
+        f"mm: an offset below {bound:.2g} mm cannot be told from none"
+    )

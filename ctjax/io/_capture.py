@@ -267,12 +267,39 @@ def load_capture(
             truth = json.loads((root / "truth.json").read_text())
         except json.JSONDecodeError as error:
             raise CaptureError(f"{root / 'truth.json'}: not valid JSON ({error})") from None
+    _refuse_duplicates(root, frames)
     if undistort and camera.distortion is not None:
         frames = [_undistort(camera, frame) for frame in frames]
         camera = camera.without_distortion()
     if field_of_view:
         frames = _with_field_of_view(frames)
     return Capture(root, camera, tuple(frames), truth)
+
+
+# Frames whose images differ by at most this much (recorded units) everywhere are the same
+# view recorded twice: half an 8-bit level.
+_DUPLICATE_LEVEL = 0.5 / 255
+
+
+def _refuse_duplicates(root: Path, frames: list[Frame]) -> None:
+    """One `CaptureError` naming the frames that repeat an earlier one: a repeated view
+    adds no parallax for structure-from-motion and no new angle for the fits, and
+    pretends to be independent evidence in a held-out split."""
+    thumbnails = [cv2.resize(f.image, (32, 32), interpolation=cv2.INTER_AREA) for f in frames]
+    repeats = []
+    for j in range(1, len(frames)):
+        for i in range(j):
+            if np.max(np.abs(thumbnails[i] - thumbnails[j])) > _DUPLICATE_LEVEL:
+                continue
+            if np.max(np.abs(frames[i].image - frames[j].image)) <= _DUPLICATE_LEVEL:
+                repeats.append(f"{frames[j].name} = {frames[i].name}")
+                break
+    if repeats:
+        raise CaptureError(
+            f"{root}: duplicate frames (identical images): {', '.join(repeats[:5])}"
+            + (f" and {len(repeats) - 5} more" if len(repeats) > 5 else "")
+            + "; remove the repeats (a still camera adds no view; ctjax import drops them)"
+        )
 
 
 def _with_field_of_view(frames: list[Frame]) -> list[Frame]:
