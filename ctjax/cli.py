@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ._errors import CtjaxError
+from ._units import in_length_unit, label
 
 
 def _synth_options_from(args: argparse.Namespace):
@@ -90,44 +91,80 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _add_mask_arguments(parser: argparse.ArgumentParser) -> None:
-    from .estimation._specular_set import (
-        DEFAULT_LIGHTNESS,
-        DEFAULT_MIN_SPECK_PX,
-        DEFAULT_RING_PX,
-        DEFAULT_SATURATION,
-    )
+    from .estimation._highlights import HLSThresholds, WhiterThanTissue
+    from .estimation._specular_set import DEFAULT_MIN_SPECK_PX, DEFAULT_RING_PX
 
-    group = parser.add_argument_group("specular set S and ring S~")
+    whiter, hls = WhiterThanTissue(), HLSThresholds()
+    group = parser.add_argument_group(
+        "specular set S and ring S~",
+        "S: 'whiter' (default) takes pixels bright and whiter than the tissue around them, "
+        "or clipped; 'hls' is the paper's rule (HLS lightness and saturation thresholds)",
+    )
+    group.add_argument(
+        "--highlights",
+        choices=("whiter", "hls"),
+        default="whiter",
+        help="the rule that finds S (default: whiter)",
+    )
+    group.add_argument(
+        "--whiteness",
+        type=float,
+        default=whiter.whiteness,
+        help="whiter: fraction of the way from the local tissue's colour to white "
+        f"(default {whiter.whiteness})",
+    )
+    group.add_argument(
+        "--contrast",
+        type=float,
+        default=whiter.contrast,
+        help="whiter: luminance at least this times the local tissue's "
+        f"(default {whiter.contrast})",
+    )
     group.add_argument(
         "--lightness",
         type=float,
-        default=DEFAULT_LIGHTNESS,
-        help="S: HLS lightness at least this (default 0.95)",
+        default=None,
+        help=f"hls: HLS lightness at least this (default {hls.lightness})",
     )
     group.add_argument(
         "--saturation",
         type=float,
-        default=DEFAULT_SATURATION,
-        help="S: HLS saturation at most this (default 0.05)",
+        default=None,
+        help=f"hls: HLS saturation at most this (default {hls.saturation})",
     )
     group.add_argument(
         "--ring-px",
         type=float,
         default=DEFAULT_RING_PX,
-        help="S~: non-specular pixels within this distance of S (paper: 3)",
+        help="S~: non-specular pixels within this distance of S "
+        f"(default and paper: {DEFAULT_RING_PX})",
     )
     group.add_argument(
         "--min-speck",
         type=int,
         default=DEFAULT_MIN_SPECK_PX,
-        help="drop specular specks smaller than this many pixels (0: keep all)",
+        help="drop specular specks smaller than this many pixels, 0 keeps all "
+        f"(default {DEFAULT_MIN_SPECK_PX})",
     )
 
 
 def _mask_options(args: argparse.Namespace):
     from .estimation._capture_fit import MaskOptions
+    from .estimation._highlights import HLSThresholds, WhiterThanTissue
 
-    return MaskOptions(args.lightness, args.saturation, args.ring_px, args.min_speck)
+    if args.highlights == "hls":
+        hls = HLSThresholds()
+        rule = HLSThresholds(
+            hls.lightness if args.lightness is None else args.lightness,
+            hls.saturation if args.saturation is None else args.saturation,
+        )
+    else:
+        if args.lightness is not None or args.saturation is not None:
+            raise CtjaxError(
+                "--lightness and --saturation set the paper's rule: add --highlights hls"
+            )
+        rule = WhiterThanTissue(whiteness=args.whiteness, contrast=args.contrast)
+    return MaskOptions(rule, args.ring_px, args.min_speck)
 
 
 def _cmd_masks(args: argparse.Namespace) -> int:
@@ -140,14 +177,17 @@ def _cmd_masks(args: argparse.Namespace) -> int:
     capture = load_capture(args.capture)
     sets = capture_sets(capture, _mask_options(args))
     for frame, s in zip(capture.frames, sets, strict=True):
-        for kind in ("specular", "ring", "saturated"):
+        for kind in ("specular", "ring"):
             write_mask(args.out / kind / f"{frame.name}.png", getattr(s, kind))
+        write_mask(args.out / "saturated" / f"{frame.name}.png", s.clipped)
         write_mask(args.out / "fov" / f"{frame.name}.png", frame.visible)
         outside = int((~frame.visible).sum())
+        clipped = s.clipped.sum(axis=(0, 1))
         print(
-            f"{frame.name}: {int(s.specular.sum())} specular, {int(s.ring.sum())} ring, "
-            f"{int(s.saturated.sum())} saturated pixels"
-            + (f", {outside} outside the field of view" if outside else "")
+            f"{frame.name}: {int(s.specular.sum())} specular, {int(s.ring.sum())} ring pixels; "
+            "clipped outside S: "
+            + ", ".join(f"{c} {n}" for c, n in zip("RGB", clipped, strict=True))
+            + (f"; {outside} outside the field of view" if outside else "")
         )
     total = int(np.sum([s.ring.sum() for s in sets]))
     print(f"wrote masks of {len(sets)} frame(s) to {args.out} ({total} ring pixels in all)")
@@ -165,6 +205,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         volume_mm3=args.volume_mm3,
         force=args.force,
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
+        verbose=args.verbose,
     )
     if args.json is not None:
         atomic_write_json(args.json, report)
@@ -221,7 +262,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     result = estimate.to_json()
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
-    atomic_write_json(args.json, result)
+    atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
     keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo")
     print(json.dumps({k: result[k] for k in result if k in keys}))
     samples = (
@@ -252,7 +293,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         max_samples=args.max_samples,
         progress=lambda m: print(f"[ctjax diagnose] {m}", flush=True),
     )
-    atomic_write_json(args.json, diagnosis.to_json())
+    atomic_write_json(args.json, in_length_unit(diagnosis.to_json(), capture.length_unit))
     if args.plots:
         for path in diagnosis_plots(capture, diagnosis, args.plots):
             print(f"wrote {path}")
@@ -281,13 +322,14 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
         progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
     )
     summary = result.to_json()
-    atomic_write_json(args.json, summary)
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
         errors = summary["offset_stderr_mm"]
         offset += " +- " + ", ".join("?" if v is None else f"{v:.2f}" for v in errors)
     print(
-        f"light offset ({offset}) mm, falloff {'+'.join(summary['falloff']) or 'none'}, "
+        f"light offset ({offset}) {label(capture.length_unit)}, "
+        f"falloff {'+'.join(summary['falloff']) or 'none'}, "
         f"albedo {summary['albedo']}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
@@ -315,7 +357,7 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
         progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
     )
     summary = result.to_json()
-    atomic_write_json(args.json, summary)
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.npz is not None:
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **result.arrays)
@@ -347,10 +389,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         cook_torrance=_cook_torrance_estimator(args.light),
         albedo=args.albedo,
         per_pixel_sfs=args.per_pixel_sfs,
+        sfs=not args.no_sfs,
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
     )
     summary = evaluation.to_json()
-    atomic_write_json(args.json, summary)
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.plots:
         for path in evaluation_plots(capture, evaluation, args.plots).values():
             print(f"wrote {path}")
@@ -365,13 +408,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         models = [("Lambertian", "lambertian"), ("Cook-Torrance", "cook_torrance")]
         if args.per_pixel_sfs:
             models.append(("the paper's per-pixel refinement", "cook_torrance_per_pixel"))
-        for label, where in (("mean", ""), ("mean near highlights", "_near_highlights")):
+        unit = label(capture.length_unit)
+        for what, where in (("mean", ""), ("mean near highlights", "_near_highlights")):
             errors = (summary[f"{key}_sfs_error{where}_mm"] for _, key in models)
             figures = ", ".join(
                 f"{name} {float('nan') if e is None else e:.2f}"
                 for (name, _), e in zip(models, errors, strict=True)
             )
-            print(f"SfS 3D error ({label}, mm): {figures}")
+            print(f"SfS 3D error ({what}, {unit}): {figures}")
     print(f"wrote {args.json}")
     return 0
 
@@ -436,6 +480,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _synth_command(commands)
+    _import_command(commands)
     _masks_command(commands)
     _recon_command(commands)
     _fit_command(commands)
@@ -443,7 +488,22 @@ def build_parser() -> argparse.ArgumentParser:
     _light_command(commands)
     _evaluate_command(commands)
     _demo_command(commands)
+    for command in commands.choices.values():
+        _show_defaults(command)
     return parser
+
+
+def _show_defaults(parser: argparse.ArgumentParser) -> None:
+    """Every option's help ends with its default, where it has one and does not say it."""
+    for action in parser._actions:
+        if action.help is None or action.help == argparse.SUPPRESS or "default" in action.help:
+            continue
+        if action.default in (None, False, [], argparse.SUPPRESS) or not action.option_strings:
+            continue
+        value = action.default
+        if isinstance(value, list | tuple):
+            value = " ".join(str(v) for v in value)
+        action.help += f" (default: {value})"
 
 
 def _synth_command(commands) -> None:
@@ -451,6 +511,72 @@ def _synth_command(commands) -> None:
     synth.add_argument("out", type=Path, help="output capture folder")
     _add_synth_arguments(synth, frames=5, texture=True)
     synth.set_defaults(run=_cmd_synth)
+
+
+def _import_command(commands) -> None:
+    from .io._video import ImportOptions
+
+    default = ImportOptions()
+    video = commands.add_parser(
+        "import",
+        help="a capture from a video: its distinct, sharp frames",
+        description="Keeps the video's distinct frames (near-duplicates of a still camera "
+        "dropped, the sharpest of each run kept) and drops motion-blurred ones; writes "
+        "OUT/images/frame_NNNNNN.png (the frame number: names sort in time) and "
+        "OUT/camera.json.",
+    )
+    video.add_argument("video", type=Path, help="any video file OpenCV reads (MP4, AVI, MKV...)")
+    video.add_argument("--camera", type=Path, required=True, help="the endoscope's camera.json")
+    video.add_argument("--out", type=Path, required=True, help="the capture folder to write")
+    video.add_argument(
+        "--every", type=int, default=default.every, help="consider every N-th frame (default 1)"
+    )
+    video.add_argument("--start", type=float, default=0.0, help="from this time, s (default 0)")
+    video.add_argument("--end", type=float, help="up to this time, s (default: the end)")
+    video.add_argument(
+        "--max-frames", type=int, help="keep at most this many, evenly in time (default: all)"
+    )
+    video.add_argument(
+        "--distinct",
+        type=float,
+        default=default.distinct,
+        help="a new view differs from the last by this much, relative to the mean "
+        f"brightness (default {default.distinct})",
+    )
+    video.add_argument("--force", action="store_true", help="replace OUT/images")
+    video.add_argument("--json", type=Path, help="write the report to this JSON file")
+    video.set_defaults(run=_cmd_import)
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from .io._atomic import atomic_write_json
+    from .io._video import ImportOptions, import_video
+
+    options = ImportOptions(
+        every=args.every,
+        start=args.start,
+        end=args.end,
+        max_frames=args.max_frames,
+        distinct=args.distinct,
+    )
+    report = import_video(
+        args.video,
+        args.camera,
+        args.out,
+        options,
+        force=args.force,
+        progress=lambda m: print(f"[ctjax import] {m}", flush=True),
+    )
+    if args.json is not None:
+        atomic_write_json(args.json, report)
+    print(f"wrote {report['kept']} frames to {report['out']}")
+    if report["kept"] < 3:
+        print(
+            f"ctjax import: warning: {report['kept']} distinct frame(s): structure from motion "
+            "needs views from several positions (a lower --distinct keeps more)",
+            file=sys.stderr,
+        )
+    return 0
 
 
 def _masks_command(commands) -> None:
@@ -481,6 +607,7 @@ def _recon_command(commands) -> None:
         help="bounding-box volume of the reconstructed points, mm^3 (the paper's known size)",
     )
     recon.add_argument("--force", action="store_true", help="overwrite depth, normals, poses")
+    recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")
     recon.set_defaults(run=_cmd_reconstruct)
 
@@ -612,6 +739,11 @@ def _evaluate_command(commands) -> None:
         action="store_true",
         help="also run the paper's Cook-Torrance SfS (Tsai-Shah's normals refined per pixel, "
         "eq. 9) and report it beside the joint one",
+    )
+    evaluate.add_argument(
+        "--no-sfs",
+        action="store_true",
+        help="RGB errors only: no shape from shading (it needs depth with relief to score)",
     )
     evaluate.set_defaults(run=_cmd_evaluate)
 

@@ -194,6 +194,35 @@ def _warnings(fit: dict, near, field, evaluation) -> list[tuple[str, str]]:
     return out
 
 
+# What to look at in each figure of the report.
+_CAPTIONS = {
+    "inputs": "The input frames with S (blue) and the ring S~ (green) over them: S should "
+    "cover the highlights and nothing else; the ring, the tissue just outside them, is "
+    "where the BRDF is measured.",
+    "light": "The estimated light beside the truth: the light field's per-pixel directions "
+    "(their angle from the view direction; near zero everywhere when the light is at the "
+    "lens) and the near light's offset.",
+    "error_bars": "RGB error of each model on the calibration and the test frames (8-bit "
+    "levels; the noise floor is about 1) and its shape-from-shading depth error: "
+    "Cook-Torrance's bars should be far lower than Lambertian's, most of all near "
+    "highlights.",
+    "rgb_residuals": "Where each model fails on a test frame: the residual image (recorded "
+    "minus predicted). Lambertian's errors sit on the highlights; structure left in "
+    "Cook-Torrance's residuals is an effect the model misses.",
+}
+
+
+def _caption(name: str) -> str:
+    if name.startswith("sfs_"):
+        frame = name.removeprefix("sfs_")
+        return (
+            f"Shape from shading of test frame {frame}: depth error maps of Tsai-Shah "
+            "(Lambertian) and of the Cook-Torrance SfS against the reference depth; the "
+            "Lambertian error concentrates where highlights brighten the image."
+        )
+    return _CAPTIONS.get(name, name)
+
+
 def _write_report(out: Path, summary: dict, figures: dict[str, Path]) -> Path:
     ev = summary["evaluation"]
     sfm, near, field = summary["reconstruction"], summary["near_light"], summary["light_field"]
@@ -249,7 +278,8 @@ def _write_report(out: Path, summary: dict, figures: dict[str, Path]) -> Path:
     timings = _table([(k, f"{v:.1f} s") for k, v in summary["timings_s"].items()])
     images = "".join(
         f'<figure><img alt="{name}" src="data:image/png;base64,'
-        f'{base64.b64encode(path.read_bytes()).decode()}"><figcaption>{name}</figcaption></figure>'
+        f'{base64.b64encode(path.read_bytes()).decode()}"><figcaption>{_caption(name)}'
+        "</figcaption></figure>"
         for name, path in figures.items()
     )
     page = f"""<!doctype html>

@@ -76,7 +76,8 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
     )
     assert status == 0
     result = json.loads(out.read_text())
-    assert list(result) == ["base_rmse", "noise_floor", "candidates", "verdict"]
+    assert list(result) == ["length_unit", "base_rmse", "noise_floor", "candidates", "verdict"]
+    assert result["length_unit"] == "mm"
     assert result["verdict"] == "light_offset"
     assert result["noise_floor"] == pytest.approx(np.sqrt(1 + 1 / 12), rel=0.2)
     assert result["candidates"][0]["heldout_rmse"] <= 1.15 * result["noise_floor"]

@@ -19,6 +19,7 @@ import optimistix as optx
 from .._errors import CtjaxError
 from .._json import falloff_json
 from .._result import Estimate
+from .._units import length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
     LEVENBERG_MARQUARDT,
@@ -40,10 +41,8 @@ from ..heldout import (
 )
 from ..io import Capture
 from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
+from ..lights._point import offset_starts
 from ..observations import Observations
-
-# Starting offsets (mm, camera frame): the fit is not convex in the light's position.
-OFFSET_STARTS = ((3.0, 0.0, 0.0), (-3.0, 0.0, 0.0), (0.0, 3.0, 0.0), (0.0, -3.0, 0.0))
 
 
 def falloff_choices(capture: "Capture | Observations") -> list[tuple[AbstractFalloff, ...]]:
@@ -57,9 +56,11 @@ def _name(falloff: tuple[AbstractFalloff, ...]) -> str:
     return "+".join(f.name for f in falloff) or "none"
 
 
-def _starts(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
+def _starts(falloff: tuple[AbstractFalloff, ...], capture) -> list[ShadingModel]:
+    """Starting models from every offset of `offset_starts` and several roughnesses."""
     starts = []
-    for offset in OFFSET_STARTS:
+    unit = length_unit_of(capture)
+    for offset in offset_starts(unit, median_depth_mm(capture)):
         base = paper_model(1.0, 0.3, 0.2)
         light = PointLight(jnp.asarray(offset, float), falloff=tuple(falloff))
         starts.extend(roughness_variants(eqx.tree_at(lambda m: m.light, base, light)))
@@ -133,7 +134,7 @@ def calibrate_near_light(
     say(f"fitting {len(choices)} falloff set(s) on frames {heldout.calibration}, one albedo")
     fits = [
         fit_model(
-            _starts(choice),
+            _starts(choice, capture),
             heldout.train,
             pixel_predict,
             columns=pixel_columns,
@@ -219,7 +220,7 @@ def near_light_map(
     fits, errors = [], []
     for choice in choices:
         say(f"fitting the light's offset, falloff {_name(choice)}, frames {heldout.calibration}")
-        fits.append(fit(_starts(choice)))
+        fits.append(fit(_starts(choice, capture)))
         errors.append(heldout.heldout_rmse(fits[-1].model))
         say(f"  held-out RMSE {errors[-1]:.3f} levels")
     chosen = simplest_within(choices, errors)
@@ -250,19 +251,19 @@ def near_light_map(
         "offset_stderr_mm": reported,  # None where the data do not determine it
         "offset_heldout_rmse": offset_fit.heldout_rmse,
         "lens_heldout_rmse": lens_fit.heldout_rmse,
-        "length_unit": "mm",
+        "length_unit": length_unit_of(capture),
         "rmse_note": "each view of a tracked point predicted with the model fixed and the "
         "point's albedo fitted to its other views (held-out: the held-out frames' views)",
     }
     if not detected:
-        _no_offset(result, offset, stderr, offset_fit, lens_fit)
+        _no_offset(result, offset, stderr, offset_fit, lens_fit, length_unit_of(capture))
     result.seconds = {"total": time.perf_counter() - started}
     if not result.converged:
         result.warnings.append(f"the solver did not converge: {result.status.message}")
     return result
 
 
-def _no_offset(result, offset, stderr, offset_fit, lens_fit) -> None:
+def _no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
     """The light at the lens as the estimate: the bound on an offset, and the warning."""
     bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
     result.details["offset_bound_mm"] = bound
@@ -271,5 +272,5 @@ def _no_offset(result, offset, stderr, offset_fit, lens_fit) -> None:
         f"at least as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} "
         "levels); "
         f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
-        f"mm: an offset below {bound:.2g} mm cannot be told from none"
+        f"{unit}: an offset below {bound:.2g} {unit} cannot be told from none"
     )

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._errors import CtjaxError, ParameterError
 from .._result import Estimate
+from .._units import length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
     ShadingModel,
@@ -242,6 +243,7 @@ def diagnose(
     settings = (calibration, max_samples, heldout_samples // 2, max_steps, seed)
     context = {
         "median_depth_mm": median_depth_mm(capture),
+        "length_unit": length_unit_of(capture),
         "albedo": albedo,
         "albedo_map_possible": default_albedo(capture) == "map",
     }

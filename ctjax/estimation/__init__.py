@@ -19,6 +19,9 @@ from ._capture_fit import fit_capture as fit_capture
 from ._closed_form import nnls as nnls
 from ._closed_form import nnls_columns as nnls_columns
 from ._closed_form import nnls_normal_equations as nnls_normal_equations
+from ._highlights import HighlightRule as HighlightRule
+from ._highlights import HLSThresholds as HLSThresholds
+from ._highlights import WhiterThanTissue as WhiterThanTissue
 from ._samples import ShadingSamples as ShadingSamples
 from ._samples import colocated_samples as colocated_samples
 from ._samples import paper_coefficients as paper_coefficients

@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import cv2
 import numpy as np
 
 from .._errors import CtjaxError
@@ -11,11 +12,11 @@ from ..io import Capture
 from ..lights import ColocatedLight
 from ..observations import Observations
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, fit_brdf
+from ._highlights import HighlightRule
 from ._specular_set import (
-    DEFAULT_LIGHTNESS,
+    DEFAULT_HIGHLIGHTS,
     DEFAULT_MIN_SPECK_PX,
     DEFAULT_RING_PX,
-    DEFAULT_SATURATION,
     SpecularSets,
     specular_sets,
 )
@@ -26,15 +27,17 @@ _WELL_DETERMINED = 0.05
 
 @dataclasses.dataclass(frozen=True)
 class MaskOptions:
-    lightness: float = DEFAULT_LIGHTNESS
-    saturation: float = DEFAULT_SATURATION
+    """How S and S~ are found: the `highlights` rule (`WhiterThanTissue` by default,
+    `HLSThresholds` the paper's), the ring's width and the smallest speck kept."""
+
+    highlights: HighlightRule = DEFAULT_HIGHLIGHTS
     ring_px: float = DEFAULT_RING_PX
     min_speck_px: int = DEFAULT_MIN_SPECK_PX
 
 
 def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list[SpecularSets]:
-    """S, S~ and the saturated pixels of every frame (pixels without a normal, and outside
-    the frame's field of view, excluded).
+    """S, S~ and the clipped channels of every frame (pixels outside the frame's field of
+    view excluded, and from the ring those without a normal, when the frame has a shape).
 
     Raises `CtjaxError` for a frame whose every pixel is saturated (nothing to fit).
     """
@@ -47,15 +50,62 @@ def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list
     return [
         specular_sets(
             frame.image,
-            frame.geometry_mask,
-            lightness=options.lightness,
-            saturation=options.saturation,
+            # Without a shape (images only), the ring is where the fit will look once the
+            # shape is reconstructed.
+            frame.geometry_mask if frame.has_geometry else frame.visible,
+            highlights=options.highlights,
             ring_px=options.ring_px,
             min_speck_px=options.min_speck_px,
             visible=frame.visible,
         )
         for frame in capture.frames
     ]
+
+
+def require_specular(capture: Capture, sets: list[SpecularSets], masks: MaskOptions) -> None:
+    """Raises `CtjaxError` when no frame has a specular pixel, saying what there was."""
+    if any(s.specular.any() for s in sets):
+        return
+    clipped = np.sum([s.clipped.sum(axis=(0, 1)) for s in sets], axis=0)
+    pixels = sum(s.specular.size for s in sets)
+    raise CtjaxError(
+        f"{capture.root}: no specular pixels (S is empty) in any of {len(sets)} frame(s) "
+        f"with {masks.highlights}; clipped channels outside S: "
+        + ", ".join(f"{c} {n / pixels:.1%}" for c, n in zip("RGB", clipped, strict=True))
+        + " of the pixels (--highlights, --min-speck)"
+    )
+
+
+def empty_ring_reason(capture: Capture, sets: list[SpecularSets], masks: MaskOptions) -> str:
+    """Why no ring pixel can be fitted: what the pixels beside S lack (a normal, a view of
+    the scene, an unclipped channel)."""
+    near = valid = seen = measured = 0
+    for frame, s in zip(capture.frames, sets, strict=True):
+        distance = cv2.distanceTransform(
+            (~s.specular).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+        )
+        beside = (distance <= masks.ring_px) & ~s.specular
+        near += int(beside.sum())
+        seen += int((beside & frame.visible).sum())
+        beside &= frame.visible & frame.geometry_mask
+        valid += int(beside.sum())
+        measured += int((beside & ~s.saturated).sum())
+    specular = sum(int(s.specular.sum()) for s in sets)
+    head = f"the ring S~ is empty ({specular} specular pixels, {near} pixels within "
+    head += f"{masks.ring_px} px of them"
+    if seen == 0:
+        return head + ", all outside the field of view or on overlays)"
+    if valid == 0:
+        return (
+            head + f", {seen} in view, none with a valid normal: the shape has no depth "
+            "beside the highlights (structure from motion finds no features on them; give "
+            "depth/ or a wider ring, --ring-px)"
+        )
+    return (
+        head + f", {valid} with a normal, every one with a clipped channel: the model cannot "
+        "predict a value at the sensor's maximum (lower the exposure or the gain, or widen "
+        "the ring, --ring-px)"
+    )
 
 
 def _require_geometry(capture: Capture) -> None:
@@ -100,6 +150,32 @@ def _poorly_determined(fit: BRDFFit) -> list[str]:
             ):
                 warnings.append(f"{name}[{channel}] = {weights[k, c]:.4g} +- {errors[k, c]:.2g}")
     return warnings
+
+
+def _zero_names(fit: BRDFFit) -> list[str]:
+    """The weights that are 0 or within 2 standard errors of it, as "rho_tilde[R]"."""
+    weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
+    zero = (weights <= 0) | (weights <= 2 * np.nan_to_num(errors, nan=np.inf))
+    return [
+        f"{name}[{channel}]"
+        for k, name in enumerate(fit.family.weight_names)
+        for c, channel in enumerate("RGB")
+        if zero[k, c]
+    ]
+
+
+def _at_zero(fit: BRDFFit) -> list[str]:
+    """A warning for weights that cannot be told from 0: the data are explained without
+    that term, which is no matter of the ring's width."""
+    zero = _zero_names(fit)
+    if not zero:
+        return []
+    return [
+        f"{', '.join(zero)} cannot be told from 0 (within 2 standard errors, or at the "
+        "nonnegativity bound): the data are explained without that term; for rho_tilde, "
+        "the ring is dark or all specular (look at it: ctjax masks), for F_tilde, no "
+        "highlight shapes the ring"
+    ]
 
 
 ALBEDO_CHOICES = ("map", "uniform")
@@ -163,21 +239,11 @@ def fit_uniform(
     capture = obs.capture
     _require_geometry(capture)
     sets = obs.sets
+    require_specular(capture, sets, masks)
     specular_count = sum(int(s.specular.sum()) for s in sets)
     ring_count = sum(int(s.ring.sum()) for s in sets)
-    if specular_count == 0:
-        saturated = sum(int(s.saturated.sum()) for s in sets)
-        raise CtjaxError(
-            f"{capture.root}: no specular pixels (S is empty) in any of {len(sets)} frame(s) "
-            f"at lightness >= {masks.lightness}, saturation <= {masks.saturation}"
-            + (f"; {saturated} saturated coloured pixels" if saturated else "")
-        )
     if ring_count == 0:
-        raise CtjaxError(
-            f"{capture.root}: the ring S~ is empty ({specular_count} specular pixels, but none "
-            f"of their neighbours within {masks.ring_px} px is unsaturated with a valid normal); "
-            "try a wider ring (--ring-px)"
-        )
+        raise CtjaxError(f"{capture.root}: {empty_ring_reason(capture, sets, masks)}")
     samples = obs.ring()
     fit = fit_brdf(samples, family, tolerance=tolerance)
     lambertian = fit_brdf(samples, LAMBERTIAN)
@@ -205,8 +271,8 @@ def fit_uniform(
         "masks": dataclasses.asdict(masks),
         "albedo": "uniform",
     }
-    warnings = []
-    poorly = _poorly_determined(fit)
+    warnings = _at_zero(fit)
+    poorly = [w for w in _poorly_determined(fit) if w.split(" = ")[0] not in _zero_names(fit)]
     if poorly:
         warnings.append(
             f"the ring ({ring_count} pixels) is too thin to determine: {'; '.join(poorly)} "

@@ -18,7 +18,7 @@ from ..lights import ColocatedLight
 from ..observations import Observations
 from ._albedo_map import albedo_maps, fit_brdf_map, track_shading
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
-from ._capture_fit import _WELL_DETERMINED, MaskOptions, _require_geometry
+from ._capture_fit import _WELL_DETERMINED, MaskOptions, _require_geometry, require_specular
 
 
 def _number(value):
@@ -116,13 +116,7 @@ def fit_albedo_map(
     _require_geometry(capture)
     require_poses(capture)
     sets = obs.sets
-    if not any(s.specular.any() for s in sets):
-        saturated = sum(int(s.saturated.sum()) for s in sets)
-        raise CtjaxError(
-            f"{capture.root}: no specular pixels (S is empty) in any of {len(sets)} frame(s) "
-            f"at lightness >= {masks.lightness}, saturation <= {masks.saturation}"
-            + (f"; {saturated} saturated coloured pixels" if saturated else "")
-        )
+    require_specular(capture, sets, masks)
     per_point = family.weight_names.index("rho_tilde")
     options = {} if max_points is None else {"max_points": max_points}
     tracks = obs.tracks(neighbours=neighbours, **options)

@@ -259,6 +259,22 @@ def frame_shapes(
     return FrameShape(frame.name, image, reference, tsai_shah, joint, mask, near, paper)
 
 
+def _check_sfs_reference(frame, camera) -> None:
+    """SfS is scored against `frame`'s depth, scaled by its bounding box's volume: that box
+    must have a volume (depth at several pixels, not flat along an axis)."""
+    if frame.depth is None:
+        raise CtjaxError(f"frame {frame.name}: SfS is compared with depth; the frame has none")
+    mask = frame.geometry_mask
+    if mask.sum() < 9:
+        raise CtjaxError(f"frame {frame.name}: too few pixels with depth for SfS")
+    if not bounding_box_volume(frame.depth, mask, camera) > 0:
+        raise CtjaxError(
+            f"frame {frame.name}: its depth is flat along an axis (bounding box of volume 0): "
+            "shape from shading is scored at the scale of that volume (evaluate with "
+            "--no-sfs, or give depth with relief)"
+        )
+
+
 def evaluate(
     capture: Capture,
     *,
@@ -301,6 +317,9 @@ def evaluate(
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     calib, test = split_frames(len(capture), calibration, source=capture.root)
+    if sfs:  # before any fit: a capture SfS cannot be scored on fails in a second
+        for index in test:
+            _check_sfs_reference((reference or capture).frames[index], capture.camera)
     tracks = HeldOutTracks.split(capture, len(calib)) if albedo == "map" else None
     timings = {}
     tic = time.perf_counter()

@@ -10,5 +10,8 @@ from ._capture import write_capture as write_capture
 from ._field_of_view import field_of_view as field_of_view
 from ._field_of_view import overlay_mask as overlay_mask
 from ._field_of_view import visible_masks as visible_masks
+from ._field_of_view import white_overlays as white_overlays
 from ._images import read_rgb as read_rgb
 from ._images import write_rgb as write_rgb
+from ._video import ImportOptions as ImportOptions
+from ._video import import_video as import_video

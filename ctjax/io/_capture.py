@@ -22,6 +22,7 @@ import numpy as np
 from .._camera import DISTORTION_KEYS, Camera
 from .._errors import CaptureError
 from .._geometry import normals_from_depth
+from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_rgb, write_rgb
@@ -76,6 +77,9 @@ class Capture:
     camera: Camera
     frames: tuple[Frame, ...]
     truth: dict | None = None
+    # Of depth, poses and every length derived from them: "mm", or "median_depth" where the
+    # shape was reconstructed without a known size (`ctjax._units`).
+    length_unit: str = METRIC
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -268,12 +272,20 @@ def load_capture(
         except json.JSONDecodeError as error:
             raise CaptureError(f"{root / 'truth.json'}: not valid JSON ({error})") from None
     _refuse_duplicates(root, frames)
+    unit = METRIC
+    if (root / "reconstruction.json").is_file():
+        try:
+            unit = unit_of_reconstruction(json.loads((root / "reconstruction.json").read_text()))
+        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+            raise CaptureError(
+                f"{root / 'reconstruction.json'}: not a reconstruction report"
+            ) from None
     if undistort and camera.distortion is not None:
         frames = [_undistort(camera, frame) for frame in frames]
         camera = camera.without_distortion()
     if field_of_view:
         frames = _with_field_of_view(frames)
-    return Capture(root, camera, tuple(frames), truth)
+    return Capture(root, camera, tuple(frames), truth, unit)
 
 
 # Frames whose images differ by at most this much (recorded units) everywhere are the same

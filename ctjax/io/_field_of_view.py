@@ -16,6 +16,13 @@ structure-from-motion features.
   nothing); solid regions only (an opening removes tissue pixels that stay within the
   tolerance by chance), and not a clipped highlight's core, which can stay put while the
   camera moves (its surroundings stay whitish in every frame; a UI element's are tissue).
+  In a few frames, or one (`white_overlays`): blobs of at least `MIN_OVERLAY_PX` pixels
+  (at 1080p, scaled to the image's area; at least `MIN_OVERLAY_PX_ANY`) whose every
+  channel is at the top (`OVERLAY_WHITE`) in every frame, and whose surroundings 2 px out
+  have the local tissue's colour in every frame: a drawn icon or text has a sharp edge
+  onto the tissue, a clipped highlight's core fades into a halo whiter than the tissue
+  (`OVERLAY_EDGE_WHITENING`), and moves when the camera does. Limit: in a single frame, a
+  glint of more than 30 px whose edge is as sharp as a drawn one is taken as an overlay.
 
 A synthetic or cropped capture has no border and no overlay: everything is in view.
 """
@@ -24,6 +31,7 @@ import cv2
 import numpy as np
 
 from .._errors import ParameterError
+from .._tissue import channel_max, channel_min, local_tissue
 
 # The border's brightest channel is at most this (recorded values in [0, 1]): 15 of 255.
 DEFAULT_BORDER_LEVEL = 0.06
@@ -40,6 +48,17 @@ HIGHLIGHT_SURROUND = 0.5
 # Overlays are looked for in videos of at least this many frames: in a few frames a clipped
 # highlight can stay put, and texture can stay within the tolerance, by chance.
 MIN_OVERLAY_FRAMES = 8
+# A single frame's white overlay: every channel at least this (the top 3 of 255 levels).
+OVERLAY_WHITE = 252 / 255
+# ... a blob of at least this many pixels at 1920 px wide (scaled to the image's area, and
+# at least MIN_OVERLAY_PX_ANY: an icon or a glyph is drawn to be read) ...
+MIN_OVERLAY_PX = 40
+MIN_OVERLAY_PX_ANY = 30
+# ... whose surroundings 2 px out are tissue: on average at most this far from the local
+# tissue's colour towards white (a highlight's halo is whiter than the tissue) ...
+OVERLAY_EDGE_WHITENING = 0.25
+# ... the local tissue's colour: a median over this fraction of the image's width.
+OVERLAY_WINDOW = 1 / 12
 
 
 def _check_image(image: np.ndarray) -> None:
@@ -62,7 +81,7 @@ def field_of_view(
     _check_image(image)
     if not 0 <= border_level < 1:
         raise ParameterError(f"border_level must be in [0, 1), got {border_level}")
-    dark = (np.max(image, axis=-1) <= border_level).astype(np.uint8)
+    dark = (channel_max(image) <= border_level).astype(np.uint8)
     height, width = dark.shape
     if not dark.any():
         return np.ones((height, width), bool)
@@ -123,7 +142,47 @@ def overlay_mask(
     return cv2.dilate(overlay.astype(np.uint8), _disk(2)).astype(bool)
 
 
+def white_overlays(images: list[np.ndarray]) -> np.ndarray:
+    """(H, W) bool, True on white overlays (see the module doc): white in every frame of
+    `images` (one frame will do), with a sharp edge onto tissue in every frame. Dilated by
+    2 px (their anti-aliased edge)."""
+    for image in images:
+        _check_image(image)
+    white = np.ones(images[0].shape[:2], bool)
+    for image in images:
+        white &= channel_min(image) >= OVERLAY_WHITE
+    if not white.any():
+        return np.zeros(white.shape, bool)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(white.astype(np.uint8), 8)
+    width = white.shape[1]
+    smallest = max(MIN_OVERLAY_PX_ANY, MIN_OVERLAY_PX * (width / 1920) ** 2)
+    sharp = stats[:, cv2.CC_STAT_AREA] >= smallest
+    sharp[0] = False
+    if not sharp.any():
+        return np.zeros(white.shape, bool)
+    # The band 2 px outside each blob, labelled by the blob it surrounds.
+    grown = cv2.dilate(labels.astype(np.float32), _disk(2))
+    band = (labels == 0) & (grown > 0) & ~cv2.dilate(white.astype(np.uint8), _disk(1)).astype(bool)
+    owner = grown[band].astype(np.int64)
+    pixels = np.maximum(np.bincount(owner, minlength=count), 1)
+    for image in images:
+        sharp &= np.bincount(owner, _whitening(image, white, band), count) / pixels <= (
+            OVERLAY_EDGE_WHITENING
+        )
+    return cv2.dilate(sharp[labels].astype(np.uint8), _disk(2)).astype(bool)
+
+
+def _whitening(image: np.ndarray, white: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """How far each `band` pixel has moved from the local tissue's colour towards white
+    (0: tissue, 1: white)."""
+    tissue = local_tissue(image, ~white, OVERLAY_WINDOW)[band]
+    tissue_ratio = np.minimum(channel_min(tissue) / np.maximum(channel_max(tissue), 1e-6), 0.95)
+    ratio = channel_min(image[band]) / np.maximum(channel_max(image[band]), 1e-6)
+    return np.clip((ratio - tissue_ratio) / (1 - tissue_ratio), 0, 1)
+
+
 def visible_masks(images: list[np.ndarray]) -> list[np.ndarray]:
-    """Every frame's pixels of the scene: inside the field of view and off the overlays."""
-    overlay = overlay_mask(images)
+    """Every frame's pixels of the scene: inside the field of view and off the overlays
+    (those constant over the frames, and white ones with sharp edges in each frame)."""
+    overlay = overlay_mask(images) | white_overlays(images)
     return [field_of_view(image) & ~overlay for image in images]

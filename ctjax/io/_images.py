@@ -54,9 +54,13 @@ def write_quantised_rgb(path: Path, image: np.ndarray) -> None:
 
 
 def write_mask(path: Path, mask: np.ndarray) -> None:
-    """A boolean mask as an 8-bit PNG (255 where set), atomically."""
+    """A boolean mask as an 8-bit PNG (255 where set), atomically: (H, W) grey, or
+    (H, W, 3) one RGB channel per colour (e.g. the clipped channels)."""
     path = Path(path)
-    ok, encoded = cv2.imencode(".png", np.where(mask, 255, 0).astype(np.uint8))
+    pixels = np.where(mask, 255, 0).astype(np.uint8)
+    if pixels.ndim == 3:
+        pixels = np.ascontiguousarray(pixels[..., ::-1])  # OpenCV writes BGR
+    ok, encoded = cv2.imencode(".png", pixels)
     if not ok:
         raise CaptureError(f"{path}: PNG encoding failed")
     atomic_write_bytes(path, encoded.tobytes())

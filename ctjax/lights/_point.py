@@ -69,6 +69,20 @@ class PointLight(AbstractLight):
         return direction, _irradiance(self.intensity, self.falloff, light_to_point)
 
 
+# The light guide sits a few mm off the lens: offset fits start this far along +-x, +-y ...
+OFFSET_START_MM = 3.0
+# ... which, in a capture without a known size (lengths in median depths), is this fraction
+# of the median depth (3 mm at a laparoscope's typical 60 mm).
+OFFSET_START_RELATIVE = OFFSET_START_MM / 60.0
+
+
+def offset_starts(length_unit: str = "mm", median_depth: float = 1.0) -> list[tuple]:
+    """The starting offsets of a light-offset fit (the cost is not convex in the position),
+    in the capture's length unit."""
+    step = OFFSET_START_MM if length_unit == "mm" else OFFSET_START_RELATIVE * median_depth
+    return [(step, 0.0, 0.0), (-step, 0.0, 0.0), (0.0, step, 0.0), (0.0, -step, 0.0)]
+
+
 class LightOffsetCandidate(AbstractCandidate):
     """The light guide beside the lens: a point light at an offset, from four starts (the
     cost is not convex in the position)."""
@@ -79,7 +93,7 @@ class LightOffsetCandidate(AbstractCandidate):
         light = model.light
         if not isinstance(light, ColocatedLight):
             return []
-        offsets = [(3.0, 0, 0), (-3.0, 0, 0), (0, 3.0, 0), (0, -3.0, 0)]
+        offsets = offset_starts(context.get("length_unit", "mm"), context["median_depth_mm"])
         return [
             eqx.tree_at(
                 lambda m: m.light, model, PointLight(jnp.asarray(o, float), falloff=light.falloff)

@@ -56,9 +56,11 @@ class SparseModel:
 
 
 def highlight_mask(image: np.ndarray, dilate_px: int) -> np.ndarray:
-    """Pixels hidden from SIFT: the specular set S and saturated pixels, dilated."""
+    """Pixels hidden from SIFT, dilated: the specular set S (highlights move with the
+    light) and pixels with two channels or three clipped (their grey value is flat; a red
+    channel clipped over the tissue alone leaves green and blue texture to match)."""
     sets = specular_sets(image)
-    mask = (sets.specular | sets.saturated).astype(np.uint8)
+    mask = (sets.specular | (np.sum(sets.clipped, axis=-1) >= 2)).astype(np.uint8)
     if dilate_px > 0 and mask.any():
         size = 2 * dilate_px + 1
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))

@@ -21,6 +21,7 @@ import numpy as np
 
 from .._camera import Camera
 from .._errors import CaptureError, ParameterError
+from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel, sparse_reconstruction
@@ -101,6 +102,7 @@ def reconstruct_capture(
     volume_mm3: float | None = None,
     knot_spacing_px: float | None = None,
     progress: Callable[[str], None] | None = None,
+    verbose: bool = False,
 ) -> Reconstruction:
     """Rigid SfM and a dense surface per registered frame of a loaded (undistorted) capture.
 
@@ -116,7 +118,7 @@ def reconstruct_capture(
     _check_scale(scale_mm, volume_mm3)
     say = progress or (lambda message: None)
     camera = capture.camera
-    sparse = sparse_reconstruction(camera, capture.frames, progress=progress)
+    sparse = sparse_reconstruction(camera, capture.frames, progress=progress, verbose=verbose)
     reference = sparse.registered[0]
     ref_from_world = sparse.cam_from_world[reference]
     points = _to_camera(ref_from_world, sparse.points)
@@ -193,6 +195,7 @@ def reconstruct(
     volume_mm3: float | None = None,
     force: bool = False,
     progress: Callable[[str], None] | None = None,
+    verbose: bool = False,
 ) -> dict:
     """Reconstruct a capture's shape from its images and write it in the capture format.
 
@@ -224,7 +227,7 @@ def reconstruct(
                     f"{target}: exists; not overwriting it (use force=True, or --force)"
                 )
     result = reconstruct_capture(
-        capture, scale_mm=scale_mm, volume_mm3=volume_mm3, progress=progress
+        capture, scale_mm=scale_mm, volume_mm3=volume_mm3, progress=progress, verbose=verbose
     )
     for source in copies:
         target = out / source.relative_to(root)
@@ -284,8 +287,8 @@ def with_reconstructed_shape(
 
     For commands that need the shape of a capture that has only images (`ctjax fit`).
     Frames that do not register are dropped (listed in the report's `unregistered`). Depth
-    is up to scale: the BRDF fit uses the normals and the view directions, which do not
-    depend on it.
+    is up to scale (`length_unit` "median_depth"): the BRDF fit uses the normals and the
+    view directions, which do not depend on it.
     """
     result = reconstruct_capture(capture, progress=progress)
     frames = []
@@ -294,7 +297,8 @@ def with_reconstructed_shape(
         if view is not None:
             depth, normals = view.depth_and_normals(capture.camera)
             frames.append(dataclasses.replace(frame, depth=depth, normals=normals, pose=view.pose))
-    return dataclasses.replace(capture, frames=tuple(frames)), result.report
+    unit = unit_of_reconstruction(result.report)
+    return dataclasses.replace(capture, frames=tuple(frames), length_unit=unit), result.report
 
 
 def _view_surfaces(camera, sparse, points, world_from_ref, unit, knot_spacing_px, say):

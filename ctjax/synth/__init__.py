@@ -1,5 +1,7 @@
-"""Synthetic laparoscope captures with known truth."""
+"""Synthetic laparoscope captures with known truth, and real-like endoscopic frames."""
 
+from ._real_like import RealLikeFrame as RealLikeFrame
+from ._real_like import real_like_frame as real_like_frame
 from ._synthesize import SynthOptions as SynthOptions
 from ._synthesize import effects_truth as effects_truth
 from ._synthesize import scene_model as scene_model

@@ -1,0 +1,231 @@
+"""`ctjax import`: a capture from an endoscopic video (any format OpenCV reads).
+
+Frames are chosen in two passes over the video, so that only small thumbnails are held:
+
+1. Each considered frame (every `every`-th between `start` and `end` seconds) is reduced to
+   a grey thumbnail `THUMBNAIL_WIDTH` px wide, inside the endoscope's field of view of the
+   first frame (`field_of_view`), and its sharpness is measured: the variance of the
+   Laplacian of the thumbnail (Pech-Pacheco et al. 2000), which motion blur lowers.
+2. Motion-blurred frames are dropped: sharpness below `blur_ratio` times the median
+   sharpness of the `BLUR_WINDOW` considered frames around it (relative, so a smooth
+   scene is not called blurred).
+3. The rest are grouped into runs of near-duplicates: a run ends where a frame differs from
+   the run's first frame by at least `distinct` (mean absolute difference of the blurred
+   thumbnails over the field of view, relative to their mean brightness). A still camera
+   makes one run; each run keeps its sharpest frame.
+4. More than `max_frames` left: that many, evenly spread in time.
+
+The second pass decodes the video again and writes the kept frames as
+`CAPTURE/images/frame_NNNNNN.png` (the video's frame number, zero-padded: names sort in
+time) with `camera.json` copied beside them.
+"""
+
+import dataclasses
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._errors import CaptureError, ParameterError
+from ._atomic import atomic_write_json
+from ._capture import read_camera
+from ._field_of_view import field_of_view
+from ._images import write_quantised_rgb
+
+THUMBNAIL_WIDTH = 320
+BLUR_WINDOW = 31
+
+
+@dataclasses.dataclass(frozen=True)
+class ImportOptions:
+    """Which frames of a video become a capture (see the module doc)."""
+
+    every: int = 1  # consider every this-many-th frame
+    start: float = 0.0  # seconds
+    end: float | None = None  # seconds (None: to the end)
+    max_frames: int | None = None
+    distinct: float = 0.03  # a new view: thumbnails differ by this, relative
+    blur_ratio: float = 0.5  # blurred: sharpness below this times its neighbours' median
+
+    def __post_init__(self):
+        if int(self.every) != self.every or self.every < 1:
+            raise ParameterError(f"--every must be a positive integer, got {self.every}")
+        if not np.isfinite(self.start) or self.start < 0:
+            raise ParameterError(
+                f"--start must be a non-negative time in seconds, got {self.start}"
+            )
+        if self.end is not None and not (np.isfinite(self.end) and self.end > self.start):
+            raise ParameterError(f"--end must be a time after --start, got {self.end}")
+        if self.max_frames is not None and (
+            int(self.max_frames) != self.max_frames or self.max_frames < 2
+        ):
+            raise ParameterError(f"--max-frames must be an integer >= 2, got {self.max_frames}")
+        if not 0 < self.distinct < 1 or not 0 <= self.blur_ratio < 1:
+            raise ParameterError("distinct must be in (0, 1) and blur_ratio in [0, 1)")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Scan:
+    indices: np.ndarray  # video frame numbers considered
+    thumbnails: list[np.ndarray]  # grey, blurred, float32
+    sharpness: np.ndarray
+    size: tuple[int, int]  # (width, height)
+    fps: float
+    fov: np.ndarray  # the first frame's field of view, at the thumbnails' size
+
+
+def _open(path: Path) -> cv2.VideoCapture:
+    if not path.is_file():
+        raise CaptureError(f"{path}: video file not found")
+    video = cv2.VideoCapture(str(path))
+    if not video.isOpened():
+        raise CaptureError(f"{path}: cannot open the video (not a video OpenCV can decode)")
+    return video
+
+
+def _frames(path: Path, options: ImportOptions, fps: float):
+    """(frame number, BGR uint8 image) of the considered frames, decoding only those."""
+    video = _open(path)
+    first = round(options.start * fps)
+    last = None if options.end is None else round(options.end * fps)
+    index = 0
+    try:
+        while last is None or index <= last:
+            wanted = index >= first and (index - first) % options.every == 0
+            if not wanted:
+                if not video.grab():
+                    return
+            else:
+                ok, image = video.read()
+                if not ok:
+                    return
+                yield index, image
+            index += 1
+    finally:
+        video.release()
+
+
+def _small(image: np.ndarray) -> np.ndarray:
+    """A BGR frame as RGB, `THUMBNAIL_WIDTH` px wide."""
+    height, width = image.shape[:2]
+    size = (THUMBNAIL_WIDTH, max(1, round(height * THUMBNAIL_WIDTH / width)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)[..., ::-1]
+
+
+def _thumbnail(image: np.ndarray, fov: np.ndarray) -> tuple[np.ndarray, float]:
+    """The grey thumbnail (blurred against compression noise) and its sharpness."""
+    grey = cv2.cvtColor(np.ascontiguousarray(_small(image)), cv2.COLOR_RGB2GRAY)
+    grey = grey.astype(np.float32) / 255
+    laplacian = cv2.Laplacian(grey, cv2.CV_32F)
+    sharpness = float(np.var(laplacian[fov])) if fov.any() else 0.0
+    return cv2.GaussianBlur(grey, (0, 0), 1.5), sharpness
+
+
+def _scan(path: Path, options: ImportOptions, progress: Callable[[str], None]) -> _Scan:
+    video = _open(path)
+    fps = video.get(cv2.CAP_PROP_FPS) or 25.0
+    total = int(video.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+    video.release()
+    indices, thumbnails, sharpness = [], [], []
+    fov = size = None
+    for index, image in _frames(path, options, fps):
+        if fov is None:
+            size = (image.shape[1], image.shape[0])
+            fov = field_of_view(_small(image).astype(np.float32) / 255)
+        thumbnail, sharp = _thumbnail(image, fov)
+        indices.append(index)
+        thumbnails.append(thumbnail)
+        sharpness.append(sharp)
+        if len(indices) % 100 == 0:
+            progress(f"scanned {index + 1}" + (f"/{total}" if total else "") + " frames")
+    if not indices:
+        raise CaptureError(f"{path}: no frame between --start and --end (the video has {total})")
+    return _Scan(np.array(indices), thumbnails, np.array(sharpness), size, fps, fov)
+
+
+def select_frames(scan: _Scan, options: ImportOptions) -> tuple[list[int], dict]:
+    """The kept frames' positions in `scan`, and the counts of those dropped and why."""
+    n, fov = len(scan.indices), scan.fov
+    half = BLUR_WINDOW // 2
+    around = [np.median(scan.sharpness[max(0, i - half) : i + half + 1]) for i in range(n)]
+    sharp = scan.sharpness >= options.blur_ratio * np.array(around)
+    runs: list[list[int]] = []
+    for i in np.flatnonzero(sharp):
+        if runs:
+            first = scan.thumbnails[runs[-1][0]]
+            level = max(float(np.mean(first[fov])), 1e-3)
+            if np.mean(np.abs(scan.thumbnails[i][fov] - first[fov])) < options.distinct * level:
+                runs[-1].append(i)
+                continue
+        runs.append([i])
+    kept = [max(run, key=lambda i: scan.sharpness[i]) for run in runs]
+    spread = 0
+    if options.max_frames is not None and len(kept) > options.max_frames:
+        chosen = np.unique(np.round(np.linspace(0, len(kept) - 1, options.max_frames)).astype(int))
+        spread = len(kept) - len(chosen)
+        kept = [kept[i] for i in chosen]
+    counts = {
+        "considered": n,
+        "blurred": int(n - sharp.sum()),
+        "near_duplicates": int(sharp.sum() - len(runs)),
+        "over_max_frames": spread,
+        "kept": len(kept),
+    }
+    return kept, counts
+
+
+def import_video(
+    video: str | Path,
+    camera: str | Path,
+    out: str | Path,
+    options: ImportOptions = ImportOptions(),
+    *,
+    force: bool = False,
+    progress: Callable[[str], None] = lambda message: None,
+) -> dict:
+    """Write a capture folder `out` from the distinct, sharp frames of `video` (see the
+    module doc). `camera` is the camera.json of the endoscope (its size must be the
+    video's). Returns a report: the counts of frames considered, dropped and kept, and the
+    kept frames' names and times."""
+    video, camera_path, out = Path(video), Path(camera), Path(out)
+    intrinsics = read_camera(camera_path)
+    images = out / "images"
+    if images.is_dir() and any(images.iterdir()) and not force:
+        raise CaptureError(f"{images}: already has images (--force replaces them)")
+    scan = _scan(video, options, progress)
+    if scan.size != (intrinsics.width, intrinsics.height):
+        raise CaptureError(
+            f"{video}: frames are {scan.size[0]}x{scan.size[1]}, {camera_path} says "
+            f"{intrinsics.width}x{intrinsics.height}"
+        )
+    kept, counts = select_frames(scan, options)
+    progress(
+        f"keeping {counts['kept']} of {counts['considered']} frames ({counts['blurred']} "
+        f"blurred, {counts['near_duplicates']} near-duplicates"
+        + (f", {counts['over_max_frames']} over --max-frames" if counts["over_max_frames"] else "")
+        + ")"
+    )
+    if images.is_dir() and force:
+        shutil.rmtree(images)
+    wanted = {int(scan.indices[i]) for i in kept}
+    digits = max(6, len(str(max(wanted))))
+    names = []
+    for index, image in _frames(video, options, scan.fps):
+        if index not in wanted:
+            continue
+        name = f"frame_{index:0{digits}d}"
+        write_quantised_rgb(images / f"{name}.png", image[..., ::-1])
+        names.append(name)
+        progress(f"wrote {len(names)}/{len(wanted)} frames")
+        if len(names) == len(wanted):
+            break
+    atomic_write_json(out / "camera.json", intrinsics.to_json())
+    return {
+        "video": str(video),
+        "out": str(out),
+        "fps": scan.fps,
+        **counts,
+        "frames": [{"name": n, "time_s": int(n.split("_")[1]) / scan.fps} for n in names],
+    }

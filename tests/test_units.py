@@ -1,0 +1,72 @@
+"""Lengths in a capture's unit: millimetres where depth is metric, median depths where the
+shape was reconstructed without a known size (no key then ends in `_mm`)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ctjax._units import in_length_unit
+from ctjax.cli import main
+from ctjax.io import load_capture, write_capture
+from ctjax.synth import SynthOptions, synthesize
+
+
+def _keys(tree):
+    if isinstance(tree, dict):
+        for key, value in tree.items():
+            yield key
+            yield from _keys(value)
+    elif isinstance(tree, list):
+        for value in tree:
+            yield from _keys(value)
+
+
+def test_a_relative_unit_renames_every_length_key():
+    data = {"offset_mm": [1, 2, 3], "model": {"light": {"position_mm": [0, 0, 0]}}, "n": 3}
+    assert in_length_unit(data, "mm") == {"length_unit": "mm", **data}
+    relative = in_length_unit(data, "median_depth")
+    assert relative["length_unit"] == "median_depth" and relative["offset"] == [1, 2, 3]
+    assert relative["model"]["light"]["position"] == [0, 0, 0]
+    assert not [k for k in _keys(relative) if k.endswith("_mm")]
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    """The same small capture in millimetres, and up to scale (depth and poses divided by
+    the median depth, and a reconstruction report that says it is not metric)."""
+    root = tmp_path_factory.mktemp("units")
+    metric = load_capture(
+        synthesize(root / "mm", SynthOptions(width=96, height=72, frames=3, texture=False))
+    )
+    unit = float(np.nanmedian(metric.frames[0].depth))
+    frames = []
+    for frame in metric.frames:
+        pose = frame.pose.copy()
+        pose[:3, 3] /= unit
+        frames.append(
+            frame.__class__(frame.name, frame.image, frame.depth / unit, frame.normals, pose)
+        )
+    relative = write_capture(root / "relative", metric.camera, frames)
+    report = {"scale": {"metric": False, "unit": "median reference depth (up to scale)"}}
+    (relative / "reconstruction.json").write_text(json.dumps(report))
+    return metric.root, relative
+
+
+def test_the_near_light_says_its_unit(captures, tmp_path):
+    metric, relative = captures
+    assert load_capture(metric).length_unit == "mm"
+    assert load_capture(relative).length_unit == "median_depth"
+    for capture, unit in ((metric, "mm"), (relative, "median_depth")):
+        out = tmp_path / f"{unit}.json"
+        argv = ["calibrate-light", str(capture), "--model", "near", "--albedo", "uniform"]
+        assert main([*argv, "--falloff", "none", "--json", str(out)]) == 0
+        result = json.loads(out.read_text())
+        assert result["length_unit"] == unit
+        lengths = [k for k in _keys(result) if k.endswith("_mm")]
+        assert (unit == "mm") == bool(lengths), lengths
+    # The same fit in either unit: the offsets agree once divided by the depth.
+    offset_mm = json.loads((tmp_path / "mm.json").read_text())["offset_mm"]
+    offset = json.loads((tmp_path / "median_depth.json").read_text())["offset"]
+    depth = float(np.nanmedian(load_capture(metric).frames[0].depth))
+    assert np.linalg.norm(np.asarray(offset_mm) / depth - np.asarray(offset)) < 0.01

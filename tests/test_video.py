@@ -1,0 +1,106 @@
+"""`ctjax import`: a capture from a video written here with OpenCV (MPEG-4): 8 textured
+views of a synthetic capture, each held for 6 frames as a still camera would, one of them
+motion-blurred."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from ctjax.cli import main
+from ctjax.io import load_capture
+from ctjax.io._video import ImportOptions
+from ctjax.synth import SynthOptions, synthesize
+
+HELD = 6
+
+
+def _write_video(path, images, held=HELD, blurred=()):
+    height, width = images[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 24, (width, height))
+    assert writer.isOpened()
+    for k, image in enumerate(images):
+        bgr = np.round(np.clip(image[..., ::-1], 0, 1) * 255).astype(np.uint8)
+        for repeat in range(held):
+            writer.write(cv2.blur(bgr, (17, 1)) if (k, repeat) in blurred else bgr)
+    writer.release()
+    return path
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    root = tmp_path_factory.mktemp("video")
+    truth = synthesize(root / "truth", SynthOptions(frames=8, seed=2))
+    images = [frame.image for frame in load_capture(truth).frames]
+    # The sharpest frame of a view is kept: blur one of the copies, and every copy but one.
+    blurred = {(3, 2)} | {(5, r) for r in range(HELD) if r != 4}
+    return _write_video(root / "v.mp4", images, blurred=blurred), truth / "camera.json"
+
+
+def test_import_keeps_one_sharp_frame_per_view_and_reconstruct_registers_them(video, tmp_path):
+    path, camera = video
+    out = tmp_path / "capture"
+    report = tmp_path / "import.json"
+    argv = ["import", str(path), "--camera", str(camera), "--out", str(out)]
+    assert main([*argv, "--json", str(report)]) == 0
+    result = json.loads(report.read_text())
+    assert 8 <= result["kept"] <= 16 and result["considered"] == 8 * HELD
+    names = [f["name"] for f in result["frames"]]
+    assert names == sorted(names) and len(set(names)) == len(names)
+    # The view held with 5 blurred copies out of 6 keeps its sharp one (frame 5 * 6 + 4).
+    assert f"frame_{5 * HELD + 4:06d}" in names
+    capture = load_capture(out)
+    assert len(capture.frames) == result["kept"]
+    recon = tmp_path / "recon.json"
+    assert main(["reconstruct", str(out), "--json", str(recon)]) == 0
+    assert len(json.loads(recon.read_text())["registered"]) >= 6
+    # Imported once: a second import asks for --force.
+    assert main(argv) == 2
+    assert main([*argv, "--force", "--every", "2", "--max-frames", "4"]) == 0
+    assert len(list((out / "images").glob("*.png"))) == 4
+
+
+def _one_view(root):
+    """A camera.json and one textured 64x48 image (no rendering needed)."""
+    root.mkdir()
+    camera = {"width": 64, "height": 48, "fx": 58.0, "fy": 58.0, "cx": 32.0, "cy": 24.0}
+    (root / "camera.json").write_text(json.dumps(camera))
+    rng = np.random.default_rng(0)
+    texture = cv2.resize(rng.uniform(0.2, 0.8, (12, 16, 3)), (64, 48), cv2.INTER_CUBIC)
+    return root / "camera.json", texture
+
+
+def test_a_still_camera_gives_one_frame_and_a_warning(tmp_path, capsys):
+    camera, image = _one_view(tmp_path / "t")
+    path = _write_video(tmp_path / "still.mp4", [image], held=20)
+    argv = ["import", str(path), "--camera", str(camera), "--out"]
+    assert main([*argv, str(tmp_path / "c")]) == 0
+    assert len(list((tmp_path / "c" / "images").glob("*.png"))) == 1
+    assert "structure from motion needs views" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("content", "extra", "expected"),
+    [
+        ("not a video", [], "cannot open the video"),
+        (None, ["--every", "0"], "--every must be a positive integer"),
+        (None, ["--start", "5", "--end", "2"], "--end must be a time after --start"),
+    ],
+)
+def test_bad_imports_fail_with_one_line(tmp_path, capsys, content, extra, expected):
+    camera, image = _one_view(tmp_path / "t")
+    path = tmp_path / "v.mp4"
+    if content is None:
+        _write_video(path, [image], held=3)
+    else:
+        path.write_text(content)
+    argv = ["import", str(path), "--camera", str(camera), "--out"]
+    assert main([*argv, str(tmp_path / "c"), *extra]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0]
+
+
+def test_options_are_checked():
+    with pytest.raises(Exception, match="--max-frames"):
+        ImportOptions(max_frames=1)
