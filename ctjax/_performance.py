@@ -2,6 +2,8 @@
 
 import ctypes
 import functools
+import os
+from pathlib import Path
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
@@ -24,3 +26,45 @@ def tune_malloc() -> bool:
     except (OSError, AttributeError):
         return False
     return bool(ok_mmap and ok_trim)
+
+
+# The command line keeps XLA's compiled programs here between runs (`enable_compilation_cache`).
+CACHE_ENV = "CTJAX_CACHE_DIR"
+NO_CACHE_ENV = "CTJAX_NO_CACHE"
+
+
+def compilation_cache_dir() -> Path | None:
+    """Where the command line keeps compiled programs: `$CTJAX_CACHE_DIR`, else
+    `$XDG_CACHE_HOME/ctjax/jax`, else `~/.cache/ctjax/jax`; None when `$CTJAX_NO_CACHE` is
+    set to anything but "" or "0"."""
+    import os
+    from pathlib import Path
+
+    if os.environ.get(NO_CACHE_ENV, "") not in ("", "0"):
+        return None
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "ctjax" / "jax"
+
+
+def enable_compilation_cache(folder: Path | None = None) -> Path | None:
+    """JAX's persistent compilation cache in `folder` (default `compilation_cache_dir()`):
+    a repeated command loads its compiled programs instead of compiling them again (the
+    fitters take seconds to compile and milliseconds to run). Leaves a cache the user set
+    through JAX's own `JAX_COMPILATION_CACHE_DIR` alone. Returns the folder in use (None:
+    off)."""
+    import jax
+
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return jax.config.jax_compilation_cache_dir
+    folder = compilation_cache_dir() if folder is None else folder
+    if folder is None:
+        return None
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None  # a read-only home: compile every time, as without the cache
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    return folder

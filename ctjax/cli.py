@@ -764,11 +764,12 @@ def main(argv: list[str] | None = None) -> int:
         return exit.code if isinstance(exit.code, int) else 0
     import jax
 
-    from ._performance import tune_malloc
+    from ._performance import enable_compilation_cache, tune_malloc
 
     # Estimation in double precision; renders stay in the dtype of their inputs.
     jax.config.update("jax_enable_x64", True)
     tune_malloc()
+    enable_compilation_cache()
     try:
         return args.run(args)
     except CtjaxError as error:

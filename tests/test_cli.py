@@ -76,3 +76,16 @@ def test_bad_input_is_one_line_and_status_2(tmp_path, argv, message):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in result.stderr
+
+
+def test_the_compilation_cache_folder_is_documented_and_overridable(monkeypatch, tmp_path):
+    from ctjax._performance import compilation_cache_dir
+
+    monkeypatch.delenv("CTJAX_NO_CACHE", raising=False)
+    monkeypatch.setenv("CTJAX_CACHE_DIR", str(tmp_path / "c"))
+    assert compilation_cache_dir() == tmp_path / "c"
+    monkeypatch.delenv("CTJAX_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "x"))
+    assert compilation_cache_dir() == tmp_path / "x" / "ctjax" / "jax"
+    monkeypatch.setenv("CTJAX_NO_CACHE", "1")
+    assert compilation_cache_dir() is None

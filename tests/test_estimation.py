@@ -277,3 +277,15 @@ def test_an_albedo_of_zero_is_named_as_such(tmp_path):
     warnings = " ".join(estimate.warnings)
     assert "rho_tilde[R], rho_tilde[G], rho_tilde[B] cannot be told from 0" in warnings
     assert "too thin" not in warnings
+
+
+def test_frames_with_few_usable_pixels_are_named(tmp_path):
+    capture = load_capture(
+        synthesize(tmp_path / "c", SynthOptions(width=96, height=80, frames=2, texture=False))
+    )
+    depth = np.load(capture.root / "depth" / "frame_001.npy")
+    depth[:, 4:] = np.nan  # a sliver of shape left
+    np.save(capture.root / "depth" / "frame_001.npy", depth)
+    (capture.root / "normals" / "frame_001.npy").unlink()
+    estimate = fit_capture(load_capture(capture.root), MaskOptions(ring_px=6), albedo="uniform")
+    assert any("frame(s) frame_001 (" in w and "few usable" in w for w in estimate.warnings)

@@ -134,3 +134,19 @@ def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
     assert not report["scale"]["metric"]
     assert not (capture / "depth" / "frame_999.npy").exists()
     assert (capture / "normals" / "frame_002.npy").is_file()
+
+
+def test_little_parallax_is_named():
+    from types import SimpleNamespace
+
+    from ctjax.sfm._reconstruct import MIN_BASELINE, _baseline
+
+    def view(x):
+        pose = np.eye(4)
+        pose[0, 3] = x
+        return SimpleNamespace(pose=pose)
+
+    scale = {"median_reference_depth": 1.0, "factor": 60.0}
+    assert _baseline({"a": view(0.0), "b": view(0.6)}, scale) == pytest.approx(0.01)
+    assert _baseline({"a": view(0.0), "b": view(0.6)}, scale) < MIN_BASELINE
+    assert _baseline({"a": view(0.0)}, scale) is None

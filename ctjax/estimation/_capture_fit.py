@@ -10,7 +10,7 @@ from .._model import ShadingModel
 from .._result import Estimate
 from ..io import Capture
 from ..lights import ColocatedLight
-from ..observations import Observations
+from ..observations import Observations, usable_mask
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, fit_brdf
 from ._highlights import HighlightRule
 from ._specular_set import (
@@ -152,6 +152,24 @@ def _poorly_determined(fit: BRDFFit) -> list[str]:
     return warnings
 
 
+# A frame with under this share of usable pixels adds little to a fit.
+MIN_USABLE_SHARE = 0.05
+
+
+def thin_frames(capture: Capture) -> list[str]:
+    """A warning naming the frames with under `MIN_USABLE_SHARE` of their pixels usable
+    (a normal, in view, no clipped channel)."""
+    shares = {f.name: usable_mask(f).mean() for f in capture.frames if f.normals is not None}
+    thin = [f"{name} ({share:.1%})" for name, share in shares.items() if share < MIN_USABLE_SHARE]
+    if not thin:
+        return []
+    return [
+        f"frame(s) {', '.join(thin[:5])} have few usable pixels (a normal, in view, no "
+        "clipped channel): they add little to the fit (check the depth, the exposure and "
+        "the field of view: ctjax masks)"
+    ]
+
+
 def _zero_names(fit: BRDFFit) -> list[str]:
     """The weights that are 0 or within 2 standard errors of it, as "rho_tilde[R]"."""
     weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
@@ -271,7 +289,7 @@ def fit_uniform(
         "masks": dataclasses.asdict(masks),
         "albedo": "uniform",
     }
-    warnings = _at_zero(fit)
+    warnings = _at_zero(fit) + thin_frames(capture)
     poorly = [w for w in _poorly_determined(fit) if w.split(" = ")[0] not in _zero_names(fit)]
     if poorly:
         warnings.append(

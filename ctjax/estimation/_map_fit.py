@@ -18,7 +18,13 @@ from ..lights import ColocatedLight
 from ..observations import Observations
 from ._albedo_map import albedo_maps, fit_brdf_map, track_shading
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
-from ._capture_fit import _WELL_DETERMINED, MaskOptions, _require_geometry, require_specular
+from ._capture_fit import (
+    _WELL_DETERMINED,
+    MaskOptions,
+    _require_geometry,
+    require_specular,
+    thin_frames,
+)
 
 
 def _number(value):
@@ -73,8 +79,9 @@ def _median_albedo(capture, maps) -> np.ndarray:
 
 
 def _warnings(capture, fit, per_point: int, points: int, coverage) -> list[str]:
-    """Poorly determined parameters and frames the map covers thinly."""
-    warnings = []
+    """Poorly determined parameters, frames with few usable pixels, and frames the map
+    covers thinly."""
+    warnings = thin_frames(capture)
     poorly = _poorly_determined(fit, per_point)
     if poorly:
         warnings.append(

@@ -337,6 +337,22 @@ def _view_surfaces(camera, sparse, points, world_from_ref, unit, knot_spacing_px
     return surfaces, hulls, counts, cams
 
 
+# Below this baseline (the largest distance between registered cameras, relative to the
+# working distance), reconstruct warns of little parallax.
+MIN_BASELINE = 0.02
+
+
+def _baseline(views, scale_info) -> float | None:
+    """The largest distance between two registered cameras over the reference frame's
+    median depth (None with fewer than two)."""
+    centres = np.array([view.pose[:3, 3] for view in views.values()])
+    depth = scale_info["median_reference_depth"] * scale_info["factor"]
+    if len(centres) < 2 or not np.isfinite(depth) or depth <= 0:
+        return None
+    spread = np.linalg.norm(centres[:, None] - centres[None], axis=-1).max()
+    return float(spread / depth)
+
+
 def _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px) -> dict:
     """`ctjax reconstruct`'s JSON report."""
     coverage = {name: float(view.hull.mean()) for name, view in views.items()}
@@ -347,7 +363,14 @@ def _report(sparse, views, reference, points, scale_info, counts, knot_spacing_p
     if not scale_info["metric"]:
         warnings.append(
             "depth is up to scale (unit: median depth of the reference frame); give "
-            "scale_mm or volume_mm3 for millimetres"
+            "--scale-mm or --volume-mm3 (scale_mm=, volume_mm3= in Python) for millimetres"
+        )
+    baseline = _baseline(views, scale_info)
+    if baseline is not None and baseline < MIN_BASELINE:
+        warnings.append(
+            f"little parallax: the registered cameras are at most {baseline:.1%} of the "
+            "working distance apart, and depth from so short a baseline is poorly "
+            "determined (move the camera more between frames)"
         )
     report = {
         "frames": len(sparse.names),
@@ -359,6 +382,7 @@ def _report(sparse, views, reference, points, scale_info, counts, knot_spacing_p
         "mean_track_length": float(np.mean(sparse.track_lengths)) if len(points) else 0.0,
         "coverage": float(np.mean(list(coverage.values()))) if coverage else 0.0,
         "coverage_per_frame": coverage,
+        "baseline_over_depth": _baseline(views, scale_info),
         "keypoints": sparse.keypoints,
         "matching": sparse.matching,
         "scale": scale_info,
