@@ -10,7 +10,6 @@ error and coverage, and the peak resident memory of the process. One JSON line p
 """
 
 import argparse
-import json
 import resource
 import tempfile
 import time
@@ -21,6 +20,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
+from _results import emit  # noqa: E402
 
 from ctjax import CtjaxError  # noqa: E402
 from ctjax.estimation import fit_capture  # noqa: E402
@@ -95,7 +95,7 @@ def main():
             f"{row['uniform_F_error']}); albedo maps: median {median:.2%}, p90 {p90:.2%}, "
             f"coverage {coverage:.1%}; peak RSS {row['peak_rss_mib']} MiB"
         )
-        print(json.dumps(row))
+        emit(row)
 
 
 if __name__ == "__main__":

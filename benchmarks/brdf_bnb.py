@@ -18,7 +18,6 @@ Prints a table and one JSON line per method and size.
 """
 
 import argparse
-import json
 import time
 
 import jax
@@ -27,6 +26,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _results import emit  # noqa: E402
 from scipy.optimize import nnls as scipy_nnls  # noqa: E402
 
 import ctjax  # noqa: E402
@@ -235,7 +235,7 @@ def main():
             )
     print(f"truth: {TRUTH}")
     for row in rows:
-        print(json.dumps(row))
+        emit(row)
 
 
 if __name__ == "__main__":

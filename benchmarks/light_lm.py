@@ -23,7 +23,6 @@ of the angle to the truth. Prints a table and one JSON line per configuration.
 """
 
 import argparse
-import json
 import math
 import time
 
@@ -34,6 +33,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
+from _results import emit  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from ctjax._vector import Vec3, tangent_direction  # noqa: E402
@@ -225,19 +225,17 @@ def main():
             f"{np.percentile(errors, 90):8.3f} {' '.join(extra)}"
         )
     for name, noise, seconds, compile_s, errors, *_ in rows:
-        print(
-            json.dumps(
-                {
-                    "engine": name,
-                    "noise_levels": noise,
-                    "pixels": pixels,
-                    "frame_seconds": seconds,
-                    "pixels_per_second": pixels / seconds if seconds else None,
-                    "compile_seconds": compile_s,
-                    "median_angle_deg": float(np.median(errors)),
-                    "p90_angle_deg": float(np.percentile(errors, 90)),
-                }
-            )
+        emit(
+            {
+                "engine": name,
+                "noise_levels": noise,
+                "pixels": pixels,
+                "frame_seconds": seconds,
+                "pixels_per_second": pixels / seconds if seconds else None,
+                "compile_seconds": compile_s,
+                "median_angle_deg": float(np.median(errors)),
+                "p90_angle_deg": float(np.percentile(errors, 90)),
+            }
         )
 
 

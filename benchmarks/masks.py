@@ -11,11 +11,11 @@ view or on the icon, and the paper's HLS rule beside the default. One JSON line 
 """
 
 import argparse
-import json
 import time
 
 import cv2
 import numpy as np
+from _results import emit
 
 from ctjax.estimation import HLSThresholds, specular_sets
 from ctjax.io import field_of_view, white_overlays
@@ -57,20 +57,17 @@ def main():
             sets, visible = masks(frame.image)
             seconds.append(time.perf_counter() - started)
         paper = specular_sets(frame.image, visible=visible, highlights=HLSThresholds())
-        print(
-            json.dumps(
-                {
-                    "kind": kind,
-                    "size": f"{args.width}x{height}",
-                    "seconds_median": float(np.median(seconds)),
-                    "seconds_min": float(np.min(seconds)),
-                    "seconds_max": float(np.max(seconds)),
-                    "near_white_pixels": int(frame.near_white.sum()),
-                    **figures(frame, sets),
-                    **figures(frame, paper, "hls_"),
-                }
-            ),
-            flush=True,
+        emit(
+            {
+                "kind": kind,
+                "size": f"{args.width}x{height}",
+                "seconds_median": float(np.median(seconds)),
+                "seconds_min": float(np.min(seconds)),
+                "seconds_max": float(np.max(seconds)),
+                "near_white_pixels": int(frame.near_white.sum()),
+                **figures(frame, sets),
+                **figures(frame, paper, "hls_"),
+            }
         )
 
 

@@ -10,7 +10,6 @@ memory roofline. Prints a table and one JSON line per precision.
 """
 
 import argparse
-import json
 import math
 import platform
 import time
@@ -21,6 +20,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _results import emit  # noqa: E402
 
 import ctjax  # noqa: E402
 
@@ -169,7 +169,7 @@ def main():
         for dtype in (np.float32, np.float64)
     ]
     for row in results:
-        print(json.dumps(row))
+        emit(row)
 
 
 if __name__ == "__main__":

