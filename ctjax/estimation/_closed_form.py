@@ -112,21 +112,41 @@ def nnls_columns(
     their Gram entries and right-hand sides once, and every entry is a fused
     multiply-and-reduce rather than a skinny matrix product.
 
-    The cost is the sum of squared residuals over all C columns of `values`. In float64 it
-    comes from the normal equations (exact to ~1e-12 relative here); in float32 that
-    shortcut loses ~3% to cancellation, so the residuals are formed explicitly.
+    The cost is the sum of squared residuals over all C columns of `values`, from the
+    normal equations, `|y|^2 - 2 x.rhs + x^T gram x` (exact to ~1e-12 relative in float64).
+    In float32 that shortcut loses ~3% to cancellation, so float32 inputs have their sums
+    (the Gram entries, right-hand sides and `|y|^2`) accumulated in float64 when JAX has
+    float64 (`jax_enable_x64`): the columns are computed and read in float32 (half the
+    memory traffic), the sums and the K x K algebra are exact, and the estimate and cost
+    come back in float32. Without float64, the residuals are formed explicitly (slower).
     """
+    k = len(columns)
+    wide = values.dtype == jnp.float64 or jax.config.jax_enable_x64
+    if not wide:
+        return _nnls_columns_narrow(columns, values)
+    acc = jnp.float64
+
+    def dot(a, b):
+        return jnp.matmul(a, b, preferred_element_type=acc)
+
+    gram = jnp.stack([jnp.stack([dot(columns[i], columns[j]) for j in range(k)]) for i in range(k)])
+    rhs = jnp.stack([dot(column, values) for column in columns])
+    x = nnls_normal_equations(gram, rhs)
+    total = jnp.sum(jnp.square(values), dtype=acc)
+    cost = total - 2 * jnp.sum(x * rhs) + jnp.einsum("kc,kl,lc->", x, gram, x)
+    cost = jnp.maximum(cost, 0)
+    cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+    return x.astype(values.dtype), cost.astype(values.dtype)
+
+
+def _nnls_columns_narrow(columns, values):
+    """`nnls_columns` in float32 without float64: explicit residuals for the cost."""
     k = len(columns)
     gram = jnp.stack([jnp.stack([columns[i] @ columns[j] for j in range(k)]) for i in range(k)])
     rhs = jnp.stack([column @ values for column in columns])
     x = nnls_normal_equations(gram, rhs)
-    if values.dtype == jnp.float64:
-        total = jnp.sum(values * values)
-        cost = total - 2 * jnp.sum(x * rhs) + jnp.einsum("kc,kl,lc->", x, gram, x)
-        cost = jnp.maximum(cost, 0)
-    else:
-        residual = values - sum(x[i] * columns[i][:, None] for i in range(k))
-        cost = jnp.sum(residual * residual)
+    residual = values - sum(x[i] * columns[i][:, None] for i in range(k))
+    cost = jnp.sum(residual * residual)
     return x, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
 
