@@ -1,0 +1,63 @@
+"""`ctjax batch`: many captures, one result folder each, a summary row each; a failed
+capture is reported and the others kept; a rerun skips what is done."""
+
+import csv
+
+import pytest
+
+from ctjax.batch import run_batch
+from ctjax.cli import main
+from ctjax.synth import SynthOptions, synthesize
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    root = tmp_path_factory.mktemp("batch")
+    options = SynthOptions(width=64, height=48, frames=2, texture=False)
+    good = synthesize(root / "good", options)
+    broken = root / "broken"
+    broken.mkdir()  # no camera.json
+    return good, broken
+
+
+def _rows(out):
+    with open(out / "summary.csv") as handle:
+        return {row["capture"]: row for row in csv.DictReader(handle)}
+
+
+def test_a_failed_capture_is_reported_and_the_others_kept(captures, tmp_path, capsys):
+    good, broken = captures
+    out = tmp_path / "out"
+    argv = ["batch", str(good), str(broken), "--out", str(out), "--steps", "fit"]
+    assert main([*argv, "--workers", "0"]) == 1
+    rows = _rows(out)
+    assert rows["good"]["status"] == "ok" and float(rows["good"]["sigma"]) > 0
+    assert len(rows["good"]["F_tilde"].split()) == 3 and rows["good"]["length_unit"] == "mm"
+    assert (
+        rows["broken"]["status"] == "failed" and "camera.json not found" in rows["broken"]["error"]
+    )
+    assert (out / "good" / "fit.json").is_file() and (out / "good" / "done.json").is_file()
+    assert "2 capture(s), 1 failed" in (out / "summary.html").read_text()
+    assert "failed: broken" in capsys.readouterr().err
+    # A rerun skips the capture already done, and tries the failed one again.
+    messages = []
+    run_batch([good, broken], out, ["fit"], workers=0, progress=messages.append)
+    assert messages[0] == "1 capture(s) already done (skipped)"
+    assert len(messages) == 2 and "broken failed" in messages[1]
+
+
+def test_captures_run_on_dask_workers(captures, tmp_path):
+    good, _ = captures
+    rows = run_batch([good], tmp_path / "out", ["fit"], workers=1)
+    assert rows[0]["status"] == "ok", rows[0]["error"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [(["--steps", "fit,paint"], "unknown step(s) paint"), (["--workers", "-1"], "--workers")],
+)
+def test_bad_batch_options_are_one_line(captures, tmp_path, capsys, extra, message):
+    good, _ = captures
+    assert main(["batch", str(good), "--out", str(tmp_path / "o"), *extra]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0]
