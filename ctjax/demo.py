@@ -436,6 +436,7 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         "frames": options.frames,
         "size": f"{options.width}x{options.height}",
         "truth": _truth(truth),
+        "length_unit": "mm",
         "scale_mm": working_distance,
         "truth_used_for": [
             "the metric scale of the reconstruction: the working distance (median true "

@@ -75,7 +75,8 @@ def test_normals_match_ground_truth_inside_the_hull(reconstructed):
 
 
 def test_metric_depth_and_poses_with_a_known_distance(reconstructed):
-    truth, estimate, _ = reconstructed
+    truth, estimate, report = reconstructed
+    assert report["length_unit"] == "mm" and estimate.length_unit == "mm"
     for true_frame, frame in zip(truth.frames, estimate.frames, strict=True):
         ok = frame.geometry_mask & true_frame.geometry_mask
         relative = np.abs(frame.depth[ok] - true_frame.depth[ok]) / true_frame.depth[ok]

@@ -224,7 +224,7 @@ def reconstruct(
         for target in targets:
             if target.exists():
                 raise CaptureError(
-                    f"{target}: exists; not overwriting it (use force=True, or --force)"
+                    f"{target}: exists; not overwriting it (--force replaces it)"
                 )
     result = reconstruct_capture(
         capture, scale_mm=scale_mm, volume_mm3=volume_mm3, progress=progress, verbose=verbose
@@ -386,6 +386,7 @@ def _report(sparse, views, reference, points, scale_info, counts, knot_spacing_p
         "keypoints": sparse.keypoints,
         "matching": sparse.matching,
         "scale": scale_info,
+        "length_unit": unit_of_reconstruction({"scale": scale_info}),
         "surface": {
             "model": SURFACE_MODEL,
             "knot_spacing_px": float(knot_spacing_px),
