@@ -549,6 +549,10 @@ def _import_command(commands) -> None:
     video.set_defaults(run=_cmd_import)
 
 
+# `ctjax import` warns above this many kept frames.
+MANY_FRAMES = 200
+
+
 def _cmd_import(args: argparse.Namespace) -> int:
     from .io._atomic import atomic_write_json
     from .io._video import ImportOptions, import_video
@@ -575,6 +579,12 @@ def _cmd_import(args: argparse.Namespace) -> int:
         print(
             f"ctjax import: warning: {report['kept']} distinct frame(s): structure from motion "
             "needs views from several positions (a lower --distinct keeps more)",
+            file=sys.stderr,
+        )
+    elif report["kept"] > MANY_FRAMES:
+        print(
+            f"ctjax import: warning: {report['kept']} frames kept: structure from motion and "
+            "the fits on that many take long; --max-frames or --every keeps fewer",
             file=sys.stderr,
         )
     return 0

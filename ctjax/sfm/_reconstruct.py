@@ -223,9 +223,7 @@ def reconstruct(
     if not force:
         for target in targets:
             if target.exists():
-                raise CaptureError(
-                    f"{target}: exists; not overwriting it (--force replaces it)"
-                )
+                raise CaptureError(f"{target}: exists; not overwriting it (--force replaces it)")
     result = reconstruct_capture(
         capture, scale_mm=scale_mm, volume_mm3=volume_mm3, progress=progress, verbose=verbose
     )
