@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._buckets import bucket, pad_leading
 from .._errors import CtjaxError
 from .._numerics import safe_normalize
 from .._tracks import (
@@ -323,6 +324,22 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom):
     return params, weights, albedo, best, rmse, params_stderr, weights_stderr, half_width
 
 
+def _padded_points(shading: TrackShading) -> TrackShading:
+    """`shading` with its points padded to a bucket size (`ctjax._buckets`), the padding
+    unobserved (weight 0): captures of similar size share the BnB's compiled program."""
+    p, m = shading.shape
+    size = bucket(p)
+    if size == p:
+        return shading
+    zeros = lambda a: jnp.concatenate([a, jnp.zeros((size - p, *a.shape[1:]), a.dtype)])  # noqa: E731
+    return TrackShading(
+        pad_leading(shading.samples, p * m * 4, size * m * 4),
+        zeros(shading.corner_weight),
+        zeros(shading.values),
+        zeros(shading.weight),
+    )
+
+
 def fit_brdf_map(
     shading: TrackShading,
     family: BRDFFamily = PAPER,
@@ -352,8 +369,9 @@ def fit_brdf_map(
         raise CtjaxError("observed values contain NaN or inf")
     per_point = _per_point_index(family)
     params, weights, albedo, cost, rmse, p_err, w_err, half = _fit(
-        shading, family, per_point, tolerance, grid, candidates, zoom
+        _padded_points(shading), family, per_point, tolerance, grid, candidates, zoom
     )
+    albedo = albedo[: len(views)]
     seen = np.asarray(views > 1)
     median = np.median(np.asarray(albedo)[seen], axis=0) if seen.any() else np.zeros(3)
     weights = weights.at[per_point].set(jnp.asarray(median, weights.dtype))

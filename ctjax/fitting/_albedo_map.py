@@ -27,6 +27,7 @@ from ..effects import AbstractImageEffect
 from ..estimation._albedo_map import projected_residuals
 from ..lobes import Lambertian
 from ._fit import LEVENBERG_MARQUARDT
+from ._jacobian import matrix_jacobian
 from ._parameters import constrained, free_parameters, strongly_typed, unconstrained
 
 
@@ -243,7 +244,11 @@ def _least_squares(model, samples, names, per_point, solver, max_steps):
         return 255 * residual.reshape(-1)  # 8-bit levels: so are the tolerances
 
     solution = optx.least_squares(
-        residuals, solver, unconstrained(model, parameters), max_steps=max_steps, throw=False
+        matrix_jacobian(residuals),
+        solver,
+        unconstrained(model, parameters),
+        max_steps=max_steps,
+        throw=False,
     )
     fitted = constrained(model, parameters, solution.value)
     albedo, weights, residual = _projected(fitted, samples, per_point)

@@ -11,11 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._buckets import padded
 from .._result import Estimate
 from .._status import Status
 from .._typing import Array, Float, Scalar
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
+from ._jacobian import matrix_jacobian
 from ._parameters import Parameter, constrained, free_parameters, strongly_typed, unconstrained
 
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
@@ -31,15 +33,23 @@ def predictions(model, samples, predict: Predict) -> Float[Array, "N 3"]:
 def rmse_levels(model, samples, predict: Predict, scale: float = 255.0) -> Scalar:
     """Root-mean-square error of `model` on `samples`, times `scale` (255: 8-bit levels
     for images in linear units; 1 for measured BRDF data in their own units)."""
-    # One signature however `scale` is passed (default, positional, int or float): the
-    # compiled function is shared.
-    return _rmse_levels(model, samples, predict, float(scale))
+    # One signature however `scale` is passed (default, positional, int or float), and the
+    # samples padded to a bucket size (`ctjax._buckets`): the compiled function is shared.
+    samples, mask = padded(samples, len(samples.values))
+    return _rmse_levels(model, samples, mask, predict, float(scale))
+
+
+def _masked_residuals(model, samples, mask, predict: Predict) -> Float[Array, "N 3"]:
+    """Prediction minus measurement, 0 on the padding rows."""
+    residual = predictions(model, samples, predict) - samples.values
+    return jnp.where(mask[:, None], residual, 0)
 
 
 @eqx.filter_jit
-def _rmse_levels(model, samples, predict: Predict, scale: float) -> Scalar:
-    residual = predictions(model, samples, predict) - samples.values
-    return scale * jnp.sqrt(jnp.mean(residual * residual))
+def _rmse_levels(model, samples, mask, predict: Predict, scale: float) -> Scalar:
+    residual = _masked_residuals(model, samples, mask, predict)
+    count = jnp.sum(mask) * samples.values.shape[-1]
+    return scale * jnp.sqrt(jnp.sum(residual * residual) / count)
 
 
 # Weights start at least this fraction of the largest: a weight that starts at exactly the
@@ -48,16 +58,20 @@ _WEIGHT_FLOOR = 1e-2
 
 
 @eqx.filter_jit
-def initial_weights(model, samples, columns: Callable) -> eqx.Module:
+def initial_weights(model, samples, columns: Callable, mask=None) -> eqx.Module:
     """`model` with its lobe weights set by closed-form NNLS on the linear design
     `columns(model, sample) -> (K,)`, against the measurements with the model's image
-    effects undone where they can be (`AbstractImageEffect.inverse`)."""
+    effects undone where they can be (`AbstractImageEffect.inverse`); rows where `mask` is
+    False (padding) are left out."""
     design = jax.vmap(lambda s: columns(model, s))(samples)
     values = samples.values
     for effect in reversed(getattr(model, "effects", ())):
         values = jax.vmap(effect.inverse)(values)
     if values.shape[-1] < 3:  # monochrome data: the same weight in every channel
         values = jnp.broadcast_to(values[:, :1], (values.shape[0], 3))
+    if mask is not None:
+        design = jnp.where(mask[:, None], design, 0)
+        values = jnp.where(mask[:, None], values, 0)
     weights, _ = nnls(design, values)
     weights = jnp.maximum(weights, _WEIGHT_FLOOR * jnp.max(weights))
     if isinstance(model, BRDF):
@@ -66,19 +80,23 @@ def initial_weights(model, samples, columns: Callable) -> eqx.Module:
 
 
 @eqx.filter_jit
-def _least_squares(model, samples, predict, names, solver, max_steps, scale):
+def _least_squares(model, samples, mask, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
     def residuals(u, _):
         fitted = constrained(model, parameters, u)
         # Residuals in the user's units (8-bit levels for images): so are the tolerances.
-        return scale * (predictions(fitted, samples, predict) - samples.values).reshape(-1)
+        return scale * _masked_residuals(fitted, samples, mask, predict).reshape(-1)
 
     solution = optx.least_squares(
-        residuals, solver, unconstrained(model, parameters), max_steps=max_steps, throw=False
+        matrix_jacobian(residuals),
+        solver,
+        unconstrained(model, parameters),
+        max_steps=max_steps,
+        throw=False,
     )
     fitted = constrained(model, parameters, solution.value)
-    residual = predictions(fitted, samples, predict) - samples.values
+    residual = _masked_residuals(fitted, samples, mask, predict)
     cost = jnp.sum(residual * residual)
     return fitted, cost, Status.of_optimistix(solution.result), solution.stats["num_steps"]
 
@@ -120,15 +138,17 @@ def fit_model(
         starts = [starts]
     starts = list(starts)
     names = tuple(freeze)
+    measured = samples.values.size
+    samples, mask = padded(samples, len(samples.values))
     if columns is not None:
-        starts = [initial_weights(m, samples, columns) for m in starts]
+        starts = [initial_weights(m, samples, columns, mask) for m in starts]
     if len(starts) > refine:
-        costs = [float(rmse_levels(m, samples, predict, scale)) for m in starts]
+        costs = [float(_rmse_levels(m, samples, mask, predict, float(scale))) for m in starts]
         starts = [starts[i] for i in np.argsort(costs)[:refine]]
     best = None
     for start in starts:
         fitted, cost, result, steps = _least_squares(
-            start, samples, predict, names, solver, max_steps, scale
+            start, samples, mask, predict, names, solver, max_steps, scale
         )
         cost = float(cost)
         if not np.isfinite(cost):
@@ -140,7 +160,7 @@ def fit_model(
             starts[0], {"calibration": math.inf}, Status.failed, cost=math.inf, unit=unit
         )
     fitted, cost, result, steps = best
-    rmse = float(scale * np.sqrt(cost / samples.values.size))
+    rmse = float(scale * np.sqrt(cost / measured))
     parameters = [p.name for p in free_parameters(fitted, lambda n: n in names)]
     return Estimate(
         fitted,

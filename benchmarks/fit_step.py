@@ -1,0 +1,114 @@
+"""One Levenberg-Marquardt step of the general fitter: optimistix's own linearisation
+against the stored Jacobian matrix (`ctjax.fitting._jacobian.matrix_jacobian`).
+
+    python benchmarks/fit_step.py [--pixels 2048 8192 32768 --steps 20 --repeats 5]
+
+The near-light model of `calibrate_near_light` (a point light 6 mm off the lens, Lambertian
++ Beckmann, 10 free parameters) fitted to the pixels of a synthetic capture, with the
+optimistix solver ctjax uses by default (`LEVENBERG_MARQUARDT`, QR) and with
+`lineax.Normal(lineax.Cholesky())`. Per configuration: milliseconds per step (a warm
+`--steps`-step solve divided by the steps, median of `--repeats`, spread min-max), and the
+model and Jacobian alone for scale. Prints a table and one JSON line per configuration.
+"""
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import lineax as lx  # noqa: E402
+import numpy as np  # noqa: E402
+import optimistix as optx  # noqa: E402
+from _results import emit  # noqa: E402
+
+from ctjax._buckets import padded  # noqa: E402
+from ctjax.calibration._near_light import _starts  # noqa: E402
+from ctjax.fitting import pixel_columns, pixel_predict  # noqa: E402
+from ctjax.fitting._fit import _masked_residuals, initial_weights  # noqa: E402
+from ctjax.fitting._jacobian import matrix_jacobian  # noqa: E402
+from ctjax.fitting._parameters import constrained, free_parameters, unconstrained  # noqa: E402
+from ctjax.heldout import HeldOut  # noqa: E402
+from ctjax.io import load_capture  # noqa: E402
+from ctjax.synth import SynthOptions, synthesize  # noqa: E402
+
+
+def problem(pixels: int):
+    """The residual function (8-bit levels) and its start, on `pixels` pixels."""
+    side = int(np.ceil(np.sqrt(pixels / 5 / 0.6)))  # 5 frames, about 60% usable
+    options = SynthOptions(
+        width=side, height=side, frames=5, texture=False, seed=5,
+        effects={"light_offset": (6.0, -2.0, 0.0)},
+    )  # fmt: skip
+    capture = load_capture(synthesize(Path(tempfile.mkdtemp()) / "c", options))
+    train = HeldOut.split(capture, None, max_samples=pixels, heldout_samples=1000).train
+    samples, mask = padded(train, len(train.values))
+    model = initial_weights(_starts((), capture)[0], samples, pixel_columns, mask)
+    parameters = free_parameters(model)
+
+    def residuals(u, _):
+        fitted = constrained(model, parameters, u)
+        return 255 * _masked_residuals(fitted, samples, mask, pixel_predict).reshape(-1)
+
+    return residuals, unconstrained(model, parameters), len(samples.values), len(parameters)
+
+
+def timed(fn, y, repeats):
+    jax.block_until_ready(fn(y))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(y))
+        times.append(time.perf_counter() - start)
+    return np.asarray(times)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--pixels", type=int, nargs="+", default=[2048, 8192, 32768])
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    linear_solvers = {"qr": lx.QR(), "normal-cholesky": lx.Normal(lx.Cholesky())}
+    print(f"{'pixels':>7} {'jacobian':>9} {'linear':>16} {'ms/step':>8} {'spread':>13}")
+    for pixels in args.pixels:
+        residuals, start, rows, _ = problem(pixels)
+        flat = lambda u, residuals=residuals: residuals(u, None)  # noqa: E731
+        model_ms = 1e3 * np.median(timed(jax.jit(flat), start, args.repeats))
+        jac_ms = 1e3 * np.median(timed(jax.jit(jax.jacfwd(flat)), start, args.repeats))
+        for jacobian, fn in (("optimistix", residuals), ("matrix", matrix_jacobian(residuals))):
+            for name, linear in linear_solvers.items():
+                solver = optx.LevenbergMarquardt(rtol=0, atol=0, linear_solver=linear)
+                solve = eqx.filter_jit(
+                    lambda y, fn=fn, solver=solver: (
+                        optx.least_squares(fn, solver, y, max_steps=args.steps, throw=False).value
+                    )
+                )
+                per_step = 1e3 * timed(solve, start, args.repeats) / args.steps
+                median = float(np.median(per_step))
+                print(
+                    f"{rows:>7} {jacobian:>9} {name:>16} {median:8.2f} "
+                    f"{per_step.min():6.2f}-{per_step.max():<6.2f}"
+                )
+                emit(
+                    {
+                        "pixels": rows,
+                        "jacobian": jacobian,
+                        "linear_solver": name,
+                        "ms_per_step_median": median,
+                        "ms_per_step_min": float(per_step.min()),
+                        "ms_per_step_max": float(per_step.max()),
+                        "model_ms": float(model_ms),
+                        "jacfwd_ms": float(jac_ms),
+                        "dtype": str(jnp.asarray(0.0).dtype),
+                    }
+                )
+
+
+if __name__ == "__main__":
+    main()
