@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._buckets import padded
 from .._errors import CtjaxError
 from .._typing import Array, Float, Scalar
 from ..lobes import BRDF, Beckmann, Lambertian, Specular, cook_torrance_brdf
@@ -89,8 +90,9 @@ def design_matrix(family: BRDFFamily, params, samples: ShadingSamples) -> Float[
     return jnp.stack(design_columns(family, params, samples), axis=-1)
 
 
-def _standard_errors(family, params, weights, samples, cost):
-    """sqrt(diag(s^2 (J^T J)^-1)) for all parameters, J the Jacobian of the residuals."""
+def _standard_errors(family, params, weights, samples, cost, count):
+    """sqrt(diag(s^2 (J^T J)^-1)) for all parameters, J the Jacobian of the residuals;
+    `count` residuals are real (padding rows have zero residuals and Jacobian)."""
     k = weights.shape[0]
 
     def residuals(theta):
@@ -100,7 +102,7 @@ def _standard_errors(family, params, weights, samples, cost):
 
     theta = jnp.concatenate([weights.reshape(-1), params])
     jacobian = jax.jacfwd(residuals)(theta)
-    dof = jnp.maximum(samples.values.size - theta.shape[0], 1)
+    dof = jnp.maximum(count - theta.shape[0], 1)
     information = jacobian.T @ jacobian
     covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
     variance = jnp.diagonal(covariance)
@@ -110,8 +112,23 @@ def _standard_errors(family, params, weights, samples, cost):
     return stderr[3 * k :], stderr[: 3 * k].reshape(k, 3)
 
 
+def _padded(samples: ShadingSamples) -> ShadingSamples:
+    """`samples` padded to a bucket size (`ctjax._buckets`: captures share one compiled
+    fit); the padding rows have zero irradiance and values, so they add nothing to any cost,
+    design or Jacobian."""
+    n = len(samples)
+    samples, real = padded(samples, n)
+    return eqx.tree_at(
+        lambda s: (s.irradiance, s.values),
+        samples,
+        (jnp.where(real, samples.irradiance, 0), jnp.where(real[:, None], samples.values, 0)),
+    )
+
+
 @eqx.filter_jit
-def _fit(samples, family, tolerance, grid, candidates, zoom):
+def _fit(samples, count, family, tolerance, grid, candidates, zoom):
+    """The BnB on (padded) `samples`, of which `count` values (3 per real sample) count."""
+
     def cost(params):
         return nnls_columns(design_columns(family, params, samples), samples.values)[1]
 
@@ -131,8 +148,10 @@ def _fit(samples, family, tolerance, grid, candidates, zoom):
         params = jnp.zeros((0,), samples.values.dtype)
         half_width = params
     weights, best_cost = nnls_columns(design_columns(family, params, samples), samples.values)
-    params_stderr, weights_stderr = _standard_errors(family, params, weights, samples, best_cost)
-    rmse = 255 * jnp.sqrt(best_cost / samples.values.size)
+    params_stderr, weights_stderr = _standard_errors(
+        family, params, weights, samples, best_cost, count
+    )
+    rmse = 255 * jnp.sqrt(best_cost / count)
     return params, weights, best_cost, rmse, params_stderr, weights_stderr, half_width
 
 
@@ -163,7 +182,8 @@ def fit_brdf(
         raise CtjaxError(
             f"{len(samples)} samples cannot determine {k * 3 + len(family.names)} parameters"
         )
+    count = jnp.asarray(values.size, values.dtype)
     params, weights, cost, rmse, p_err, w_err, half_width = _fit(
-        samples, family, tolerance, grid, candidates, zoom
+        _padded(samples), count, family, tolerance, grid, candidates, zoom
     )
     return BRDFFit(params, weights, cost, rmse, p_err, w_err, half_width, len(samples), family)
