@@ -30,15 +30,21 @@ def bucket(n: int) -> int:
 
 def pad_leading(tree, n: int, size: int):
     """Every array leaf of `tree` whose leading axis has length `n`, padded to `size` by
-    repeating its last entry (NumPy leaves stay NumPy, JAX leaves stay JAX)."""
+    repeating its last entry (NumPy leaves stay NumPy, JAX leaves stay JAX).
+
+    Concrete JAX arrays are padded in NumPy: eager `jnp` ops compile one small program per
+    shape, which costs more than the copy."""
     if size == n or n == 0:
         return tree
 
     def pad(leaf):
         if not hasattr(leaf, "shape") or leaf.ndim == 0 or leaf.shape[0] != n:
             return leaf
-        xp = np if isinstance(leaf, np.ndarray) else jnp
-        return xp.concatenate([leaf, xp.repeat(leaf[-1:], size - n, axis=0)])
+        if isinstance(leaf, jax.core.Tracer):
+            return jnp.concatenate([leaf, jnp.repeat(leaf[-1:], size - n, axis=0)])
+        host = np.asarray(leaf)
+        host = np.concatenate([host, np.repeat(host[-1:], size - n, axis=0)])
+        return host if isinstance(leaf, np.ndarray) else jnp.asarray(host)
 
     return jax.tree.map(pad, tree)
 

@@ -10,6 +10,7 @@ code batches into three (pixels,) arrays. It reads like an array: `a @ b` is the
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._typing import Array, Float
 
@@ -23,8 +24,11 @@ class Vec3(eqx.Module):
 
     @classmethod
     def from_array(cls, a: Float[Array, "... 3"]) -> "Vec3":
-        a = jnp.asarray(a)
-        return cls(a[..., 0], a[..., 1], a[..., 2])
+        if isinstance(a, jax.core.Tracer):
+            return cls(a[..., 0], a[..., 1], a[..., 2])
+        # Concrete arrays are split on the host: eager slicing compiles a program per shape.
+        a = np.asarray(a)
+        return cls(*(jnp.asarray(a[..., i]) for i in range(3)))
 
     def to_array(self) -> Float[Array, "... 3"]:
         return jnp.stack([self.x, self.y, self.z], axis=-1)
