@@ -80,6 +80,14 @@ def initial_weights(model, samples, columns: Callable, mask=None) -> eqx.Module:
 
 
 @eqx.filter_jit
+def _started(model, samples, mask, predict, columns, scale):
+    """A start with its weights from `columns` (when given) and its RMSE: one program."""
+    if columns is not None:
+        model = initial_weights(model, samples, columns, mask)
+    return model, _rmse_levels(model, samples, mask, predict, scale)
+
+
+@eqx.filter_jit
 def _least_squares(model, samples, mask, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
@@ -140,11 +148,12 @@ def fit_model(
     names = tuple(freeze)
     measured = samples.values.size
     samples, mask = padded(samples, len(samples.values))
-    if columns is not None:
-        starts = [initial_weights(m, samples, columns, mask) for m in starts]
-    if len(starts) > refine:
-        costs = [float(_rmse_levels(m, samples, mask, predict, float(scale))) for m in starts]
-        starts = [starts[i] for i in np.argsort(costs)[:refine]]
+    if columns is not None or len(starts) > refine:
+        ranked = [_started(m, samples, mask, predict, columns, float(scale)) for m in starts]
+        starts = [m for m, _ in ranked]
+        if len(starts) > refine:
+            costs = [float(cost) for _, cost in ranked]
+            starts = [starts[i] for i in np.argsort(costs)[:refine]]
     best = None
     for start in starts:
         fitted, cost, result, steps = _least_squares(
