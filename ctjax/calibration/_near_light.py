@@ -232,16 +232,8 @@ def near_light_map(
     reported = offset_fit.details["stderr"].get("light.position_mm", [None] * 3)
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     say("standard errors, and the same model with the light at the lens")
-    # The light at the lens nests in the offset model: also started from its solution with the
-    # offset set to 0 (on data with no offset, that start is the solution already).
-    nested = eqx.tree_at(
-        lambda m: m.light.position_mm,
-        offset_fit.model,
-        jnp.zeros_like(offset_fit.model.light.position_mm),
-    )
     lens_fit = heldout.judge(
-        fit([nested, *_at_the_lens(choices[chosen])], freeze=("light.position_mm",)),
-        noise_floor=False,
+        fit(_at_the_lens(choices[chosen]), freeze=("light.position_mm",)), noise_floor=False
     )
     significant = bool(np.all(np.isfinite(stderr)) and np.linalg.norm(offset / stderr) > 2)
     better = offset_fit.heldout_rmse < (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse
