@@ -27,7 +27,6 @@ from ..effects import AbstractImageEffect
 from ..estimation._albedo_map import projected_residuals
 from ..lobes import Lambertian
 from ._fit import LEVENBERG_MARQUARDT
-from ._jacobian import matrix_jacobian
 from ._parameters import constrained, free_parameters, strongly_typed, unconstrained
 
 
@@ -244,7 +243,7 @@ def _least_squares(model, samples, names, per_point, solver, max_steps):
         return 255 * residual.reshape(-1)  # 8-bit levels: so are the tolerances
 
     solution = optx.least_squares(
-        matrix_jacobian(residuals),
+        residuals,
         solver,
         unconstrained(model, parameters),
         max_steps=max_steps,

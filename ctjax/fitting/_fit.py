@@ -17,7 +17,6 @@ from .._status import Status
 from .._typing import Array, Float, Scalar
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
-from ._jacobian import matrix_jacobian
 from ._parameters import Parameter, constrained, free_parameters, strongly_typed, unconstrained
 
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
@@ -97,7 +96,7 @@ def _least_squares(model, samples, mask, predict, names, solver, max_steps, scal
         return scale * _masked_residuals(fitted, samples, mask, predict).reshape(-1)
 
     solution = optx.least_squares(
-        matrix_jacobian(residuals),
+        residuals,
         solver,
         unconstrained(model, parameters),
         max_steps=max_steps,

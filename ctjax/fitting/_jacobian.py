@@ -8,6 +8,15 @@ parameters) that made one step cost 18 ms at 8192 pixels where the model and its
 forward-mode Jacobian cost 1.5 ms. Here the linearisation is the (M, P) Jacobian itself,
 from `jax.jacfwd` (the same autodiff Jacobian, exactly): every later pass is a matrix
 product. 3.8x faster per step at 8192 pixels (`benchmarks/fit_step.py`).
+
+Not used by the fitters: inside optimistix 0.1.0's Levenberg-Marquardt it made the steps
+nondeterministic. The same start on the same data (near light at the lens, 160x128 x 6
+frames, one free roughness) gave sigma 0.2499 in some processes and 1.4e-27 in others (an
+accepted step that raised the loss from 1.3e4 to 2.1e6), 5 of 8 fits, also with
+single-threaded Eigen. The plain residuals, or `jax.jvp` inside the same custom rule, gave
+0.2499 in 8 of 8. The Jacobian and its transpose computed outside the solver are bitwise
+equal to autodiff's, so the fault is in how the solver's loop uses them; it is not found
+yet.
 """
 
 from collections.abc import Callable
