@@ -16,7 +16,8 @@ accepted step that raised the loss from 1.3e4 to 2.1e6), 5 of 8 fits, also with
 single-threaded Eigen. The plain residuals, or `jax.jvp` inside the same custom rule, gave
 0.2499 in 8 of 8. The Jacobian and its transpose computed outside the solver are bitwise
 equal to autodiff's, so the fault is in how the solver's loop uses them; it is not found
-yet.
+yet (`sum(J * dx)` instead of `J @ dx` is as nondeterministic: not the matrix product; the
+fitted sigma also varied in its 10th digit between processes).
 """
 
 from collections.abc import Callable
