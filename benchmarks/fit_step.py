@@ -1,14 +1,14 @@
-"""One Levenberg-Marquardt step of the general fitter: optimistix's own linearisation
-against the stored Jacobian matrix (`ctjax.fitting._jacobian.matrix_jacobian`).
+"""The general fitter's Levenberg-Marquardt: optimistix's (on its own linearisation, QR or
+normal equations) against `ctjax.solvers.DenseLM` (the Jacobian matrix, the default).
 
     python benchmarks/fit_step.py [--pixels 2048 8192 32768 --steps 20 --repeats 5]
 
 The near-light model of `calibrate_near_light` (a point light 6 mm off the lens, Lambertian
-+ Beckmann, 10 free parameters) fitted to the pixels of a synthetic capture, with the
-optimistix solver ctjax uses by default (`LEVENBERG_MARQUARDT`, QR) and with
-`lineax.Normal(lineax.Cholesky())`. Per configuration: milliseconds per step (a warm
-`--steps`-step solve divided by the steps, median of `--repeats`, spread min-max), and the
-model and Jacobian alone for scale. Prints a table and one JSON line per configuration.
++ Beckmann, 10 free parameters) fitted to the pixels of a synthetic capture. Per solver:
+milliseconds per step (a warm `--steps`-step solve with zero tolerances divided by the
+steps, median of `--repeats`, spread min-max); a whole fit with the fitters' tolerances
+(1e-6): its warm time, steps and RMSE (8-bit levels); and the model and its Jacobian alone
+for scale. Prints a table and one JSON line per configuration.
 """
 
 import argparse
@@ -27,14 +27,15 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from _results import emit  # noqa: E402
 
+from ctjax import Status  # noqa: E402
 from ctjax._buckets import padded  # noqa: E402
 from ctjax.calibration._near_light import _starts  # noqa: E402
 from ctjax.fitting import pixel_columns, pixel_predict  # noqa: E402
 from ctjax.fitting._fit import _masked_residuals, initial_weights  # noqa: E402
-from ctjax.fitting._jacobian import matrix_jacobian  # noqa: E402
 from ctjax.fitting._parameters import constrained, free_parameters, unconstrained  # noqa: E402
 from ctjax.heldout import HeldOut  # noqa: E402
 from ctjax.io import load_capture  # noqa: E402
+from ctjax.solvers import DenseLM, least_squares  # noqa: E402
 from ctjax.synth import SynthOptions, synthesize  # noqa: E402
 
 
@@ -68,46 +69,64 @@ def timed(fn, y, repeats):
     return np.asarray(times)
 
 
+def solvers(tolerance: float) -> dict:
+    """The solvers compared, all with `tolerance` as rtol and atol."""
+    t = tolerance
+    return {
+        "optimistix-qr": optx.LevenbergMarquardt(rtol=t, atol=t, linear_solver=lx.QR()),
+        "optimistix-normal-cholesky": optx.LevenbergMarquardt(
+            rtol=t, atol=t, linear_solver=lx.Normal(lx.Cholesky())
+        ),
+        "DenseLM": DenseLM(rtol=t, atol=t),
+    }
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pixels", type=int, nargs="+", default=[2048, 8192, 32768])
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    linear_solvers = {"qr": lx.QR(), "normal-cholesky": lx.Normal(lx.Cholesky())}
-    print(f"{'pixels':>7} {'jacobian':>9} {'linear':>16} {'ms/step':>8} {'spread':>13}")
+    print(
+        f"{'pixels':>7} {'solver':>26} {'ms/step':>8} {'spread':>13} "
+        f"{'fit ms':>8} {'steps':>5} {'RMSE':>8}"
+    )
     for pixels in args.pixels:
         residuals, start, rows, _ = problem(pixels)
         flat = lambda u, residuals=residuals: residuals(u, None)  # noqa: E731
         model_ms = 1e3 * np.median(timed(jax.jit(flat), start, args.repeats))
         jac_ms = 1e3 * np.median(timed(jax.jit(jax.jacfwd(flat)), start, args.repeats))
-        for jacobian, fn in (("optimistix", residuals), ("matrix", matrix_jacobian(residuals))):
-            for name, linear in linear_solvers.items():
-                solver = optx.LevenbergMarquardt(rtol=0, atol=0, linear_solver=linear)
-                solve = eqx.filter_jit(
-                    lambda y, fn=fn, solver=solver: (
-                        optx.least_squares(fn, solver, y, max_steps=args.steps, throw=False).value
-                    )
-                )
-                per_step = 1e3 * timed(solve, start, args.repeats) / args.steps
-                median = float(np.median(per_step))
-                print(
-                    f"{rows:>7} {jacobian:>9} {name:>16} {median:8.2f} "
-                    f"{per_step.min():6.2f}-{per_step.max():<6.2f}"
-                )
-                emit(
-                    {
-                        "pixels": rows,
-                        "jacobian": jacobian,
-                        "linear_solver": name,
-                        "ms_per_step_median": median,
-                        "ms_per_step_min": float(per_step.min()),
-                        "ms_per_step_max": float(per_step.max()),
-                        "model_ms": float(model_ms),
-                        "jacfwd_ms": float(jac_ms),
-                        "dtype": str(jnp.asarray(0.0).dtype),
-                    }
-                )
+        fixed, converging = solvers(0.0), solvers(1e-6)  # the fitters' tolerances
+        for name in fixed:
+            steps = eqx.filter_jit(
+                lambda y, s=fixed[name], f=flat: least_squares(f, s, y, args.steps)[0]
+            )
+            per_step = 1e3 * timed(steps, start, args.repeats) / args.steps
+            fit = eqx.filter_jit(lambda y, s=converging[name], f=flat: least_squares(f, s, y, 200))
+            fit_ms = 1e3 * float(np.median(timed(fit, start, args.repeats)))
+            solution, status, taken = fit(start)
+            rmse = float(np.sqrt(np.mean(np.square(flat(solution)))))
+            median = float(np.median(per_step))
+            print(
+                f"{rows:>7} {name:>26} {median:8.2f} {per_step.min():6.2f}-"
+                f"{per_step.max():<6.2f} {fit_ms:8.1f} {int(taken):>5} {rmse:8.4f}"
+            )
+            emit(
+                {
+                    "pixels": rows,
+                    "solver": name,
+                    "ms_per_step_median": median,
+                    "ms_per_step_min": float(per_step.min()),
+                    "ms_per_step_max": float(per_step.max()),
+                    "fit_ms_median": fit_ms,
+                    "fit_steps": int(taken),
+                    "fit_status": Status(int(status)).name,
+                    "fit_rmse_levels": rmse,
+                    "model_ms": float(model_ms),
+                    "jacfwd_ms": float(jac_ms),
+                    "dtype": str(jnp.asarray(0.0).dtype),
+                }
+            )
 
 
 if __name__ == "__main__":

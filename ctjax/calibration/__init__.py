@@ -1,7 +1,7 @@
 """Light calibration: the laparoscope's light from images (paper section 5, and beyond)."""
 
-from ._closed_form_lm import ClosedFormLM as ClosedFormLM
-from ._closed_form_lm import least_squares as least_squares
+from ..solvers import ClosedFormLM as ClosedFormLM
+from ..solvers import least_squares as least_squares
 from ._field_problem import PixelProblem as PixelProblem
 from ._field_problem import PixelSolution as PixelSolution
 from ._field_problem import directions_from_paper_angles as directions_from_paper_angles

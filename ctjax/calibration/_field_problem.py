@@ -19,7 +19,7 @@ from .._typing import Array, Float
 from .._vector import Vec3, tangent_direction
 from ..lights import angles_from_direction
 from ..lobes import BRDF
-from ._closed_form_lm import ClosedFormLM, least_squares
+from ..solvers import ClosedFormLM, least_squares
 
 # ctjax's camera frame -> the paper's (x right, y up, z towards the viewer).
 _PAPER_FRAME = np.array([1.0, -1.0, -1.0])

@@ -11,7 +11,7 @@ over the image, and every pixel is solved once more against it, giving a smooth 
 (`LightField`) that the renderer evaluates at any pixel.
 
 The parts: `_field_problem.py` (one pixel's problem, eq. 8, and the vmapped solve),
-`_closed_form_lm.py` (the 2x2 LM), `_field_propagation.py` (observations, bands from S),
+`ctjax.solvers.ClosedFormLM` (the 2x2 LM), `_field_propagation.py` (observations, bands from S),
 `_spline.py` (the B-spline); this module puts them together.
 
 Conventions and choices, all measured on synthetic captures (see `benchmarks/light_lm.py`):
@@ -80,7 +80,7 @@ from ..io import Capture
 from ..lights import AbstractFalloff, ColocatedLight, InverseSquare, LightField
 from ..lobes import BRDF
 from ..observations import Observations
-from ._closed_form_lm import ClosedFormLM
+from ..solvers import ClosedFormLM
 from ._field_problem import paper_angles, solve_pixels
 from ._field_propagation import field_observations, propagate, solve_batches
 from ._spline import spline_field

@@ -14,7 +14,6 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from .._errors import CtjaxError
 from .._json import falloff_json
@@ -43,6 +42,7 @@ from ..io import Capture
 from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
 from ..lights._point import offset_starts
 from ..observations import Observations
+from ..solvers import Solver
 
 
 def falloff_choices(capture: "Capture | Observations") -> list[tuple[AbstractFalloff, ...]]:
@@ -86,7 +86,7 @@ def calibrate_near_light(
     *,
     calibration: int | None = None,
     falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
-    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
+    solver: Solver = LEVENBERG_MARQUARDT,
     albedo: str | None = None,
     max_samples: int = 12_000,
     heldout_samples: int = 40_000,
@@ -99,9 +99,10 @@ def calibrate_near_light(
     `falloff`: the light's falloff factors (e.g. `(InverseSquare(70.0),)`), or several
     such tuples to choose from; by default every subset of `falloff_choices` is fitted and
     the simplest one within 1% of the lowest held-out RMSE is kept. `solver`: the
-    least-squares solver (optimistix's interface). `albedo`: `"map"` (one albedo per surface
-    point, eliminated in closed form: textured tissue; the default when every frame has
-    depth and a pose, see `near_light_map`) or `"uniform"` (one albedo, the paper's model).
+    least-squares solver (`ctjax.solvers`, or any optimistix one). `albedo`: `"map"` (one
+    albedo per surface point, eliminated in closed form: textured tissue; the default when
+    every frame has depth and a pose, see `near_light_map`) or `"uniform"` (one albedo, the
+    paper's model).
 
     Returns an `Estimate` of the `ShadingModel` with its `PointLight`; `details` holds the
     chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
@@ -171,7 +172,7 @@ def near_light_map(
     *,
     calibration: int | None = None,
     falloff: tuple[AbstractFalloff, ...] | Sequence[tuple[AbstractFalloff, ...]] | None = None,
-    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
+    solver: Solver = LEVENBERG_MARQUARDT,
     max_points: int = 12_000,
     heldout_points: int = 20_000,
     max_steps: int = 100,

@@ -16,7 +16,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from .._errors import ParameterError
 from .._result import Estimate
@@ -26,6 +25,7 @@ from .._vector import Vec3
 from ..effects import AbstractImageEffect
 from ..estimation._albedo_map import projected_residuals
 from ..lobes import Lambertian
+from ..solvers import Solver, least_squares
 from ._fit import LEVENBERG_MARQUARDT
 from ._parameters import constrained, free_parameters, strongly_typed, unconstrained
 
@@ -237,29 +237,16 @@ def _least_squares(model, samples, names, per_point, solver, max_steps):
         done = jnp.asarray(Status.successful.value)
         return model, albedo, weights, jnp.sum(residual * residual), done, jnp.asarray(0)
 
-    def residuals(u, _):
+    def residuals(u):
         fitted = constrained(model, parameters, u)
         _, _, residual = _projected(fitted, samples, per_point)
         return 255 * residual.reshape(-1)  # 8-bit levels: so are the tolerances
 
-    solution = optx.least_squares(
-        residuals,
-        solver,
-        unconstrained(model, parameters),
-        max_steps=max_steps,
-        throw=False,
-    )
-    fitted = constrained(model, parameters, solution.value)
+    start = unconstrained(model, parameters)
+    value, status, steps = least_squares(residuals, solver, start, max_steps)
+    fitted = constrained(model, parameters, value)
     albedo, weights, residual = _projected(fitted, samples, per_point)
-    cost = jnp.sum(residual * residual)
-    return (
-        fitted,
-        albedo,
-        weights,
-        cost,
-        Status.of_optimistix(solution.result),
-        (solution.stats["num_steps"]),
-    )
+    return fitted, albedo, weights, jnp.sum(residual * residual), status, steps
 
 
 def fit_model_map(
@@ -267,7 +254,7 @@ def fit_model_map(
     tracks: Tracks | TrackSamples,
     *,
     freeze: Sequence[str] = (),
-    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
+    solver: Solver = LEVENBERG_MARQUARDT,
     max_steps: int = 100,
     refine: int | None = None,
     standard_errors: bool = True,

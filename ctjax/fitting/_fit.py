@@ -9,7 +9,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 from .._buckets import padded
 from .._result import Estimate
@@ -17,6 +16,7 @@ from .._status import Status
 from .._typing import Array, Float, Scalar
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
+from ..solvers import DenseLM, Solver, least_squares
 from ._parameters import Parameter, constrained, free_parameters, strongly_typed, unconstrained
 
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
@@ -90,27 +90,21 @@ def _started(model, samples, mask, predict, columns, scale):
 def _least_squares(model, samples, mask, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
-    def residuals(u, _):
+    def residuals(u):
         fitted = constrained(model, parameters, u)
         # Residuals in the user's units (8-bit levels for images): so are the tolerances.
         return scale * _masked_residuals(fitted, samples, mask, predict).reshape(-1)
 
-    solution = optx.least_squares(
-        residuals,
-        solver,
-        unconstrained(model, parameters),
-        max_steps=max_steps,
-        throw=False,
-    )
-    fitted = constrained(model, parameters, solution.value)
+    start = unconstrained(model, parameters)
+    value, status, steps = least_squares(residuals, solver, start, max_steps)
+    fitted = constrained(model, parameters, value)
     residual = _masked_residuals(fitted, samples, mask, predict)
-    cost = jnp.sum(residual * residual)
-    return fitted, cost, Status.of_optimistix(solution.result), solution.stats["num_steps"]
+    return fitted, jnp.sum(residual * residual), status, steps
 
 
-# The default solver: residuals are in the user's units (8-bit levels for images), and so
-# are these tolerances.
-LEVENBERG_MARQUARDT = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
+# The default solver (Levenberg-Marquardt on the Jacobian matrix, `ctjax.solvers.DenseLM`):
+# residuals are in the user's units (8-bit levels for images), and so are these tolerances.
+LEVENBERG_MARQUARDT = DenseLM(rtol=1e-6, atol=1e-6)
 
 
 def fit_model(
@@ -120,7 +114,7 @@ def fit_model(
     *,
     columns: Callable | None = None,
     freeze: Sequence[str] = (),
-    solver: optx.AbstractLeastSquaresSolver = LEVENBERG_MARQUARDT,
+    solver: Solver = LEVENBERG_MARQUARDT,
     max_steps: int = 100,
     refine: int = 1,
     scale: float = 255.0,
@@ -131,10 +125,11 @@ def fit_model(
     `starts` are one or several initial models of the same structure (e.g. different
     roughness or light offsets). With `columns`, each start first gets its linear weights in
     closed form (cheap), and LM then runs from the `refine` best starts; the best fit wins.
-    `freeze` names parameters held fixed (dotted names, see `free_parameters`). `solver`
-    is any optimistix least-squares solver (default: Levenberg-Marquardt, tolerances in the
-    reported units). `scale` converts residuals to the reported units (255: 8-bit levels;
-    1 for measured BRDFs), and `unit` names the result (e.g. "1/sr" for BRDF data).
+    `freeze` names parameters held fixed (dotted names, see `free_parameters`). `solver` is
+    any optimistix least-squares solver or a `ctjax.solvers` object (default: `DenseLM`,
+    Levenberg-Marquardt with tolerances in the reported units). `scale` converts residuals
+    to the reported units (255: 8-bit levels; 1 for measured BRDFs), and `unit` names the
+    result (e.g. "1/sr" for BRDF data).
 
     Returns an `Estimate`: the best fit, its RMSE on `samples` (`rmse["calibration"]`), its
     `cost`, and the solver's `Status` ("successful", "max_steps_reached", "singular",

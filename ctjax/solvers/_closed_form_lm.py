@@ -1,16 +1,9 @@
 """Levenberg-Marquardt for two unknowns, written out: a solver object for the per-pixel
-problems that are solved by the hundred thousand under `vmap`.
-
-`least_squares(fn, solver, y0, max_steps)` runs one problem with either this solver or
-any optimistix least-squares solver (`optx.LevenbergMarquardt`...), and returns the
-solution, its `Status` code and its number of steps: callers take the solver as an
-argument and never ask which one it is.
-"""
+problems that are solved by the hundred thousand under `vmap`."""
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
 from .._errors import CtjaxError
 from .._status import Status
@@ -52,7 +45,11 @@ class ClosedFormLM(eqx.Module):
         ):
             raise CtjaxError(f"iterations must be a positive integer, got {self.iterations!r}")
 
-    def __call__(self, fn, y0: Float[Array, "2"]) -> tuple[Array, Int[Array, ""], Array]:
+    def __call__(
+        self, fn, y0: Float[Array, "2"], max_steps: int | None = None
+    ) -> tuple[Array, Int[Array, ""], Array]:
+        """Minimise `|fn(y)|^2` from `y0`; `max_steps` is ignored (the solver runs exactly
+        `iterations`). Returns the solution, its `Status` code and the accepted steps."""
         d0, shrink, grow, ceiling = _DAMPING
         dtype = y0.dtype
 
@@ -99,16 +96,3 @@ class ClosedFormLM(eqx.Module):
             Status.nonfinite.value,
         )
         return jnp.where(finite, y, y0), code, accepted
-
-
-def least_squares(fn, solver, y0, max_steps: int) -> tuple[Array, Int[Array, ""], Array]:
-    """Minimise `|fn(y)|^2` from `y0` with `solver`: a `ClosedFormLM` (which runs its own
-    iterations) or any optimistix least-squares solver (at most `max_steps` steps).
-    Returns the solution, its `Status` code and the number of steps."""
-    if isinstance(solver, optx.AbstractLeastSquaresSolver):
-        solution = optx.least_squares(
-            lambda y, _: fn(y), solver, y0, max_steps=max_steps, throw=False
-        )
-        status = Status.of_optimistix(solution.result)
-        return solution.value, status, solution.stats["num_steps"]
-    return solver(fn, y0)

@@ -1,0 +1,83 @@
+"""The least-squares solver objects (`ctjax.solvers`) on problems with known answers."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+
+from ctjax import CtjaxError, Status
+from ctjax.solvers import DenseLM, least_squares
+
+# A decay a * exp(-b t) + c sampled at 200 times, with a little deterministic noise.
+_TIMES = jnp.linspace(0.0, 4.0, 200)
+_TRUTH = (2.5, 1.3, 0.4)
+_NOISE = 1e-3 * jnp.sin(37.0 * _TIMES)
+
+
+def _decay(y):
+    (a, b), c = y
+    return a * jnp.exp(-b * _TIMES) + c
+
+
+def _residuals(y):
+    a, b, c = _TRUTH
+    return _decay(y) - (a * jnp.exp(-b * _TIMES) + c + _NOISE)
+
+
+def _start(dtype):
+    return (jnp.asarray([1.0, 0.5], dtype), jnp.asarray(0.0, dtype))
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype):
+    solve = jax.jit(lambda y0: least_squares(_residuals, DenseLM(), y0, 100))
+    y, status, steps = solve(_start(dtype))
+    reference = optx.least_squares(
+        lambda y, _: _residuals(y),
+        optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8),
+        _start(jnp.float64),
+        max_steps=200,
+    ).value
+    assert Status(int(status)) is Status.successful and 0 < int(steps) < 100
+    assert y[0].dtype == dtype and y[0].shape == (2,) and y[1].shape == ()
+    tolerance = 1e-8 if dtype == jnp.float64 else 1e-3
+    np.testing.assert_allclose(y[0], reference[0], rtol=tolerance)
+    np.testing.assert_allclose(y[1], reference[1], rtol=tolerance, atol=tolerance)
+    # The noise is small: the fit is near the truth too.
+    np.testing.assert_allclose(jnp.append(y[0], y[1]), _TRUTH, rtol=2e-3)
+
+
+def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it():
+    cost = lambda y: float(jnp.sum(_residuals(y) ** 2))  # noqa: E731
+    start = _start(jnp.float64)
+    for steps in (1, 2, 3, 5):
+        y, status, taken = least_squares(_residuals, DenseLM(), start, steps)
+        assert cost(y) <= cost(start) and int(taken) == steps
+        assert Status(int(status)) is Status.max_steps_reached
+    # Started at its solution, it stops at once without moving.
+    y, _, _ = least_squares(_residuals, DenseLM(), start, 100)
+    again, status, taken = least_squares(_residuals, DenseLM(), y, 100)
+    assert Status(int(status)) is Status.successful and int(taken) <= 3
+    np.testing.assert_allclose(again[0], y[0], rtol=1e-9)
+
+
+def test_dense_lm_keeps_nan_out_of_the_solution():
+    nan_start = (jnp.asarray([jnp.nan, 0.5]), jnp.asarray(0.0))
+    y, status, _ = least_squares(_residuals, DenseLM(), nan_start, 50)
+    assert Status(int(status)) is Status.nonfinite
+
+    # Residuals that are NaN beyond b = 3: the solver never steps there.
+    def guarded(y):
+        return jnp.where(y[0][1] > 3.0, jnp.nan, _residuals(y))
+
+    y, status, _ = least_squares(guarded, DenseLM(), _start(jnp.float64), 100)
+    assert np.all(np.isfinite(y[0])) and Status(int(status)) is Status.successful
+    np.testing.assert_allclose(y[0], _TRUTH[:2], rtol=2e-3)
+
+
+def test_dense_lm_settings_are_checked():
+    with pytest.raises(CtjaxError, match="rtol must be a nonnegative number, got -1"):
+        DenseLM(rtol=-1)
+    with pytest.raises(CtjaxError, match="atol must be a nonnegative number, got 'x'"):
+        DenseLM(atol="x")
