@@ -6,9 +6,10 @@ normal equations) against `ctjax.solvers.DenseLM` (the Jacobian matrix, the defa
 The near-light model of `calibrate_near_light` (a point light 6 mm off the lens, Lambertian
 + Beckmann, 10 free parameters) fitted to the pixels of a synthetic capture. Per solver:
 milliseconds per step (a warm `--steps`-step solve with zero tolerances divided by the
-steps, median of `--repeats`, spread min-max); a whole fit with the fitters' tolerances
-(1e-6): its warm time, steps and RMSE (8-bit levels); and the model and its Jacobian alone
-for scale. Prints a table and one JSON line per configuration.
+steps, median of `--repeats`, spread min-max; DenseLM recomputes the Jacobian only after
+an accepted step, so once converged its steps are cheap: compare whole fits); a whole fit
+with the fitters' tolerances (1e-6): its warm time, steps and RMSE (8-bit levels); and the
+model and its Jacobian alone for scale. Prints a table and one JSON line per configuration.
 """
 
 import argparse
