@@ -133,7 +133,8 @@ def test_lambertian_fit_is_worse(capture):
     assert float(fit_brdf(samples, LAMBERTIAN).rgb_rmse) > 5 * float(fit_brdf(samples).rgb_rmse)
 
 
-def test_grid_search_finds_the_global_minimum_of_two_basins():
+@pytest.mark.parametrize("zoom_grid, evaluations", [(None, 32 + 2 * 4 * 32), (8, 32 + 3 * 4 * 8)])
+def test_grid_search_finds_the_global_minimum_of_two_basins(zoom_grid, evaluations):
     # A wide shallow basin at 0.25 and a narrow deeper one at 0.81.
     def cost(p):
         x = p[0]
@@ -141,9 +142,13 @@ def test_grid_search_finds_the_global_minimum_of_two_basins():
 
     dense = np.linspace(1e-5, 1, 2_000_001)
     brute = dense[np.argmin(np.asarray(cost(jnp.asarray(dense)[None])))]
-    result = grid_search(cost, 1e-5, 1.0)
+    result = grid_search(cost, 1e-5, 1.0, zoom_grid=zoom_grid)
+    assert result.evaluations == evaluations
     assert abs(float(result.params[0]) - brute) <= 1e-3
-    assert float(result.cost) <= float(cost(jnp.array([brute]))) + 1e-6
+    # No worse than the brute-force minimum moved by the final grid's half spacing.
+    half = float(result.half_width[0])
+    worst = max(float(cost(jnp.array([brute + d]))) for d in (-half, half))
+    assert float(result.cost) <= worst + 1e-6
 
 
 def test_brdf_cost_with_two_basins_matches_brute_force(tmp_path):

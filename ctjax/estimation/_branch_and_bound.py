@@ -29,16 +29,20 @@ class GridSearchResult(eqx.Module):
     evaluations: int = eqx.field(static=True)
 
 
-def zoom_levels(lo, hi, tolerance: float, grid: int, zoom: int = 2) -> tuple[int, float]:
+def zoom_levels(
+    lo, hi, tolerance: float, grid: int, zoom: int = 2, zoom_grid: int | None = None
+) -> tuple[int, float]:
     """Levels until the grid spacing is below `tolerance`, and that final spacing.
 
-    Level 1 spaces `grid` centres over the whole box; each further level searches a box
-    `zoom` spacings wide around each kept centre, so the spacing shrinks by grid / zoom.
+    Level 1 spaces `grid` centres over the whole box; each further level spaces `zoom_grid`
+    (default `grid`) centres over a box `zoom` spacings wide around each kept centre, so the
+    spacing shrinks by zoom_grid / zoom.
     """
+    zoom_grid = grid if zoom_grid is None else zoom_grid
     spacing = max(float(h) - float(l) for l, h in zip(lo, hi, strict=True)) / grid
     levels = 1
     while spacing > tolerance:
-        spacing *= zoom / grid
+        spacing *= zoom / zoom_grid
         levels += 1
     return levels, spacing
 
@@ -66,6 +70,7 @@ def grid_search(
     grid: int = 32,
     candidates: int = 4,
     zoom: int = 2,
+    zoom_grid: int | None = None,
     dtype=None,
     batch: int | None = None,
 ) -> GridSearchResult:
@@ -76,7 +81,10 @@ def grid_search(
     the `candidates` best grid points, local minima first (one per basin before a second
     point of the same basin), and searches `zoom` sub-intervals around each at the next level
     (`candidates=1, zoom=1` is exactly the paper's BnB, which zooms into the best
-    sub-interval). D = 1 or 2 in practice: a level costs `candidates * grid^D` evaluations.
+    sub-interval). `zoom_grid` (default `grid`) points per axis at the levels after the
+    first: the first level's grid finds the basins, the later ones only narrow a box `zoom`
+    spacings wide. D = 1 or 2 in practice: a later level costs `candidates * zoom_grid^D`
+    evaluations.
     `batch` evaluates the grid `batch` points at a time (`jax.lax.map`) instead of all at
     once: for costs over many samples, whose batched intermediates would not stay in cache.
     """
@@ -84,11 +92,14 @@ def grid_search(
     lo = np.atleast_1d(np.asarray(lo, float))
     hi = np.atleast_1d(np.asarray(hi, float))
     dims = lo.shape[0]
-    levels, _ = zoom_levels(lo, hi, tolerance, grid, zoom)
+    zoom_grid = grid if zoom_grid is None else zoom_grid
+    levels, _ = zoom_levels(lo, hi, tolerance, grid, zoom, zoom_grid)
     dtype = jax.dtypes.canonicalize_dtype(float if dtype is None else dtype)
     lo, hi = jnp.asarray(lo, dtype), jnp.asarray(hi, dtype)
-    offsets = (jnp.arange(grid, dtype=dtype) + 0.5) / grid  # sub-interval centres in [0, 1]
-    unit_grid = jnp.stack(jnp.meshgrid(*([offsets] * dims), indexing="ij"), -1).reshape(-1, dims)
+
+    def unit_grid(points: int):
+        offsets = (jnp.arange(points, dtype=dtype) + 0.5) / points  # centres in [0, 1]
+        return jnp.stack(jnp.meshgrid(*([offsets] * dims), indexing="ij"), -1).reshape(-1, dims)
 
     def safe_cost(params):
         value = cost(params)
@@ -99,9 +110,10 @@ def grid_search(
     evaluations = 0
     best_params, best_cost = (lo + hi) / 2, jnp.asarray(jnp.inf)
     spacing = widths / grid
-    for _ in range(levels):
-        spacing = widths / grid
-        centres = starts[:, None, :] + unit_grid[None, :, :] * widths  # (M, G^D, D)
+    for level in range(levels):
+        points = grid if level == 0 else zoom_grid
+        spacing = widths / points
+        centres = starts[:, None, :] + unit_grid(points)[None, :, :] * widths  # (M, G^D, D)
         if batch is None:
             costs = jax.vmap(jax.vmap(safe_cost))(centres)  # (M, G^D)
         else:
@@ -109,13 +121,13 @@ def grid_search(
             costs = jax.lax.map(safe_cost, flat, batch_size=batch).reshape(centres.shape[:2])
         evaluations += centres.shape[0] * centres.shape[1]
         flat_centres, flat_costs = centres.reshape(-1, dims), costs.reshape(-1)
-        is_minimum = _local_minima(costs, dims, grid).reshape(-1)
+        is_minimum = _local_minima(costs, dims, points).reshape(-1)
         order = jnp.lexsort((flat_costs, ~is_minimum))[: min(candidates, flat_costs.shape[0])]
         level_best = jnp.argmin(flat_costs)
         improved = flat_costs[level_best] < best_cost
         best_params = jnp.where(improved, flat_centres[level_best], best_params)
         best_cost = jnp.where(improved, flat_costs[level_best], best_cost)
         # Zoom: a box `zoom` sub-intervals wide around each kept centre, inside [lo, hi].
-        widths = zoom * widths / grid
+        widths = zoom * spacing
         starts = jnp.clip(flat_centres[order] - widths / 2, lo, hi - widths)
     return GridSearchResult(best_params, best_cost, spacing / 2, evaluations)
