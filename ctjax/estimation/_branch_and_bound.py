@@ -4,8 +4,10 @@ The paper (section 4) splits the admissible interval of sigma into sub-intervals
 the convex subproblem at each centre, keeps the best sub-interval and repeats until it is
 shorter than a threshold ([1e-5, 1] down to 1e-3). Here each level evaluates a whole grid of
 centres at once (`vmap`), keeps the best `candidates` sub-intervals (more than one, so that a
-second basin of the cost is not lost to a coarse first level), and zooms into each; the
-levels are unrolled inside one compiled function. Several nonlinear parameters (e.g. two
+second basin of the cost is not lost to a coarse first level), and zooms into each, all
+inside one compiled function: when every level has the same shape (one parameter, the first
+grid `candidates` times the zoom grid) one level is traced and looped (`lax.scan`), else the
+levels are unrolled. Several nonlinear parameters (e.g. two
 roughness scales) use a tensor grid.
 """
 
@@ -105,29 +107,53 @@ def grid_search(
         value = cost(params)
         return jnp.where(jnp.isfinite(value), value, jnp.inf)
 
-    starts = lo[None, :]  # (M, D) lower corners of the candidate boxes
-    widths = hi - lo  # (D,) size of every box at this level
-    evaluations = 0
-    best_params, best_cost = (lo + hi) / 2, jnp.asarray(jnp.inf)
-    spacing = widths / grid
-    for level in range(levels):
-        points = grid if level == 0 else zoom_grid
+    def evaluate(centres):  # (M, G^D, D) -> (M, G^D)
+        if batch is None:
+            return jax.vmap(jax.vmap(safe_cost))(centres)
+        flat = centres.reshape(-1, dims)
+        return jax.lax.map(safe_cost, flat, batch_size=batch).reshape(centres.shape[:2])
+
+    def search_level(starts, widths, points, best, minima):
+        """Evaluate `points`^D centres in each box (lower corners `starts` (M, D), size
+        `widths`), keep the best, and return the next level's boxes around the candidates."""
         spacing = widths / points
         centres = starts[:, None, :] + unit_grid(points)[None, :, :] * widths  # (M, G^D, D)
-        if batch is None:
-            costs = jax.vmap(jax.vmap(safe_cost))(centres)  # (M, G^D)
-        else:
-            flat = centres.reshape(-1, dims)
-            costs = jax.lax.map(safe_cost, flat, batch_size=batch).reshape(centres.shape[:2])
-        evaluations += centres.shape[0] * centres.shape[1]
+        costs = evaluate(centres)
         flat_centres, flat_costs = centres.reshape(-1, dims), costs.reshape(-1)
-        is_minimum = _local_minima(costs, dims, points).reshape(-1)
+        is_minimum = minima(costs).reshape(-1)
         order = jnp.lexsort((flat_costs, ~is_minimum))[: min(candidates, flat_costs.shape[0])]
         level_best = jnp.argmin(flat_costs)
-        improved = flat_costs[level_best] < best_cost
-        best_params = jnp.where(improved, flat_centres[level_best], best_params)
-        best_cost = jnp.where(improved, flat_costs[level_best], best_cost)
+        improved = flat_costs[level_best] < best[1]
+        best = (
+            jnp.where(improved, flat_centres[level_best], best[0]),
+            jnp.where(improved, flat_costs[level_best], best[1]),
+        )
         # Zoom: a box `zoom` sub-intervals wide around each kept centre, inside [lo, hi].
         widths = zoom * spacing
-        starts = jnp.clip(flat_centres[order] - widths / 2, lo, hi - widths)
-    return GridSearchResult(best_params, best_cost, spacing / 2, evaluations)
+        return jnp.clip(flat_centres[order] - widths / 2, lo, hi - widths), widths, best, spacing
+
+    best = ((lo + hi) / 2, jnp.asarray(jnp.inf, dtype))
+    if dims == 1 and levels > 1 and grid == candidates * zoom_grid:
+        # Every level is `candidates` boxes of `zoom_grid` points (the first tiles [lo, hi],
+        # its minima found along the whole grid): one level traced, looped `levels` times.
+        def body(carry, first):
+            starts, widths, best = carry
+            boxed = lambda c: _local_minima(c, 1, zoom_grid)  # noqa: E731
+            whole = lambda c: _local_minima(c.reshape(1, -1), 1, grid).reshape(c.shape)  # noqa: E731
+            minima = lambda c: jnp.where(first, whole(c), boxed(c))  # noqa: E731
+            starts, widths, best, spacing = search_level(starts, widths, zoom_grid, best, minima)
+            return (starts, widths, best), spacing
+
+        tile = (hi - lo) / candidates
+        starts = lo[None, :] + jnp.arange(candidates, dtype=dtype)[:, None] * tile
+        first = jnp.arange(levels) == 0
+        (_, _, best), spacings = jax.lax.scan(body, (starts, tile, best), first)
+        return GridSearchResult(best[0], best[1], spacings[-1] / 2, levels * grid)
+    starts, widths = lo[None, :], hi - lo  # (M, D) lower corners of the boxes, (D,) size
+    evaluations = 0
+    for level in range(levels):
+        points = grid if level == 0 else zoom_grid
+        minima = lambda c, points=points: _local_minima(c, dims, points)  # noqa: E731
+        evaluations += starts.shape[0] * points**dims
+        starts, widths, best, spacing = search_level(starts, widths, points, best, minima)
+    return GridSearchResult(best[0], best[1], spacing / 2, evaluations)
