@@ -7,8 +7,8 @@ centres at once (`vmap`), keeps the best `candidates` sub-intervals (more than o
 second basin of the cost is not lost to a coarse first level), and zooms into each, all
 inside one compiled function: when every level has the same shape (one parameter, the first
 grid `candidates` times the zoom grid) one level is traced and looped (`lax.scan`), else the
-levels are unrolled. Several nonlinear parameters (e.g. two
-roughness scales) use a tensor grid.
+levels are unrolled. Several nonlinear parameters (e.g. two roughness scales) use a tensor
+grid.
 """
 
 from collections.abc import Callable
