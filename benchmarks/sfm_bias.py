@@ -9,7 +9,8 @@ does), then fits the BRDF with the albedo map (`fit_capture`) on the true geomet
 SfM's, and on hybrids that take one ingredient from each: normals, depth and poses. Prints
 sigma's and F_tilde's relative errors per hybrid, and SfM's normal errors (degrees) over all
 pixels and over the bright ones (within 90% of the frame's brightest), where the lobe is
-measured.
+measured; and, near the highlights' peaks, how much SfM's normals widen the lobe: the mean
+excess of tan^2 of the angle between normal and view, as a widening of sigma.
 """
 
 import argparse
@@ -46,8 +47,23 @@ def _hybrid(root: Path, sources: dict, normals: str, depth: str, poses: str) -> 
     return root
 
 
+def _tan2_to_view(camera, normals) -> np.ndarray:
+    """tan^2 of the angle between each pixel's normal and its view direction: with the light
+    at the camera, the Beckmann exponent's tan^2 of the half-vector angle."""
+    h, w = normals.shape[:2]
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    x = (u - float(camera.cx)) / float(camera.fx)
+    y = (v - float(camera.cy)) / float(camera.fy)
+    ray = np.stack([x, y, np.ones_like(u)], -1)
+    cosine = -np.sum(normals * ray, -1) / np.linalg.norm(ray, axis=-1)
+    return (1 - cosine**2) / cosine**2
+
+
 def _normal_errors(truth, sfm) -> dict:
-    everywhere, bright = [], []
+    """SfM's normal errors (degrees) over all pixels and the bright ones, and near the
+    highlights' peaks (true tan(angle N-V) < 0.1) the mean excess of SfM's tan^2: an error
+    in the normal always widens the lobe there, as sigma^2 -> sigma^2 + excess would."""
+    everywhere, bright, excess = [], [], []
     for true_frame, frame in zip(truth.frames, sfm.frames, strict=True):
         cosine = np.clip(np.sum(true_frame.normals * frame.normals, -1), -1, 1)
         angle = np.degrees(np.arccos(cosine))
@@ -55,11 +71,19 @@ def _normal_errors(truth, sfm) -> dict:
         lum = true_frame.image.max(-1)
         everywhere.append(angle[ok])
         bright.append(angle[ok & (lum > 0.9 * lum.max())])
+        true_tan2 = _tan2_to_view(truth.camera, true_frame.normals)
+        sfm_tan2 = _tan2_to_view(truth.camera, frame.normals)
+        peak = ok & (true_tan2 < 0.01) & np.isfinite(sfm_tan2)
+        excess.append(sfm_tan2[peak] - true_tan2[peak])
     everywhere, bright = np.concatenate(everywhere), np.concatenate(bright)
+    excess = float(np.mean(np.concatenate(excess)))
+    sigma = float(truth.truth["sigma"])
     return {
         "normal_median_deg": round(float(np.median(everywhere)), 2),
         "normal_bright_median_deg": round(float(np.median(bright)), 2),
         "normal_bright_p90_deg": round(float(np.percentile(bright, 90)), 2),
+        "peak_tan2_excess": round(excess, 5),
+        "peak_sigma_widening_pct": round(100 * (float(np.sqrt(1 + excess / sigma**2)) - 1), 1),
     }
 
 
