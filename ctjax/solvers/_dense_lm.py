@@ -80,7 +80,10 @@ class DenseLM(eqx.Module):
             return jnp.max(jnp.abs(dy)) <= self.atol + self.rtol * jnp.max(jnp.abs(y))
 
         def step(carry):
-            y, cost, (normal, gradient), damping, iterations, _ = carry
+            y, cost, linear, stale, damping, iterations, _ = carry
+            # The normal equations at y, recomputed only after an accepted step: one copy
+            # of the Jacobian's program in the compiled loop.
+            normal, gradient = jax.lax.cond(stale, normal_equations, lambda _: linear, y)
             diagonal = jnp.diag(normal)
             scale = jnp.maximum(diagonal, 1e-12 * jnp.max(diagonal)) + jnp.finfo(dtype).tiny
             factor = cho_factor(normal + jnp.diag(damping * scale))
@@ -96,12 +99,12 @@ class DenseLM(eqx.Module):
                 & tiny(y, dy)
                 & (~better | (cost - trial_cost <= self.atol + self.rtol * cost))
             )
-            linear = jax.lax.cond(better, normal_equations, lambda _: (normal, gradient), trial)
             damping = jnp.where(better, damping * shrink, damping * grow)
             return (
                 jnp.where(better, trial, y),
                 jnp.where(better, trial_cost, cost),
-                linear,
+                (normal, gradient),
+                better,
                 jnp.minimum(damping, ceiling),
                 iterations + 1,
                 done,
@@ -117,12 +120,13 @@ class DenseLM(eqx.Module):
         start = (
             flat,
             cost0,
-            normal_equations(flat),
+            (jnp.zeros((flat.size, flat.size), dtype), jnp.zeros(flat.size, dtype)),
+            jnp.asarray(True),
             jnp.asarray(d0, dtype),
             jnp.asarray(0),
             ~finite,
         )
-        y, _, _, _, iterations, done = jax.lax.while_loop(running, step, start)
+        y, _, _, _, _, iterations, done = jax.lax.while_loop(running, step, start)
         code = jnp.where(
             finite,
             jnp.where(done, Status.successful.value, Status.max_steps_reached.value),
