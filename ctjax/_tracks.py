@@ -86,6 +86,37 @@ class Tracks:
         """The tracks at index or mask `keep`."""
         return Tracks(*(getattr(self, f.name)[keep] for f in dataclasses.fields(self)))
 
+    def padded(self, size: int) -> "Tracks":
+        """These tracks with unobserved points appended up to `size` points (ahead of the
+        camera and facing it: a finite geometry with weight 0), so that captures of similar
+        size share the fitters' compiled programs."""
+        extra = size - len(self)
+        if extra <= 0:
+            return self
+        fill = {"corner_point": (0.0, 0.0, 1.0), "corner_normal": (0.0, 0.0, -1.0), "frame": -1}
+        parts = {}
+        for field in dataclasses.fields(self):
+            array = getattr(self, field.name)
+            pad = np.zeros((extra, *array.shape[1:]), array.dtype)
+            pad[...] = fill.get(field.name, 0)
+            parts[field.name] = np.concatenate([array, pad])
+        return Tracks(**parts)
+
+
+def views_first(array: np.ndarray) -> np.ndarray:
+    """Per-observation data laid out as the fitters use it, points last: (P, M) -> (M, P),
+    (P, M, K) -> (K, M, P) (corners or channels, then views), and corner vectors
+    (P, M, 4, D) -> (4 M P, D) flattened in that order.
+
+    A point's sums over its views are then sums of contiguous rows, which XLA's CPU code
+    vectorises; points first, they are sums of 5-12 neighbours along the minor axis, and
+    the variable projection ran 7x slower (63 ms against 9 ms for 4 sigmas on 49k points x
+    5 views)."""
+    if array.ndim == 2:
+        return np.ascontiguousarray(array.T)
+    moved = np.ascontiguousarray(np.moveaxis(array, (0, 2), (2, 0)))
+    return moved if array.ndim == 3 else moved.reshape(-1, array.shape[-1])
+
 
 def observation_weight(spread: np.ndarray) -> np.ndarray:
     """Weight of an interpolated observation: NOISE^2 / (NOISE^2 + spread^2), where
@@ -121,7 +152,9 @@ def partners(capture, index: int, count: int | None, among=None) -> list[int]:
     return [index, *(order if count is None else order[:count])]
 
 
-def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray, how=cv2.INTER_LINEAR) -> np.ndarray:
+def sample_image(
+    image: np.ndarray, u: np.ndarray, v: np.ndarray, how=cv2.INTER_LINEAR
+) -> np.ndarray:
     """Bilinear samples of `image` (H, W[, C]) at float pixel positions (N,); NaN outside."""
     # OpenCV's maps are at most 32767 wide: lay the N positions out as rows of 1024.
     n = u.shape[0]
@@ -141,23 +174,49 @@ def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray, how=cv2.INTER_LINEA
 @dataclasses.dataclass(frozen=True)
 class FrameData:
     """What observing a frame needs: its image, depth and normals, the depth with NaN where
-    there is no geometry, which channels are clipped (as 0/1 floats, to be sampled like the
-    image), the inverse pose."""
+    there is no geometry, per pixel whether depth and normal are finite and which channels
+    are clipped (bit c: channel c), the inverse pose."""
 
     image: np.ndarray
     depth: np.ndarray
     normals: np.ndarray
     usable_depth: np.ndarray
-    clipped: np.ndarray
+    finite: np.ndarray
+    clipped_bits: np.ndarray
     world_to_camera: np.ndarray
 
     @classmethod
     def of(cls, frame, saturation_level: float = 1.0) -> "FrameData":
         depth = np.where(frame.geometry_mask, frame.depth, np.nan).astype(np.float32)
+        finite = np.isfinite(frame.depth) & _all_last(np.isfinite(frame.normals))
         clipped = frame.image >= saturation_level  # (H, W, 3) bool
+        bits = sum(clipped[..., c].astype(np.uint8) << c for c in range(clipped.shape[-1]))
         return cls(
-            frame.image, frame.depth, frame.normals, depth, clipped, np.linalg.inv(frame.pose)
+            frame.image,
+            frame.depth,
+            frame.normals,
+            depth,
+            finite,
+            bits,
+            np.linalg.inv(frame.pose),
         )
+
+
+def _any_last(x: np.ndarray) -> np.ndarray:
+    """`np.any(x, axis=-1)` for a short last axis, as elementwise ors (NumPy reduces a
+    short minor axis several times slower)."""
+    out = x[..., 0]
+    for k in range(1, x.shape[-1]):
+        out = out | x[..., k]
+    return out
+
+
+def _all_last(x: np.ndarray) -> np.ndarray:
+    """`np.all(x, axis=-1)` for a short last axis (see `_any_last`)."""
+    out = x[..., 0]
+    for k in range(1, x.shape[-1]):
+        out = out & x[..., k]
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,22 +241,52 @@ class Observation:
 _AHEAD, _FACING = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
 
 
-def _corners(camera: Camera, data: FrameData, rows: np.ndarray, cols: np.ndarray):
-    """Camera-frame points and normals of pixel centres (..., 3)."""
-    depth = data.depth[rows, cols].astype(np.float64)
-    point = np.stack(
-        [
-            depth * (cols - float(camera.cx)) / float(camera.fx),
-            depth * (rows - float(camera.cy)) / float(camera.fy),
-            depth,
-        ],
-        -1,
-    )
-    return point, data.normals[rows, cols].astype(np.float64)
+def _corners(camera: Camera, data: FrameData, index: np.ndarray):
+    """Camera-frame points and normals (..., 3) of the pixel centres at flat `index`."""
+    rows, cols = np.divmod(index, camera.width)
+    depth = data.depth.reshape(-1)[index].astype(np.float64)
+    point = np.empty((*index.shape, 3))
+    point[..., 0] = depth * (cols - float(camera.cx)) / float(camera.fx)
+    point[..., 1] = depth * (rows - float(camera.cy)) / float(camera.fy)
+    point[..., 2] = depth
+    normal = data.normals.reshape(-1, 3)[index].astype(np.float64)
+    return point, normal
 
 
-def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float) -> Observation:
-    """Observations of world points (N, 3) in one frame (see the module doc)."""
+def _channels_seen(seen: np.ndarray, bits: np.ndarray, channels: int) -> np.ndarray:
+    """(N, C): `seen` and channel c's bit not set in `bits` (N,)."""
+    return seen[:, None] & ((bits[:, None] >> np.arange(channels, dtype=np.uint8)) & 1 == 0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Sighting:
+    """N points sighted in one frame, before the model's corners (`observe` adds them): the
+    position (u, v) they project to (N,), the four pixel centres around it (flat indices,
+    N x 4) and their bilinear weights, the bilinear values (N, 3; 0 where no channel
+    counts), whether each counts (N,), which channels count (N, 3) and the least-squares
+    weight (N,; 0 where no channel counts)."""
+
+    u: np.ndarray
+    v: np.ndarray
+    index: np.ndarray
+    corner_weight: np.ndarray
+    values: np.ndarray
+    seen: np.ndarray
+    channel_seen: np.ndarray
+    weight: np.ndarray
+
+
+def _counted(sighting: Sighting) -> Sighting:
+    """`sighting` with values and weight 0 where no channel counts, in place."""
+    hidden = ~_any_last(sighting.channel_seen)
+    sighting.values[hidden] = 0.0
+    sighting.weight[hidden] = 0.0
+    sighting.corner_weight[hidden] = 0.0
+    return sighting
+
+
+def sight(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float) -> Sighting:
+    """World points (N, 3) sighted in one frame (see the module doc)."""
     rotation, translation = data.world_to_camera[:3, :3], data.world_to_camera[:3, 3]
     point = world @ rotation.T + translation
     z = point[:, 2]
@@ -208,71 +297,87 @@ def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float
     u = np.where(inside, u, -10.0)
     v = np.where(inside, v, -10.0)
     # NaN in any of the four neighbours makes the bilinear depth NaN: not usable.
-    depth = _sample(data.usable_depth, u, v)
+    depth = sample_image(data.usable_depth, u, v)
     with np.errstate(invalid="ignore"):
         seen = inside & (np.abs(depth - z) <= tolerance * z)
-    values = _sample(data.image, u, v)
-    seen &= np.all(np.isfinite(values), axis=-1)
-    spread = np.max(np.abs(values - _sample(data.image, u, v, cv2.INTER_NEAREST)), axis=-1)
+    values = sample_image(data.image, u, v)
+    # How far the bilinear value is from the nearest pixel's (NaN where either is).
+    spread = np.abs(values - sample_image(data.image, u, v, cv2.INTER_NEAREST))
+    spread = np.maximum(np.maximum(spread[:, 0], spread[:, 1]), spread[:, 2])
+    seen &= np.isfinite(spread)
     # The four pixel centres around (u, v) and their bilinear weights.
     u0 = np.clip(np.floor(np.where(seen, u, 0)), 0, camera.width - 2).astype(int)
     v0 = np.clip(np.floor(np.where(seen, v, 0)), 0, camera.height - 2).astype(int)
     fu, fv = np.where(seen, u, 0) - u0, np.where(seen, v, 0) - v0
-    cols = np.stack([u0, u0 + 1, u0, u0 + 1], -1)
-    rows = np.stack([v0, v0, v0 + 1, v0 + 1], -1)
+    index = (v0 * camera.width + u0)[:, None] + np.array([0, 1, camera.width, camera.width + 1])
     corner_weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1)
-    corner_point, corner_normal = _corners(camera, data, rows, cols)
-    seen &= np.all(np.isfinite(corner_point) & np.isfinite(corner_normal), axis=(-2, -1))
+    seen &= _all_last(data.finite.reshape(-1)[index])
     # A channel counts where none of the four corners (of nonzero weight) is clipped in it.
-    clipped = data.clipped[rows, cols] & (corner_weight > 0)[..., None]  # (N, 4, 3)
-    channel_seen = seen[:, None] & ~np.any(clipped, axis=1)
-    return _masked(
-        Observation(
-            corner_point,
-            corner_normal,
-            np.stack([cols, rows], -1).astype(float),
-            corner_weight,
-            values,
-            np.all(channel_seen, axis=-1),
-            channel_seen,
-            observation_weight(np.where(seen, spread, 0.0)),
-        )
+    bits = data.clipped_bits.reshape(-1)[index] * (corner_weight > 0)
+    channel_seen = _channels_seen(seen, _any_last(bits), values.shape[-1])
+    weight = observation_weight(np.where(seen, spread, 0.0))
+    return _counted(
+        Sighting(u, v, index, corner_weight, values, _all_last(channel_seen), channel_seen, weight)
     )
 
 
-def observe_own(camera: Camera, data: FrameData, rows, cols, saturation_level=1.0):
-    """The anchors' own observations: their pixels, exactly (one corner of weight 1)."""
-    point, normal = _corners(camera, data, rows, cols)
+def sight_own(data: FrameData, rows, cols, saturation_level: float = 1.0) -> Sighting:
+    """The anchors' own sightings: their pixels, exactly (one corner of weight 1)."""
+    width = data.depth.shape[1]
     values = data.image[rows, cols].astype(np.float64)
-    geometry = np.all(np.isfinite(point), axis=-1) & np.all(np.isfinite(normal), axis=-1)
-    channel_seen = geometry[:, None] & (values < saturation_level)
-    repeat = lambda a: np.repeat(a[:, None], 4, axis=1)  # noqa: E731
-    weight = np.zeros((len(rows), 4))
-    weight[:, 0] = 1
-    return _masked(
-        Observation(
-            repeat(point),
-            repeat(normal),
-            repeat(np.stack([cols, rows], -1).astype(float)),
-            weight,
+    channel_seen = data.finite[rows, cols][:, None] & (values < saturation_level)
+    corner_weight = np.zeros((len(rows), 4))
+    corner_weight[:, 0] = 1
+    index = np.repeat((rows * width + cols)[:, None], 4, axis=1)
+    return _counted(
+        Sighting(
+            cols.astype(float),
+            rows.astype(float),
+            index,
+            corner_weight,
             values,
-            np.all(channel_seen, axis=-1),
+            _all_last(channel_seen),
             channel_seen,
             np.ones(len(rows)),
         )
     )
 
 
+def _observation(camera: Camera, data: FrameData, sighting: Sighting) -> Observation:
+    """`sighting` with the model's corners (camera-frame points, normals, pixels)."""
+    corner_point, corner_normal = _corners(camera, data, sighting.index)
+    rows, cols = np.divmod(sighting.index, camera.width)
+    return _masked(
+        Observation(
+            corner_point,
+            corner_normal,
+            np.stack([cols, rows], -1).astype(float),
+            sighting.corner_weight,
+            sighting.values,
+            sighting.seen,
+            sighting.channel_seen,
+            sighting.weight,
+        )
+    )
+
+
+def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float) -> Observation:
+    """Observations of world points (N, 3) in one frame (see the module doc)."""
+    return _observation(camera, data, sight(camera, data, world, tolerance))
+
+
+def observe_own(camera: Camera, data: FrameData, rows, cols, saturation_level=1.0):
+    """The anchors' own observations: their pixels, exactly (one corner of weight 1)."""
+    return _observation(camera, data, sight_own(data, rows, cols, saturation_level))
+
+
 def _masked(obs: Observation) -> Observation:
     """`obs` with the observations of which no channel counts set to the harmless geometry,
     in place (only those rows are written: most observations count)."""
-    hidden = ~np.any(obs.channel_seen, axis=-1)
+    hidden = ~_any_last(obs.channel_seen)
     obs.corner_point[hidden] = _AHEAD
     obs.corner_normal[hidden] = _FACING
     obs.corner_pixel[hidden] = 0.0
-    obs.corner_weight[hidden] = 0.0
-    obs.values[hidden] = 0.0
-    obs.weight[hidden] = 0.0
     return obs
 
 

@@ -211,8 +211,8 @@ class HeldOutTracks:
         train = obs.tracks(frames=calib, max_points=max_points, seed=seed)
         test = obs.tracks(max_points=heldout_points, seed=seed + 1, anchor_frames=heldout)
         samples = TrackSamples.of(test)  # padded: the rows past the tracks are not judged
-        judged = np.zeros(samples.weight.shape, bool)
-        judged[: len(test)] = np.isin(test.frame, heldout) & test.observed
+        judged = np.zeros(samples.weight.shape, bool)  # (M, P) as the samples
+        judged[:, : len(test)] = (np.isin(test.frame, heldout) & test.observed).T
         return cls(obs, calib, heldout, TrackSamples.of(train), samples, judged)
 
     @property

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls as scipy_nnls
 
+from ctjax._tracks import views_first
 from ctjax.cli import main
 from ctjax.estimation import PAPER, fit_capture
 from ctjax.estimation._albedo_map import project_weights
@@ -54,8 +55,12 @@ def _joint(a, b, values, weight):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_projection_equals_the_joint_nonnegative_least_squares(seed, clamp):
     a, b, values, weight = _problem(seed, clamp=clamp)
+    # Views first, points last (`views_first`): columns and weight (M, P), values (C, M, P).
     albedo, weights, cost = jax.jit(project_weights, static_argnums=3)(
-        (jnp.asarray(a), jnp.asarray(b)), jnp.asarray(values), jnp.asarray(weight), 0
+        (jnp.asarray(a.T), jnp.asarray(b.T)),
+        jnp.asarray(views_first(values)),
+        jnp.asarray(weight.T),
+        0,
     )
     joint, joint_cost = _joint(a, b, values, weight)
     np.testing.assert_allclose(np.asarray(albedo), joint[:-1], atol=1e-9)
@@ -86,7 +91,8 @@ def test_projected_cost_gradient_matches_finite_differences():
             return tuple(lobe.radiance(n, v, v) for lobe in brdf.lobes)
 
         cols = jax.vmap(jax.vmap(columns))(jnp.asarray(normal), jnp.asarray(view))
-        return project_weights(cols, jnp.asarray(values), weight, 0)[2]
+        cols = tuple(c.T for c in cols)  # views first, points last
+        return project_weights(cols, jnp.asarray(views_first(values)), weight.T, 0)[2]
 
     gradient_of = jax.jit(jax.grad(cost))
     for sigma in (0.15, 0.3):

@@ -27,23 +27,27 @@ determined by its one observation (see `albedo_maps`).
 """
 
 import functools
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._buckets import bucket, pad_leading
+from .._buckets import bucket
 from .._errors import CtjaxError
 from .._numerics import safe_normalize
+from .._render import render_columns
 from .._tracks import (
     DEFAULT_NEIGHBOURS,
     DEFAULT_TOLERANCE,
     FrameData,
     Tracks,
-    observe,
-    observe_own,
     partners,
+    sample_image,
+    sight,
+    sight_own,
+    views_first,
     world_points,
 )
 from .._typing import Array, Bool, Float, Scalar
@@ -65,27 +69,30 @@ MIN_COSINE = 0.05
 # Pixels whose albedo is estimated at once (bounds memory at 1080p).
 _MAP_CHUNK = 1 << 17
 # Grid points evaluated at once by the BnB: each is a pass over every observation's corners.
-_GRID_BATCH = 4
+_GRID_BATCH = 8
 # The paper's light: at the camera centre, L = V.
 _PAPER_LIGHT = ColocatedLight()
 
 
 class TrackShading(eqx.Module):
-    """Tracks as the BnB sees them: the shading samples of every observation's four corners,
-    flattened (P * M * 4), the corners' bilinear weights (P, M, 4), the measured RGB
-    (P, M, 3) and each observation's least-squares weight (P, M; 0: not observed)."""
+    """Tracks as the BnB sees them, views first and points last (`views_first`: per-point
+    sums over views are then sums of contiguous rows): the shading samples of every
+    observation's four corners, flattened (4 M P), the corners' bilinear weights (4, M, P),
+    the measured RGB (3, M, P) and each observation's least-squares weight (M, P;
+    0: not observed)."""
 
     samples: ShadingSamples
-    corner_weight: Float[Array, "P M 4"]
-    values: Float[Array, "P M 3"]
-    weight: Float[Array, "P M"]
+    corner_weight: Float[Array, "4 M P"]
+    values: Float[Array, "C M P"]
+    weight: Float[Array, "M P"]
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(M, P): views per point, points."""
         return self.weight.shape
 
     @property
-    def observed(self) -> Bool[Array, "P M"]:
+    def observed(self) -> Bool[Array, "M P"]:
         return self.weight > 0
 
 
@@ -109,19 +116,18 @@ def _shading_samples(light, point, normal, pixel, dtype) -> ShadingSamples:
 def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=None):
     """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading`."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
-    flat = lambda a: a.reshape(-1, a.shape[-1])  # noqa: E731
     samples = _shading_samples(
         light,
-        flat(tracks.corner_point),
-        flat(tracks.corner_normal),
-        flat(tracks.corner_pixel),
+        views_first(tracks.corner_point),
+        views_first(tracks.corner_normal),
+        views_first(tracks.corner_pixel),
         dtype,
     )
     return TrackShading(
         samples,
-        jnp.asarray(tracks.corner_weight, dtype),
-        jnp.asarray(tracks.values, dtype),
-        jnp.asarray(tracks.weight, dtype),
+        jnp.asarray(views_first(tracks.corner_weight), dtype),
+        jnp.asarray(views_first(tracks.values), dtype),
+        jnp.asarray(views_first(tracks.weight), dtype),
     )
 
 
@@ -131,89 +137,141 @@ def _per_point_index(family: BRDFFamily) -> int:
     return family.weight_names.index("rho_tilde")
 
 
-def _sums(columns, values, weight, per_point):
-    """The per-point sums of products the projection needs, each observation weighted."""
+class _Sums(NamedTuple):
+    """The weighted columns and values, and the per-point sums over views the projection
+    needs, one array per channel (XLA's CPU code ran the projection 1.7x slower on
+    (C, M, P) arrays): `a` the per-point lobe's column (M, P), `others` the global lobes'
+    (G of them), `values` C arrays (M, P), all times the root of each observation's
+    weight; `s_aa` (P,), `s_ai` C arrays (P,) and `s_ag` G arrays (P,): the sums over views
+    of a a, a I and a g."""
+
+    a: Array
+    others: list
+    values: list
+    s_aa: Array
+    s_ai: list
+    s_ag: list
+
+
+def _sums(columns, values, weight, per_point) -> _Sums:
     # Double where: weights may depend on fitted parameters (undone image effects), and the
     # slope of sqrt at an unobserved slot's 0 would make their gradient NaN.
     positive = weight > 0
     w = jnp.where(positive, jnp.sqrt(jnp.where(positive, weight, 1)), 0)
     a = columns[per_point] * w
     others = [c * w for k, c in enumerate(columns) if k != per_point]
-    values = values * w[..., None]
-    s_aa = jnp.sum(a * a, axis=1)  # (P,)
-    s_ai = jnp.einsum("pm,pmc->pc", a, values)  # (P, C)
-    s_ag = jnp.stack([jnp.sum(a * g, axis=1) for g in others]) if others else None  # (G, P)
-    s_gh = (
-        jnp.stack([jnp.stack([jnp.sum(g * h, axis=1) for h in others]) for g in others])
-        if others
-        else None
-    )  # (G, G, P)
-    s_gi = jnp.stack([jnp.einsum("pm,pmc->pc", g, values) for g in others]) if others else None
-    return a, others, values, s_aa, s_ai, s_ag, s_gh, s_gi
+    values = [values[c] * w for c in range(values.shape[0])]
+    total = lambda x, y: jnp.sum(x * y, axis=0)  # noqa: E731
+    return _Sums(
+        a,
+        others,
+        values,
+        total(a, a),
+        [total(a, v) for v in values],
+        [total(a, g) for g in others],
+    )
 
 
-def projected_residuals(
-    columns: tuple[Float[Array, "P M"], ...],
-    values: Float[Array, "P M C"],
-    weight: Float[Array, "P M"],
-    per_point: int = 0,
-):
-    """`project_weights`, returning the weighted residuals (P, M, C) instead of their cost:
-    the residual function of a least-squares solver over the nonlinear parameters alone
-    (variable projection; differentiable, the clamped albedos held at 0)."""
-    a, others, masked, s_aa, s_ai, s_ag, s_gh, s_gi = _sums(columns, values, weight, per_point)
-    ok = s_aa > _NEGLIGIBLE * jnp.max(s_aa)
-    inverse = jnp.where(ok, 1 / jnp.where(ok, s_aa, 1), 0)
-    free = jnp.broadcast_to(ok[:, None], s_ai.shape)
-    channels = values.shape[-1]
-    if others:
-        solve = jax.vmap(lambda g, r: nnls_normal_equations(g, r[:, None])[:, 0], (2, 1), 1)
-        weights = jnp.zeros((len(others), channels), values.dtype)
-        for _ in range(_ACTIVE_SET_ROUNDS):
-            projected = inverse[:, None] * free  # (P, C)
-            gram = jnp.sum(s_gh, axis=-1)[..., None] - jnp.einsum(
-                "gp,hp,pc->ghc", s_ag, s_ag, projected
-            )
-            rhs = jnp.sum(s_gi, axis=1) - jnp.einsum("gp,pc->gc", s_ag, projected * s_ai)
-            weights = solve(gram, rhs)
-            albedo = (s_ai - jnp.einsum("gp,gc->pc", s_ag, weights)) * inverse[:, None]
-            free = ok[:, None] & (albedo > 0)
-        rest = sum(g[..., None] * weights[i] for i, g in enumerate(others))
+def _global_weights(s: _Sums, inverse, ok):
+    """The global weights (G, C) by the reduced NNLS, and the albedos (C arrays (P,)) they
+    leave, the set of albedos clamped at 0 updated `_ACTIVE_SET_ROUNDS` times (one round
+    traced and looped, the channels' solves batched: less to trace and compile)."""
+    lobes = range(len(s.others))
+    gram_total = jnp.stack([jnp.stack([jnp.sum(g * h) for h in s.others]) for g in s.others])
+    rhs_total = jnp.stack([jnp.stack([jnp.sum(g * v) for v in s.values]) for g in s.others])
+    solve = jax.vmap(lambda g, r: nnls_normal_equations(g, r[:, None])[:, 0], (2, 1), 1)
+
+    def albedo_given(weights):  # (C, P)
+        return jnp.stack(
+            [
+                (s_ai - sum(s.s_ag[g] * weights[g, c] for g in lobes)) * inverse
+                for c, s_ai in enumerate(s.s_ai)
+            ]
+        )
+
+    def round_(_, carry):
+        free = carry[1]  # (C, P): the albedos not clamped at 0
+        projected = inverse * free
+        gram = jnp.stack(
+            [
+                jnp.stack([jnp.sum(s.s_ag[g] * s.s_ag[h] * projected, axis=-1) for h in lobes])
+                for g in lobes
+            ]
+        )  # (G, G, C)
+        s_ai = jnp.stack(s.s_ai)
+        rhs = jnp.stack([jnp.sum(s.s_ag[g] * projected * s_ai, axis=-1) for g in lobes])
+        weights = solve(gram_total[..., None] - gram, rhs_total - rhs)
+        return weights, ok & (albedo_given(weights) > 0)
+
+    start = (
+        jnp.zeros((len(s.others), len(s.values)), inverse.dtype),
+        jnp.stack([ok] * len(s.values)),
+    )
+    weights, _ = jax.lax.fori_loop(0, _ACTIVE_SET_ROUNDS, round_, start)
+    return weights, list(albedo_given(weights))
+
+
+def _project(columns, values, weight, per_point):
+    """The albedos (C arrays (P,)), the global weights (K, C; 0 in row `per_point`) and the
+    weighted residuals (C arrays (M, P)): see `project_weights`."""
+    s = _sums(columns, values, weight, per_point)
+    ok = s.s_aa > _NEGLIGIBLE * jnp.max(s.s_aa)
+    inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
+    channels = values.shape[0]
+    if s.others:
+        weights, albedo = _global_weights(s, inverse, ok)
     else:
         weights = jnp.zeros((0, channels), values.dtype)
-        albedo = s_ai * inverse[:, None]
-        rest = jnp.zeros_like(masked)
-    albedo = jnp.where(ok[:, None], jnp.maximum(albedo, 0), 0)
-    residual = masked - a[..., None] * albedo[:, None, :] - rest
+        albedo = [s_ai * inverse for s_ai in s.s_ai]
+    albedo = [jnp.where(ok, jnp.maximum(rho, 0), 0) for rho in albedo]
+    residual = [
+        v - s.a * rho - sum(g * weights[i, c] for i, g in enumerate(s.others))
+        for c, (v, rho) in enumerate(zip(s.values, albedo, strict=True))
+    ]
     full = jnp.insert(weights, per_point, jnp.zeros(channels, values.dtype), axis=0)
     return albedo, full, residual
 
 
+def projected_residuals(
+    columns: tuple[Float[Array, "M P"], ...],
+    values: Float[Array, "C M P"],
+    weight: Float[Array, "M P"],
+    per_point: int = 0,
+):
+    """`project_weights`, returning the weighted residuals (C, M, P) instead of their cost:
+    the residual function of a least-squares solver over the nonlinear parameters alone
+    (variable projection; differentiable, the clamped albedos held at 0)."""
+    albedo, weights, residual = _project(columns, values, weight, per_point)
+    return jnp.stack(albedo, axis=-1), weights, jnp.stack(residual)
+
+
 def project_weights(
-    columns: tuple[Float[Array, "P M"], ...],
-    values: Float[Array, "P M C"],
-    weight: Float[Array, "P M"],
+    columns: tuple[Float[Array, "M P"], ...],
+    values: Float[Array, "C M P"],
+    weight: Float[Array, "M P"],
     per_point: int = 0,
 ):
     """The albedo of every point and the global weights, eliminated in closed form.
 
-    `columns[k]` is lobe k's value for unit weight at each observation, `weight` each
+    P points seen in up to M views each, laid out views first and points last
+    (`ctjax._tracks.views_first`): `columns[k]` (M, P) is lobe k's value for unit weight at
+    each observation, `values` (C, M, P) the measurements, `weight` (M, P) each
     observation's least-squares weight (0: not observed); `per_point` the lobe whose weight
     is per point (the diffuse one). Returns `(albedo (P, C), weights (K, C), cost)`:
     `weights[per_point]` is 0 (the albedo is per point), the cost is the weighted sum of
     squared residuals (finite or +inf).
     """
-    albedo, weights, residual = projected_residuals(columns, values, weight, per_point)
-    cost = jnp.sum(residual * residual)
-    return albedo, weights, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+    albedo, weights, residual = _project(columns, values, weight, per_point)
+    cost = sum(jnp.sum(r * r) for r in residual)
+    return jnp.stack(albedo, axis=-1), weights, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
 
 def _columns(family, params, shading: TrackShading):
-    """Each lobe's value for unit weight at every observation (P, M): at the corners,
+    """Each lobe's value for unit weight at every observation (M, P): at the corners,
     bilinearly combined like the image."""
-    p, m = shading.shape
+    corners = shading.corner_weight
     return tuple(
-        jnp.sum(c.reshape(p, m, 4) * shading.corner_weight, axis=-1)
+        jnp.sum(c.reshape(corners.shape) * corners, axis=0)
         for c in design_columns(family, params, shading.samples)
     )
 
@@ -250,7 +308,7 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     Gauss-Newton covariance is the global block of the joint one (a Schur complement)."""
     k, channels = weights.shape
     values, weight, observed = _values(shading), shading.weight, shading.observed
-    free = albedo > 0
+    free = albedo.T > 0
     globals_ = [i for i in range(k) if i != per_point]
     if not globals_ and params.shape[0] == 0:  # every weight is per point: nothing global
         return params, jnp.full((k, channels), jnp.nan, weights.dtype)
@@ -258,13 +316,14 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     def residuals(theta):
         w = theta[: len(globals_) * channels].reshape(len(globals_), channels)
         p = theta[len(globals_) * channels :]
-        columns = _columns(family, p, shading)
-        a, others, masked, s_aa, s_ai, s_ag, _, _ = _sums(columns, values, weight, per_point)
-        rest = sum(g[..., None] * w[i] for i, g in enumerate(others)) if others else 0
-        inverse = jnp.where(s_aa > 0, 1 / jnp.where(s_aa > 0, s_aa, 1), 0)
-        fitted = s_ai - (jnp.einsum("gp,gc->pc", s_ag, w) if others else 0)
-        rho = jnp.where(free, fitted * inverse[:, None], 0)
-        return (masked - a[..., None] * rho[:, None, :] - rest).reshape(-1)
+        s = _sums(_columns(family, p, shading), values, weight, per_point)
+        inverse = jnp.where(s.s_aa > 0, 1 / jnp.where(s.s_aa > 0, s.s_aa, 1), 0)
+        residual = []
+        for c, (v, s_ai) in enumerate(zip(s.values, s.s_ai, strict=True)):
+            rho = (s_ai - sum(ag * w[g, c] for g, ag in enumerate(s.s_ag))) * inverse
+            rho = jnp.where(free[c], rho, 0)
+            residual.append(v - s.a * rho - sum(g * w[i, c] for i, g in enumerate(s.others)))
+        return jnp.stack(residual).reshape(-1)
 
     theta = jnp.concatenate([weights[jnp.array(globals_, int)].reshape(-1), params])
     jacobian = jax.jacfwd(residuals)(theta)
@@ -316,25 +375,36 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
     )
     # The RMSE of every observation, unweighted: what a user compares with the noise.
     model = sum(
-        c[..., None] * (albedo[:, None, :] if k == per_point else weights[k])
+        c * (albedo.T[:, None, :] if k == per_point else weights[k][:, None, None])
         for k, c in enumerate(columns)
     )
-    residual = jnp.where(observed[..., None], values - model, 0)
-    counted = jnp.sum(observed) * values.shape[-1]
+    residual = jnp.where(observed, values - model, 0)
+    counted = jnp.sum(observed) * values.shape[0]
     rmse = 255 * jnp.sqrt(jnp.sum(residual * residual) / jnp.maximum(counted, 1))
     return params, weights, albedo, best, rmse, params_stderr, weights_stderr, half_width
 
 
 def _padded_points(shading: TrackShading) -> TrackShading:
     """`shading` with its points padded to a bucket size (`ctjax._buckets`), the padding
-    unobserved (weight 0): captures of similar size share the BnB's compiled program."""
-    p, m = shading.shape
+    unobserved (weight 0; the samples repeat the last point's, finite): captures of similar
+    size share the BnB's compiled program."""
+    m, p = shading.shape
     size = bucket(p)
     if size == p:
         return shading
-    zeros = lambda a: jnp.concatenate([a, jnp.zeros((size - p, *a.shape[1:]), a.dtype)])  # noqa: E731
+
+    def repeat_last(leaf):  # flattened corners (4 M P, ...): the point axis is third
+        host = np.asarray(leaf)
+        shaped = host.reshape(4, m, p, *host.shape[1:])
+        tail = np.repeat(shaped[:, :, -1:], size - p, axis=2)
+        return jnp.asarray(np.concatenate([shaped, tail], axis=2).reshape(-1, *host.shape[1:]))
+
+    def zeros(leaf):  # (..., M, P): the point axis is last
+        host = np.asarray(leaf)
+        return jnp.asarray(np.pad(host, [(0, 0)] * (host.ndim - 1) + [(0, size - p)]))
+
     return TrackShading(
-        pad_leading(shading.samples, p * m * 4, size * m * 4),
+        jax.tree.map(repeat_last, shading.samples),
         zeros(shading.corner_weight),
         zeros(shading.values),
         zeros(shading.weight),
@@ -361,7 +431,7 @@ def fit_brdf_map(
     The global weights' per-point row (`rho_tilde`) reports the median albedo per channel.
     """
     observed = np.asarray(shading.observed)
-    views = observed.sum(axis=1)
+    views = observed.sum(axis=0)
     k = len(family.weight_names)
     informative = int(np.sum(views[views > 1] - 1))
     if informative < 3 * (k - 1) + len(family.names) + 1:
@@ -370,7 +440,7 @@ def fit_brdf_map(
             "points seen in two frames or more to separate the albedo from the BRDF (poses "
             "or depth wrong, or frames that do not overlap?)"
         )
-    values = np.asarray(shading.values)[observed]
+    values = np.asarray(shading.values)[:, observed]
     if not np.all(np.isfinite(values)):
         raise CtjaxError("observed values contain NaN or inf")
     per_point = _per_point_index(family)
@@ -387,40 +457,20 @@ def fit_brdf_map(
 
 
 @eqx.filter_jit
-def _accumulate(
-    brdf, light, per_point, corner_point, corner_normal, corner_pixel, corner_weight, values
-):
-    """One frame's view of N points: the diffuse column `a` (N,) and the global lobes'
-    prediction `rest` (N, 3), for the albedo normal equations (sum a (I - rest), sum a^2);
-    corners (N, 4, ...), `corner_weight` 0 where not observed."""
-    samples = _shading_samples(
-        light,
-        corner_point.reshape(-1, 3),
-        corner_normal.reshape(-1, 3),
-        corner_pixel.reshape(-1, 2),
-        corner_point.dtype,
-    )
-    columns = jax.vmap(lambda n, l, v, e: e * brdf.columns(n, l, v))(
-        samples.normal, samples.light, samples.view, samples.irradiance
-    )  # (N * 4, K)
-    columns = jnp.einsum("nck,nc->nk", columns.reshape(-1, 4, columns.shape[-1]), corner_weight)
-    a = columns[:, per_point]
+def _frame_columns(brdf, light, camera, normals, depth, per_point):
+    """One frame's diffuse column `a` (H, W) and the global lobes' prediction `rest`
+    (H, W, 3) at its pixel centres (0 where it has no geometry)."""
+    columns = render_columns(brdf, light, camera, normals, depth)  # (H, W, K)
     global_ = jnp.arange(columns.shape[-1]) != per_point
-    rest = (columns * global_) @ brdf.weights
-    return a, rest
+    return columns[..., per_point], (columns * global_) @ brdf.weights
 
 
-def _padded(array: np.ndarray, padding: int, dtype) -> jax.Array:
-    zeros = np.zeros((padding, *array.shape[1:]), array.dtype)
-    return jnp.asarray(np.concatenate([array, zeros]), dtype)
-
-
-def _albedo_of(
-    capture, data, brdf, light, per_point, index, rows, cols, count, among, tolerance, dtype, chunk
-):
+def _albedo_of(capture, data, shading, index, rows, cols, count, among, tolerance):
     """Albedo (N, 3; NaN where not estimated) and view count (N,) of pixels of frame
     `index`, from all the frames that see them (see `albedo_maps`), and the own frame's
-    residual (N, 3) under the albedo of the other views alone (NaN where they have none)."""
+    residual (N, 3) under the albedo of the other views alone (NaN where they have none).
+    `shading(f)` is frame f's `_frame_columns`: a point's model in another view is their
+    bilinear sample, as its value is the image's."""
     camera = capture.camera
     world = world_points(camera, capture.frames[index], rows, cols)
     numerator = np.zeros((len(rows), 3))
@@ -428,32 +478,22 @@ def _albedo_of(
     cosine = np.zeros(len(rows))
     seen_count = np.zeros(len(rows), int)
     own = None
-    # Padded to a whole chunk: one compilation for every frame and chunk.
-    as_jax = functools.partial(_padded, padding=chunk - len(rows), dtype=dtype)
     for other in partners(capture, index, count, among):
-        obs = (
-            observe_own(camera, data[index], rows, cols)
-            if other == index
-            else observe(camera, data[other], world, tolerance)
-        )
-        a, rest = _accumulate(
-            brdf,
-            light,
-            per_point,
-            as_jax(obs.corner_point),
-            as_jax(obs.corner_normal),
-            as_jax(obs.corner_pixel),
-            as_jax(obs.corner_weight),
-            as_jax(obs.values),
-        )
-        a, rest = np.asarray(a)[: len(rows)], np.asarray(rest)[: len(rows)]
+        a_image, rest_image = shading(other)
+        if other == index:
+            obs = sight_own(data[index], rows, cols)
+            a, rest = a_image[rows, cols], rest_image[rows, cols]
+        else:
+            obs = sight(camera, data[other], world, tolerance)
+            a, rest = sample_image(a_image, obs.u, obs.v), sample_image(rest_image, obs.u, obs.v)
+        seen = obs.weight > 0  # some channel counts
+        a, rest = np.where(seen, a, 0.0), np.where(seen[:, None], rest, 0.0)
         # Per channel: a channel clipped in this view says nothing of that channel's albedo.
         weight = obs.weight[:, None] * obs.channel_seen
         numerator += a[:, None] * (obs.values - rest) * weight
         denominator += (a * a)[:, None] * weight
         if other == index:
             own = (a, rest, obs.values, weight, a[:, None] * (obs.values - rest) * weight)
-        seen = np.any(obs.channel_seen, axis=-1)
         cosine += a * a * seen
         seen_count += seen
     enough = (cosine[:, None] > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
@@ -512,7 +552,7 @@ def albedo_maps(
 def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among=None):
     """For each frame of `frames` (all when None): its pixels with geometry (rows, cols)
     and their albedo, view count and own residual (`_albedo_of`), in chunks of at most
-    `_MAP_CHUNK` pixels (bounded memory; one compilation for every frame and chunk)."""
+    `_MAP_CHUNK` pixels (bounded memory at 1080p)."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     camera = capture.camera
@@ -520,6 +560,22 @@ def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, d
     available = len(capture) if among is None else len(among)
     count = available - 1 if neighbours is None else min(neighbours, available - 1)
     chunk = min(_MAP_CHUNK, camera.width * camera.height)
+
+    # Each frame's shading is rendered once and kept while its neighbours need it (frames
+    # in video order share most of their neighbours).
+    @functools.lru_cache(maxsize=2 * (count + 1))
+    def shading(other):
+        frame = capture.frames[other]
+        a, rest = _frame_columns(
+            brdf,
+            light,
+            camera,
+            jnp.asarray(frame.normals, dtype),
+            jnp.asarray(frame.depth, dtype),
+            per_point,
+        )
+        return np.asarray(a, np.float32), np.asarray(rest, np.float32)
+
     for index in range(len(capture)) if frames is None else frames:
         rows, cols = np.nonzero(capture.frames[index].geometry_mask)
         albedo = np.full((len(rows), 3), np.nan)
@@ -528,19 +584,7 @@ def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, d
         for start in range(0, len(rows), chunk):
             part = slice(start, start + chunk)
             albedo[part], seen_count[part], residual[part] = _albedo_of(
-                capture,
-                data,
-                brdf,
-                light,
-                per_point,
-                index,
-                rows[part],
-                cols[part],
-                count,
-                among,
-                tolerance,
-                dtype,
-                chunk,
+                capture, data, shading, index, rows[part], cols[part], count, among, tolerance
             )
         yield index, rows, cols, albedo, seen_count, residual
 

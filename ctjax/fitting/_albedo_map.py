@@ -8,7 +8,6 @@ value it asks for, the residuals are those of the best albedos and global weight
 form (Golub and Pereyra's exact variable-projection Jacobian).
 """
 
-import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -20,7 +19,7 @@ import numpy as np
 from .._errors import ParameterError
 from .._result import Estimate
 from .._status import Status
-from .._tracks import Tracks
+from .._tracks import Tracks, views_first
 from .._vector import Vec3
 from ..effects import AbstractImageEffect
 from ..estimation._albedo_map import projected_residuals
@@ -31,9 +30,10 @@ from ._parameters import constrained, free_parameters, strongly_typed, unconstra
 
 
 class TrackSamples(eqx.Module):
-    """Tracks as the general fitter sees them: every observation's four corners flattened
-    (P * M * 4: camera-frame point, normal, pixel), their bilinear weights (P, M, 4), the
-    measured RGB (P, M, 3) and each observation's least-squares weight (P, M)."""
+    """Tracks as the general fitter sees them, views first and points last
+    (`ctjax._tracks.views_first`): every observation's four corners flattened (4 M P:
+    camera-frame point, normal, pixel), their bilinear weights (4, M, P), the measured RGB
+    (3, M, P) and each observation's least-squares weight (M, P)."""
 
     point: Vec3
     normal: Vec3
@@ -44,45 +44,26 @@ class TrackSamples(eqx.Module):
 
     @classmethod
     def of(cls, tracks: Tracks, dtype=None, *, pad: bool = True) -> "TrackSamples":
-        """`tracks` as arrays; with `pad`, the points padded with unobserved rows to the
+        """`tracks` as arrays; with `pad`, the points padded with unobserved ones to the
         next power of two (at least 1024), so that captures of similar size share the
         fitters' compilations."""
         dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
         if pad:
-            tracks = _padded_tracks(tracks)
-        as_jax = lambda a: jnp.asarray(a, dtype)  # noqa: E731
-        flat = lambda a: as_jax(a.reshape(-1, a.shape[-1]))  # noqa: E731
-        pixel = flat(tracks.corner_pixel)
+            tracks = tracks.padded(max(1024, 1 << max(len(tracks) - 1, 1).bit_length()))
+        as_jax = lambda a: jnp.asarray(views_first(a), dtype)  # noqa: E731
+        pixel = as_jax(tracks.corner_pixel)
         return cls(
-            Vec3.from_array(flat(tracks.corner_point)),
-            Vec3.from_array(flat(tracks.corner_normal)),
+            Vec3.from_array(as_jax(tracks.corner_point)),
+            Vec3.from_array(as_jax(tracks.corner_normal)),
             (pixel[:, 0], pixel[:, 1]),
             as_jax(tracks.corner_weight),
             as_jax(tracks.values),
             as_jax(tracks.weight),
         )
 
-
-def _padded_tracks(tracks: Tracks) -> Tracks:
-    points = len(tracks)
-    size = max(1024, 1 << max(points - 1, 1).bit_length())
-    if size == points:
-        return tracks
-    # Unobserved rows: the harmless geometry of `ctjax._tracks` (ahead, facing the camera).
-    extra = size - points
-    fill = {
-        "corner_point": np.array([0.0, 0.0, 1.0]),
-        "corner_normal": np.array([0.0, 0.0, -1.0]),
-        "frame": -1,
-    }
-    parts = {}
-    for field in dataclasses.fields(tracks):
-        array = getattr(tracks, field.name)
-        pad = np.zeros((extra, *array.shape[1:]), array.dtype)
-        if field.name in fill:
-            pad[...] = fill[field.name]
-        parts[field.name] = np.concatenate([array, pad])
-    return Tracks(**parts)
+    @property
+    def channels(self) -> int:
+        return self.values.shape[0]
 
 
 def diffuse_lobe(model) -> int:
@@ -94,11 +75,14 @@ def diffuse_lobe(model) -> int:
 
 
 def _columns(model, samples: TrackSamples):
-    p, m, _ = samples.corner_weight.shape
+    """Each lobe's value for unit weight at every observation (M, P): at the corners,
+    bilinearly combined like the image."""
+    corners = samples.corner_weight
     columns = jax.vmap(model.columns)(samples.point, samples.normal, samples.pixel)
-    columns = columns.reshape(p, m, 4, -1)
-    combined = jnp.einsum("pmck,pmc->pmk", columns, samples.corner_weight)
-    return tuple(combined[..., k] for k in range(combined.shape[-1]))
+    return tuple(
+        jnp.sum(columns[:, k].reshape(corners.shape) * corners, axis=0)
+        for k in range(columns.shape[-1])
+    )
 
 
 def _weights_frozen(name: str) -> bool:
@@ -133,18 +117,18 @@ def _linear(model, samples: TrackSamples):
 
     # Unobserved slots (0) and black pixels at a harmless value: a gamma's slope is
     # infinite at 0, and its derivative in gamma takes log(0).
-    observed = (samples.weight > 0)[..., None]
+    observed = samples.weight > 0
     values = jnp.where(observed, jnp.maximum(samples.values, _DARKEST), 0.5)
-    flat = values.reshape(-1, samples.values.shape[-1])
-    linear = jax.vmap(undo)(flat)
-    slope = jax.vmap(lambda x: jax.jvp(apply, (x,), (jnp.ones_like(x),))[1])(linear)
+    flat = values.reshape(samples.channels, -1)
+    linear = jax.vmap(undo, 1, 1)(flat)
+    slope = jax.vmap(lambda x: jax.jvp(apply, (x,), (jnp.ones_like(x),))[1], 1, 1)(linear)
     slope = jnp.clip(jnp.abs(slope), 0, _MAX_SLOPE)
-    scale = jnp.mean(slope * slope, axis=-1).reshape(samples.weight.shape)
+    scale = jnp.mean(slope * slope, axis=0).reshape(samples.weight.shape)
     return linear.reshape(samples.values.shape), samples.weight * scale
 
 
 def _apply_effects(model, linear):
-    """The model's image effects applied to linear RGB (..., 3)."""
+    """The model's image effects applied to linear RGB (3, ...)."""
     effects = tuple(getattr(model, "effects", ()))
 
     def apply(rgb):
@@ -152,8 +136,8 @@ def _apply_effects(model, linear):
             rgb = effect(rgb)
         return rgb
 
-    flat = linear.reshape(-1, linear.shape[-1])
-    return jax.vmap(apply)(flat).reshape(linear.shape)
+    flat = linear.reshape(linear.shape[0], -1)
+    return jax.vmap(apply, 1, 1)(flat).reshape(linear.shape)
 
 
 def _root(weight):
@@ -172,11 +156,11 @@ def _projected(model, samples: TrackSamples, per_point: int):
     if not tuple(getattr(model, "effects", ())):
         return albedo, weights, residual
     linear = sum(
-        c[..., None] * (albedo[:, None, :] if k == per_point else weights[k])
+        c * (albedo.T[:, None, :] if k == per_point else weights[k][:, None, None])
         for k, c in enumerate(columns)
     )
     image = _apply_effects(model, linear)
-    return albedo, weights, (samples.values - image) * _root(samples.weight)[..., None]
+    return albedo, weights, (samples.values - image) * _root(samples.weight)
 
 
 @eqx.filter_jit
@@ -190,38 +174,37 @@ def projected_cost(model, samples: TrackSamples, per_point: int):
 @eqx.filter_jit
 def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     """Weighted sum of squared residuals and sum of weights of the `judged` observations
-    (P, M), each predicted by `model` (all its parameters fixed) with its point's albedo
+    (M, P), each predicted by `model` (all its parameters fixed) with its point's albedo
     fitted to the point's OTHER views (per channel, clamped at 0)."""
     columns = _columns(model, samples)
     weights = model.brdf.weights
     values, w = _linear(model, samples)
     a = columns[per_point]
-    rest = sum(c[..., None] * weights[k] for k, c in enumerate(columns) if k != per_point)
-    target = values - rest
-    s_aa = jnp.sum(w * a * a, axis=1, keepdims=True)  # (P, 1)
-    s_ai = jnp.einsum("pm,pm,pmc->pc", w, a, target)[:, None, :]  # (P, 1, C)
-    others = s_aa - w * a * a  # (P, M): the other views' normal equations
-    other_ai = s_ai - (w * a)[..., None] * target
+    rest = sum(c * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point)
+    target = values - rest  # (C, M, P)
+    s_aa = jnp.sum(w * a * a, axis=0)  # (P,)
+    s_ai = jnp.sum(w * a * target, axis=1, keepdims=True)  # (C, 1, P)
+    others = s_aa - w * a * a  # (M, P): the other views' normal equations
+    other_ai = s_ai - w * a * target
     ok = judged & (w > 0) & (others > 1e-6 * jnp.maximum(s_aa, 1e-300))
-    albedo = jnp.maximum(other_ai / jnp.where(ok, others, 1)[..., None], 0)
-    residual = target - a[..., None] * albedo
+    albedo = jnp.maximum(other_ai / jnp.where(ok, others, 1), 0)
+    residual = target - a * albedo
     w = samples.weight
     if tuple(getattr(model, "effects", ())):  # the image's residual (see `_projected`)
-        residual = samples.values - _apply_effects(model, rest + a[..., None] * albedo)
-    residual = jnp.where(ok[..., None], residual, 0)
-    channels = samples.values.shape[-1]
-    return jnp.sum(w[..., None] * residual * residual), jnp.sum(jnp.where(ok, w, 0)) * channels
+        residual = samples.values - _apply_effects(model, rest + a * albedo)
+    residual = jnp.where(ok, residual, 0)
+    return jnp.sum(w * residual * residual), jnp.sum(jnp.where(ok, w, 0)) * samples.channels
 
 
 def heldout_map_rmse(
     model, samples: TrackSamples, judged=None, per_point: int | None = None
 ) -> float:
     """RMSE (8-bit levels) of a fitted `model` predicting views it was not fitted on: every
-    `judged` observation (P, M; all observed by default) of a tracked point predicted with
-    all of the model's parameters fixed and the point's albedo (a nuisance) fitted to its
-    other views, never to the view judged. A model that is right gives about the noise
-    (a little more: the albedo is itself estimated; less where bilinear sampling averages
-    the noise). Weighted as in the fit."""
+    `judged` observation (M, P as `samples.weight`; all observed by default) of a
+    tracked point predicted with all of the model's parameters fixed and the point's
+    albedo (a nuisance) fitted to its other views, never to the view judged. A model that
+    is right gives about the noise (a little more: the albedo is itself estimated; less
+    where bilinear sampling averages the noise). Weighted as in the fit."""
     per_point = diffuse_lobe(model) if per_point is None else per_point
     judged = samples.weight > 0 if judged is None else jnp.asarray(judged)
     ssr, total = _predicted_views(strongly_typed(model), samples, judged, per_point)
@@ -289,7 +272,7 @@ def fit_model_map(
                 )
     points = None if isinstance(tracks, TrackSamples) else len(tracks)
     samples = tracks if isinstance(tracks, TrackSamples) else TrackSamples.of(tracks)
-    views = np.asarray(jnp.sum(samples.weight > 0, axis=1))
+    views = np.asarray(jnp.sum(samples.weight > 0, axis=0))
     per_point = diffuse_lobe(starts[0])
     starts = [strongly_typed(start) for start in starts]
     if refine is not None and len(starts) > refine:
@@ -312,7 +295,7 @@ def fit_model_map(
     weights[per_point] = np.median(albedo[seen], axis=0) if seen.any() else 0.0
     brdf = fitted.brdf.with_weights(jnp.asarray(weights, fitted.brdf.weights.dtype))
     fitted = eqx.tree_at(lambda m: m.brdf, fitted, brdf)
-    total_weight = float(jnp.sum(samples.weight)) * samples.values.shape[-1]
+    total_weight = float(jnp.sum(samples.weight)) * samples.channels
     rmse = 255 * math.sqrt(cost / max(total_weight, 1e-300))
     frozen = lambda n: n in tuple(freeze) or _weights_frozen(n)  # noqa: E731
     parameters = [p.name for p in free_parameters(fitted, frozen)]
@@ -349,9 +332,9 @@ def _covariance(model, samples, names, per_point):
 
     jacobian = jax.jacfwd(residuals)(flat)
     residual = residuals(flat)
-    observed = jnp.sum(samples.weight > 0) * samples.values.shape[-1]
-    points = jnp.sum(jnp.any(samples.weight > 0, axis=1)) * samples.values.shape[-1]
-    globals_ = (len(model.brdf.lobes) - 1) * samples.values.shape[-1]
+    observed = jnp.sum(samples.weight > 0) * samples.channels
+    points = jnp.sum(jnp.any(samples.weight > 0, axis=0)) * samples.channels
+    globals_ = (len(model.brdf.lobes) - 1) * samples.channels
     dof = jnp.maximum(observed - points - globals_ - flat.shape[0], 1)
     information = jacobian.T @ jacobian
     covariance = jnp.sum(residual * residual) / dof * jnp.linalg.pinv(information, hermitian=True)
