@@ -56,6 +56,8 @@ def enable_compilation_cache(folder: Path | None = None) -> Path | None:
     off)."""
     import jax
 
+    from ._programs import keep_programs
+
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         return jax.config.jax_compilation_cache_dir
     folder = compilation_cache_dir() if folder is None else folder
@@ -67,4 +69,5 @@ def enable_compilation_cache(folder: Path | None = None) -> Path | None:
         return None  # a read-only home: compile every time, as without the cache
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    keep_programs(folder / "programs")  # the traced programs too (`ctjax._programs`)
     return folder

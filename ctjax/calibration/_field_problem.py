@@ -15,6 +15,7 @@ import numpy as np
 import optimistix as optx
 
 from .._convert import cast_floating
+from .._programs import persistent_jit
 from .._typing import Array, Float
 from .._vector import Vec3, tangent_direction
 from ..lights import angles_from_direction
@@ -98,7 +99,7 @@ class PixelSolution(eqx.Module):
     rmse: Float[Array, " P"]
 
 
-@eqx.filter_jit
+@persistent_jit
 def solve_pixels(
     problems: PixelProblem,
     brdf: BRDF,

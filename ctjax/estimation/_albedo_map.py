@@ -37,6 +37,7 @@ import numpy as np
 from .._buckets import bucket
 from .._errors import CtjaxError
 from .._numerics import safe_normalize
+from .._programs import persistent_jit
 from .._render import render_columns
 from .._tracks import (
     DEFAULT_NEIGHBOURS,
@@ -343,7 +344,7 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     return stderr[n_weights:], weights_stderr
 
 
-@eqx.filter_jit
+@persistent_jit
 def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_grid):
     values, weight, observed = _values(shading), shading.weight, shading.observed
 
@@ -456,7 +457,7 @@ def fit_brdf_map(
     )
 
 
-@eqx.filter_jit
+@persistent_jit
 def _frame_columns(brdf, light, camera, normals, depth, per_point):
     """One frame's diffuse column `a` (H, W) and the global lobes' prediction `rest`
     (H, W, 3) at its pixel centres (0 where it has no geometry)."""

@@ -10,6 +10,7 @@ import numpy as np
 
 from .._buckets import padded
 from .._errors import CtjaxError
+from .._programs import persistent_jit
 from .._typing import Array, Float, Scalar
 from ..lobes import BRDF, Beckmann, Lambertian, Specular, cook_torrance_brdf
 from ._branch_and_bound import grid_search
@@ -125,7 +126,7 @@ def _padded(samples: ShadingSamples) -> ShadingSamples:
     )
 
 
-@eqx.filter_jit
+@persistent_jit
 def _fit(samples, count, family, tolerance, grid, candidates, zoom):
     """The BnB on (padded) `samples`, of which `count` values (3 per real sample) count."""
 

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._programs import persistent_jit
 from .._status import Status
 from .._typing import Array, Float, Int
 from .._vector import Vec3, tangent_direction
@@ -58,7 +59,7 @@ def refine_normal(model, point: Vec3, normal: Vec3, pixel, values, max_steps: in
     return refined, status, solution.stats["num_steps"], rms(before), rms(after)
 
 
-@eqx.filter_jit
+@persistent_jit
 def refine_normals(
     model,
     points: Vec3,

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import ParameterError
+from .._programs import persistent_jit
 from .._result import Estimate
 from .._status import Status
 from .._tracks import Tracks, views_first
@@ -163,7 +164,7 @@ def _projected(model, samples: TrackSamples, per_point: int):
     return albedo, weights, (samples.values - image) * _root(samples.weight)
 
 
-@eqx.filter_jit
+@persistent_jit
 def projected_cost(model, samples: TrackSamples, per_point: int):
     """The weighted sum of squared residuals of `model`'s nonlinear parameters with every
     albedo and the global weights eliminated (what `fit_model_map` minimises)."""
@@ -171,7 +172,7 @@ def projected_cost(model, samples: TrackSamples, per_point: int):
     return jnp.sum(residual * residual)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     """Weighted sum of squared residuals and sum of weights of the `judged` observations
     (M, P), each predicted by `model` (all its parameters fixed) with its point's albedo
@@ -211,7 +212,7 @@ def heldout_map_rmse(
     return 255 * math.sqrt(float(ssr) / float(total)) if float(total) > 0 else math.nan
 
 
-@eqx.filter_jit
+@persistent_jit
 def _least_squares(model, samples, names, per_point, solver, max_steps):
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
@@ -310,7 +311,7 @@ def fit_model_map(
     )
 
 
-@eqx.filter_jit
+@persistent_jit
 def _covariance(model, samples, names, per_point):
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._buckets import padded
+from .._programs import persistent_jit
 from .._result import Estimate
 from .._status import Status
 from .._typing import Array, Float, Scalar
@@ -44,7 +45,7 @@ def _masked_residuals(model, samples, mask, predict: Predict) -> Float[Array, "N
     return jnp.where(mask[:, None], residual, 0)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _rmse_levels(model, samples, mask, predict: Predict, scale: float) -> Scalar:
     residual = _masked_residuals(model, samples, mask, predict)
     count = jnp.sum(mask) * samples.values.shape[-1]
@@ -56,7 +57,7 @@ def _rmse_levels(model, samples, mask, predict: Predict, scale: float) -> Scalar
 _WEIGHT_FLOOR = 1e-2
 
 
-@eqx.filter_jit
+@persistent_jit
 def initial_weights(model, samples, columns: Callable, mask=None) -> eqx.Module:
     """`model` with its lobe weights set by closed-form NNLS on the linear design
     `columns(model, sample) -> (K,)`, against the measurements with the model's image
@@ -78,7 +79,7 @@ def initial_weights(model, samples, columns: Callable, mask=None) -> eqx.Module:
     return eqx.tree_at(lambda m: m.brdf, model, model.brdf.with_weights(weights))
 
 
-@eqx.filter_jit
+@persistent_jit
 def _started(model, samples, mask, predict, columns, scale):
     """A start with its weights from `columns` (when given) and its RMSE: one program."""
     if columns is not None:
@@ -86,7 +87,7 @@ def _started(model, samples, mask, predict, columns, scale):
     return model, _rmse_levels(model, samples, mask, predict, scale)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _least_squares(model, samples, mask, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
