@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import ctjax
 from ctjax import _programs
 from ctjax._camera import Camera
 from ctjax.estimation import PAPER
@@ -47,39 +48,40 @@ def test_a_kept_program_is_loaded_without_tracing_and_gives_the_same_result(kept
     direct = _frame_columns.__wrapped__  # the undecorated function
     expected = [
         np.asarray(a)
-        for a in _programs.eqx.filter_jit(direct)(brdf, ColocatedLight(), camera, normals, depth, 0)
+        for a in _programs.eqx.filter_jit(direct)(brdf, ColocatedLight(), camera, normals, depth)
     ]
-    first = _frame_columns(brdf, ColocatedLight(), camera, normals, depth, 0)
+    first = _frame_columns(brdf, ColocatedLight(), camera, normals, depth)
     assert len(list(kept.glob("*.program"))) == 1
     # A new process: a fresh wrapper, with code that must not run.
     reloaded = _programs.persistent_jit(_renamed_stub(direct))
-    again = reloaded(brdf, ColocatedLight(), camera, normals, depth, 0)
+    again = reloaded(brdf, ColocatedLight(), camera, normals, depth)
     for a, b, c in zip(expected, first, again, strict=True):
         np.testing.assert_allclose(np.asarray(b), a, rtol=1e-12)
         np.testing.assert_array_equal(np.asarray(c), np.asarray(b))
     # Another weight changes only arrays: the same program.
-    _frame_columns(PAPER.build(jnp.array([0.4])), ColocatedLight(), camera, normals, depth, 0)
+    _frame_columns(PAPER.build(jnp.array([0.4])), ColocatedLight(), camera, normals, depth)
     assert len(list(kept.glob("*.program"))) == 1
 
 
 def test_other_shapes_or_static_arguments_are_other_programs(kept):
     camera, normals, depth = _frame()
     brdf = PAPER.build(jnp.array([0.25]))
-    _frame_columns(brdf, ColocatedLight(), camera, normals, depth, 0)
-    _frame_columns(brdf, ColocatedLight(), camera, normals, depth, 1)  # per_point: static
+    _frame_columns(brdf, ColocatedLight(), camera, normals, depth)
+    lambertian = ctjax.BRDF(Lambertian(jnp.ones(3)))  # another structure: another program
+    _frame_columns(lambertian, ColocatedLight(), camera, normals, depth)
     small = _frame(8, 10)
-    _frame_columns(brdf, ColocatedLight(), *small, 0)
+    _frame_columns(brdf, ColocatedLight(), *small)
     assert len(list(kept.glob("*.program"))) == 3
 
 
 def test_a_damaged_program_is_exported_again(kept):
     camera, normals, depth = _frame()
     brdf = PAPER.build(jnp.array([0.25]))
-    first = np.asarray(_frame_columns(brdf, ColocatedLight(), camera, normals, depth, 0)[0])
+    first = np.asarray(_frame_columns(brdf, ColocatedLight(), camera, normals, depth)[0])
     (path,) = kept.glob("*.program")
     path.write_bytes(b"not a program")
     fresh = _programs.persistent_jit(_frame_columns.__wrapped__)
-    again = np.asarray(fresh(brdf, ColocatedLight(), camera, normals, depth, 0)[0])
+    again = np.asarray(fresh(brdf, ColocatedLight(), camera, normals, depth)[0])
     np.testing.assert_array_equal(again, first)
     assert path.read_bytes() != b"not a program"
 
@@ -103,5 +105,5 @@ def test_off_without_a_folder(tmp_path):
     camera, normals, depth = _frame()
     brdf = PAPER.build(jnp.array([0.25]))
     _programs.keep_programs(None)
-    _frame_columns(brdf, ColocatedLight(), camera, normals, depth, 0)
+    _frame_columns(brdf, ColocatedLight(), camera, normals, depth)
     assert not list(tmp_path.rglob("*.program"))

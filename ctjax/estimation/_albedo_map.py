@@ -69,8 +69,12 @@ _NEGLIGIBLE = 1e-12
 MIN_COSINE = 0.05
 # Pixels whose albedo is estimated at once (bounds memory at 1080p).
 _MAP_CHUNK = 1 << 17
-# Grid points evaluated at once by the BnB: each is a pass over every observation's corners.
+# Grid points evaluated at once by the BnB (each is a pass over every observation's
+# corners): up to a zoom box of 8, fewer when 8 copies of the corners would exceed this
+# many (8 evaluations at once ran 1.3x faster than 4 on 200k observations; at 1080p x 50
+# frames, 8 cost 0.4 GB more).
 _GRID_BATCH = 8
+_BATCH_CORNERS = 1 << 23
 # The paper's light: at the camera centre, L = V.
 _PAPER_LIGHT = ColocatedLight()
 
@@ -363,7 +367,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
             zoom=zoom,
             zoom_grid=zoom_grid,
             dtype=dtype,
-            batch=_GRID_BATCH,
+            batch=max(1, min(_GRID_BATCH, _BATCH_CORNERS // shading.corner_weight.size)),
         )
         params, half_width = search.params, search.half_width
     else:
@@ -458,15 +462,15 @@ def fit_brdf_map(
 
 
 @persistent_jit
-def _frame_columns(brdf, light, camera, normals, depth, per_point):
-    """One frame's diffuse column `a` (H, W) and the global lobes' prediction `rest`
-    (H, W, 3) at its pixel centres (0 where it has no geometry)."""
-    columns = render_columns(brdf, light, camera, normals, depth)  # (H, W, K)
-    global_ = jnp.arange(columns.shape[-1]) != per_point
-    return columns[..., per_point], (columns * global_) @ brdf.weights
+def _frame_columns(brdf, light, camera, normals, depth):
+    """One frame's lobes for unit weights at its pixel centres, (H, W, K) float32 (0 where
+    it has no geometry): K planes per pixel, the least a frame's model can be kept in."""
+    return render_columns(brdf, light, camera, normals, depth).astype(jnp.float32)
 
 
-def _albedo_of(capture, data, shading, index, rows, cols, count, among, tolerance):
+def _albedo_of(
+    capture, data, shading, weights, per_point, index, rows, cols, count, among, tolerance
+):
     """Albedo (N, 3; NaN where not estimated) and view count (N,) of pixels of frame
     `index`, from all the frames that see them (see `albedo_maps`), and the own frame's
     residual (N, 3) under the albedo of the other views alone (NaN where they have none).
@@ -479,16 +483,17 @@ def _albedo_of(capture, data, shading, index, rows, cols, count, among, toleranc
     cosine = np.zeros(len(rows))
     seen_count = np.zeros(len(rows), int)
     own = None
+    global_ = np.arange(len(weights)) != per_point
     for other in partners(capture, index, count, among):
-        a_image, rest_image = shading(other)
         if other == index:
             obs = sight_own(data[index], rows, cols)
-            a, rest = a_image[rows, cols], rest_image[rows, cols]
+            columns = shading(other)[rows, cols]
         else:
             obs = sight(camera, data[other], world, tolerance)
-            a, rest = sample_image(a_image, obs.u, obs.v), sample_image(rest_image, obs.u, obs.v)
+            columns = sample_image(shading(other), obs.u, obs.v)
         seen = obs.weight > 0  # some channel counts
-        a, rest = np.where(seen, a, 0.0), np.where(seen[:, None], rest, 0.0)
+        columns = np.where(seen[:, None], columns.reshape(len(rows), -1), 0.0)  # (N, K)
+        a, rest = columns[:, per_point], columns[:, global_] @ weights[global_]
         # Per channel: a channel clipped in this view says nothing of that channel's albedo.
         weight = obs.weight[:, None] * obs.channel_seen
         numerator += a[:, None] * (obs.values - rest) * weight
@@ -562,21 +567,17 @@ def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, d
     count = available - 1 if neighbours is None else min(neighbours, available - 1)
     chunk = min(_MAP_CHUNK, camera.width * camera.height)
 
-    # Each frame's shading is rendered once and kept while its neighbours need it (frames
-    # in video order share most of their neighbours).
-    @functools.lru_cache(maxsize=2 * (count + 1))
+    # Each frame's lobes are rendered once and kept while its neighbours need them (frames
+    # in video order share most of their neighbours): K float32 planes, 33 MB per 1080p
+    # frame for the paper's model.
+    @functools.lru_cache(maxsize=count + 2)
     def shading(other):
         frame = capture.frames[other]
-        a, rest = _frame_columns(
-            brdf,
-            light,
-            camera,
-            jnp.asarray(frame.normals, dtype),
-            jnp.asarray(frame.depth, dtype),
-            per_point,
-        )
-        return np.asarray(a, np.float32), np.asarray(rest, np.float32)
+        as_jax = lambda a: jnp.asarray(a, dtype)  # noqa: E731
+        columns = _frame_columns(brdf, light, camera, as_jax(frame.normals), as_jax(frame.depth))
+        return np.asarray(columns)
 
+    weights = np.asarray(brdf.weights, np.float64)
     for index in range(len(capture)) if frames is None else frames:
         rows, cols = np.nonzero(capture.frames[index].geometry_mask)
         albedo = np.full((len(rows), 3), np.nan)
@@ -585,7 +586,17 @@ def _frames_of(capture, brdf, light, frames, per_point, neighbours, tolerance, d
         for start in range(0, len(rows), chunk):
             part = slice(start, start + chunk)
             albedo[part], seen_count[part], residual[part] = _albedo_of(
-                capture, data, shading, index, rows[part], cols[part], count, among, tolerance
+                capture,
+                data,
+                shading,
+                weights,
+                per_point,
+                index,
+                rows[part],
+                cols[part],
+                count,
+                among,
+                tolerance,
             )
         yield index, rows, cols, albedo, seen_count, residual
 
