@@ -146,6 +146,9 @@ def test_textured_tissue_is_diagnosed_with_the_albedo_map(tmp_path):
     capture = load_capture(tmp_path)
     diagnosis = diagnose(capture, candidates=few, **SAMPLES, progress=messages.append)
     assert any("diagnosing with the map" in m for m in messages), messages
+    # The map's base model is fitted on surface points, counted as such (not channels).
+    fitted = [m for m in messages if "fitting the base model (map albedo)" in m]
+    assert fitted and all(int(m.split("(")[-1].split()[0]) > 100 for m in fitted), fitted
     assert diagnosis.base.details["albedo"] == "map"
     assert diagnosis.verdict == "none", diagnosis.to_json()
     assert len(diagnosis.candidates) == len(names) - 1  # the texture is the base now

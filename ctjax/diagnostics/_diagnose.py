@@ -112,10 +112,17 @@ def _fit(starts, heldout, max_steps) -> Estimate:
     )
 
 
+def _training_size(heldout) -> str:
+    """How many surface points (albedo map) or pixels (uniform) the models are fitted on."""
+    if isinstance(heldout, HeldOutTracks):
+        return f"{int(np.sum(np.any(np.asarray(heldout.train.weight) > 0, axis=0)))} points"
+    return f"{len(heldout.train.values)} pixels"
+
+
 def _base_model(heldout, add, candidates, context, max_steps, say) -> Estimate:
     say(
         f"fitting the base model ({context['albedo']} albedo) on frames {heldout.calibration} "
-        f"({len(heldout.train.values)} {'points' if context['albedo'] == 'map' else 'pixels'})"
+        f"({_training_size(heldout)})"
     )
     base_starts = [paper_model(1.0, 0.3, s) for s in (0.08, 0.2, 0.45)]
     base = _fit(base_starts, heldout, max_steps)
