@@ -1,21 +1,24 @@
 """Where the BRDF's error comes from when the shape comes from images: SfM's normals, its
-depth (the correspondence between frames) or its poses.
+depth (the correspondence between frames) or its poses; and what the texture refinement of
+the surfaces (`ctjax.sfm._photometric`) buys.
 
     .venv/bin/python benchmarks/sfm_bias.py [--out DIR] [--frames 5 --width 320 --height 256]
 
 Synthesises the demo's capture (textured, 1 level of noise), reconstructs it from its images
 alone (`ctjax.sfm.reconstruct`, metric scale from the true working distance as the demo
-does), then fits the BRDF with the albedo map (`fit_capture`) on the true geometry, on
-SfM's, and on hybrids that take one ingredient from each: normals, depth and poses. Prints
-sigma's and F_tilde's relative errors per hybrid, and SfM's normal errors (degrees) over all
-pixels and over the bright ones (within 90% of the frame's brightest), where the lobe is
-measured; and, near the highlights' peaks, how much SfM's normals widen the lobe: the mean
-excess of tan^2 of the angle between normal and view, as a widening of sigma.
+does; with the texture refinement, the default, and without it: "points only"), then fits
+the BRDF with the albedo map (`fit_capture`) on the true geometry, on SfM's, and on hybrids
+that take one ingredient from each: normals, depth and poses. Prints sigma's and F_tilde's
+relative errors per hybrid, and SfM's normal errors (degrees) over all pixels and over the
+bright ones (within 90% of the frame's brightest), where the lobe is measured; and, near the
+highlights' peaks, how much SfM's normals widen the lobe: the mean excess of tan^2 of the
+angle between normal and view, as a widening of sigma.
 """
 
 import argparse
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -26,12 +29,15 @@ from ctjax.io import load_capture
 from ctjax.sfm import reconstruct
 from ctjax.synth import SynthOptions, synthesize
 
-# (name, normals from, depth from, poses from): "t" the truth, "s" SfM.
+# (name, normals from, depth from, poses from): "t" the truth, "s" SfM refined by the
+# texture (`ctjax reconstruct`'s default), "p" SfM's points only (--no-photometric).
 HYBRIDS = (
     ("truth", "t", "t", "t"),
     ("sfm", "s", "s", "s"),
+    ("sfm points only", "p", "p", "p"),
     ("sfm depth+poses, true normals", "t", "s", "s"),
     ("true depth+poses, sfm normals", "s", "t", "t"),
+    ("true depth+poses, points-only normals", "p", "t", "t"),
     ("true depth+normals, sfm poses", "t", "t", "s"),
 )
 
@@ -105,19 +111,24 @@ def main():
         seed=args.seed,
     )
     truth_dir = synthesize(out / "truth", options)
-    sfm_dir = out / "sfm"
-    shutil.rmtree(sfm_dir, ignore_errors=True)
-    (sfm_dir / "images").mkdir(parents=True)
-    shutil.copy(truth_dir / "camera.json", sfm_dir)
-    for image in sorted((truth_dir / "images").iterdir()):
-        shutil.copy(image, sfm_dir / "images" / image.name)
     truth = load_capture(truth_dir)
     first = truth.frames[0]
-    reconstruct(sfm_dir, scale_mm=float(np.nanmedian(first.depth[first.geometry_mask])))
-    sources = {"t": truth_dir, "s": sfm_dir}
+    scale_mm = float(np.nanmedian(first.depth[first.geometry_mask]))
+    sources = {"t": truth_dir}
     row = {"benchmark": "sfm_bias", "size": f"{args.width}x{args.height}", "frames": args.frames}
-    row |= _normal_errors(truth, load_capture(sfm_dir))
-    print(f"SfM normals: {row}")
+    for key, name, photometric in (("s", "sfm", True), ("p", "sfm_points_only", False)):
+        sources[key] = sfm_dir = out / name
+        shutil.rmtree(sfm_dir, ignore_errors=True)
+        (sfm_dir / "images").mkdir(parents=True)
+        shutil.copy(truth_dir / "camera.json", sfm_dir)
+        for image in sorted((truth_dir / "images").iterdir()):
+            shutil.copy(image, sfm_dir / "images" / image.name)
+        started = time.perf_counter()
+        reconstruct(sfm_dir, scale_mm=scale_mm, photometric=photometric)
+        errors = _normal_errors(truth, load_capture(sfm_dir))
+        errors["reconstruct_s"] = round(time.perf_counter() - started, 1)
+        row[f"{name}_normals"] = errors
+        print(f"{name} normals: {errors}")
     true_sigma, true_f = truth.truth["sigma"], np.asarray(truth.truth["F_tilde"])
     for name, normals, depth, poses in HYBRIDS:
         root = _hybrid(out / ("fit_" + name.replace(" ", "_")), sources, normals, depth, poses)

@@ -204,6 +204,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         scale_mm=args.scale_mm,
         volume_mm3=args.volume_mm3,
         force=args.force,
+        photometric=not args.no_photometric,
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
         verbose=args.verbose,
     )
@@ -618,6 +619,11 @@ def _recon_command(commands) -> None:
         help="bounding-box volume of the reconstructed points, mm^3 (the paper's known size)",
     )
     recon.add_argument("--force", action="store_true", help="overwrite depth, normals, poses")
+    recon.add_argument(
+        "--no-photometric",
+        action="store_true",
+        help="keep the surfaces fitted to the SfM points alone (not refined by the texture)",
+    )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")
     recon.set_defaults(run=_cmd_reconstruct)

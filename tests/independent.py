@@ -226,6 +226,22 @@ def map_errors(albedos: dict, estimate):
     return np.concatenate(errors), min(coverage), min(channels)
 
 
+def _reconstructed(folder: Path, photometric: bool) -> Path:
+    """A copy of the capture's images and camera with the shape reconstructed from them."""
+    import shutil
+
+    from ctjax.sfm import reconstruct
+
+    out = folder / "images-only"
+    (out / "images").mkdir(parents=True)
+    shutil.copy(folder / "camera.json", out / "camera.json")
+    for image in sorted((folder / "images").iterdir()):
+        shutil.copy(image, out / "images" / image.name)
+    first = np.load(sorted((folder / "depth").iterdir())[0])
+    reconstruct(out, scale_mm=float(np.nanmedian(first)), photometric=photometric)
+    return out
+
+
 def _main():
     import argparse
     import tempfile
@@ -244,6 +260,15 @@ def _main():
     parser.add_argument("--strength", type=float, default=1.0)
     parser.add_argument("--no-normals", action="store_true")
     parser.add_argument("--depth-noise-mm", type=float, default=0.0)
+    parser.add_argument(
+        "--images-only",
+        action="store_true",
+        help="reconstruct the shape from the images (ctjax reconstruct, metric scale from the "
+        "true median depth of the first frame) and fit on it",
+    )
+    parser.add_argument(
+        "--no-photometric", action="store_true", help="with --images-only: SfM's points only"
+    )
     args = parser.parse_args()
     width, height = map(int, args.size.split("x"))
     scene = Scene(texture_strength=args.strength)
@@ -260,6 +285,8 @@ def _main():
                 depth_noise_mm=args.depth_noise_mm,
             )
             started = time.perf_counter()
+            if args.images_only:
+                folder = _reconstructed(Path(folder), not args.no_photometric)
             estimate = fit_capture(load_capture(folder))
             seconds = time.perf_counter() - started
         fit = estimate.to_json()

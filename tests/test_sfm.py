@@ -70,8 +70,51 @@ def test_normals_match_ground_truth_inside_the_hull(reconstructed):
         assert covered.mean() > 0.8
         errors.append(_angles(frame.normals[covered], true_frame.normals[covered]))
     errors = np.concatenate(errors)
-    assert np.median(errors) <= 3.0
-    assert np.percentile(errors, 90) <= 10.0
+    # Refined by the texture: 0.39 and 1.36 degrees (SfM's points alone: about 2 and 4.5).
+    assert np.median(errors) <= 0.8
+    assert np.percentile(errors, 90) <= 3.0
+
+
+def _rim(frame, width_px=7):
+    """Unclipped pixels within `width_px` of a clipped one: where the lobe is measured."""
+    clipped = (frame.image.max(-1) >= 254.5 / 255).astype(np.uint8)
+    size = 2 * width_px + 1
+    near = cv2.dilate(clipped, np.ones((size, size), np.uint8)).astype(bool)
+    return near & ~clipped.astype(bool)
+
+
+def test_the_texture_refines_the_normals_where_the_lobe_is_measured(reconstructed):
+    """SfM's points leave the normals 2-3 degrees off, most around the highlights where no
+    feature is taken; the texture seen from the other frames at every pixel pins them."""
+    from ctjax.sfm._photometric import refine_views
+
+    truth, images, report = reconstructed
+    photometric = report["surface"]["photometric"]
+    assert photometric["refined"]
+    for loss in photometric["texture_loss_per_frame"].values():
+        # The noise dominates the loss: a better surface lowers it a little, never raises it
+        # much (the thin-plate energy is traded against it).
+        assert loss["after"] < 1.01 * loss["before"]
+    scale_mm = float(np.nanmedian(truth.frames[0].depth[truth.frames[0].geometry_mask]))
+    points_only = reconstruct_capture(images, scale_mm=scale_mm, photometric=False)
+    assert points_only.report["surface"]["photometric"] == {"refined": False}
+    refined, _ = refine_views(images.camera, points_only.views, images.frames)
+    errors = {"points": ([], []), "texture": ([], [])}
+    for true_frame in truth.frames:
+        rim = _rim(true_frame)
+        for key, views in (("points", points_only.views), ("texture", refined)):
+            _, normals = views[true_frame.name].depth_and_normals(images.camera)
+            ok = np.all(np.isfinite(normals), -1) & true_frame.geometry_mask
+            angles = _angles(normals, true_frame.normals)
+            errors[key][0].append(angles[ok])
+            errors[key][1].append(angles[ok & rim])
+    (everywhere, rim), (everywhere_0, rim_0) = (
+        [np.concatenate(e) for e in errors[k]] for k in ("texture", "points")
+    )
+    assert np.median(everywhere) < 0.6 * np.median(everywhere_0)
+    assert np.median(rim) < 0.6 * np.median(rim_0)
+    # On this capture the rim's tail gains least (2.5 against 2.7 degrees at 90%).
+    assert np.percentile(rim, 90) < np.percentile(rim_0, 90)
 
 
 def test_metric_depth_and_poses_with_a_known_distance(reconstructed):
@@ -151,3 +194,26 @@ def test_little_parallax_is_named():
     assert _baseline({"a": view(0.0), "b": view(0.6)}, scale) == pytest.approx(0.01)
     assert _baseline({"a": view(0.0), "b": view(0.6)}, scale) < MIN_BASELINE
     assert _baseline({"a": view(0.0)}, scale) is None
+
+
+def test_sift_reads_the_texture_along_its_colour_axis():
+    """A chromatic texture (red against green, the luminance nearly flat) is what SIFT gets,
+    stretched to a fixed gain; the shading is removed, and an untextured image stays flat."""
+    from ctjax.sfm._colmap import feature_image, texture_axis
+
+    rng = np.random.default_rng(0)
+    v, u = np.mgrid[0:128, 0:160]
+    wave = 0.15 * np.sin(u / 3.0) * np.cos(v / 4.0)
+    shading = 0.3 + 0.4 * u / 160  # a ramp of light, no texture
+    image = np.stack([1 + wave, 1 - wave, np.ones_like(wave)], -1) * shading[..., None]
+    image = np.clip(image + rng.normal(0, 1 / 255, image.shape), 0, 1).astype(np.float32)
+    frame = type("Frame", (), {"image": image})
+    hidden = [np.zeros(u.shape, bool)]
+    axis = texture_axis([frame], hidden)
+    assert abs(axis @ np.array([1, -1, 0]) / np.sqrt(2)) > 0.95
+    grey = cv2.cvtColor(np.round(image * 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+    texture = feature_image(image, axis).astype(float)
+    detail = lambda g: g - cv2.GaussianBlur(g, (0, 0), 12)  # noqa: E731
+    assert np.std(detail(texture)) > 5 * np.std(detail(grey.astype(float)))
+    flat = np.clip(shading[..., None] + rng.normal(0, 1 / 255, image.shape), 0, 1)
+    assert np.std(feature_image(flat.astype(np.float32), axis)[20:-20, 20:-20]) < 4

@@ -69,14 +69,54 @@ def highlight_mask(image: np.ndarray, dilate_px: int) -> np.ndarray:
     return mask.astype(bool)
 
 
+# The blur (px) whose removal from the log image leaves the texture SIFT looks at.
+_DETAIL_BLUR_PX = 12.0
+# 8-bit levels per unit of log intensity in the feature image.
+_GAIN = 255.0
+
+
+def _detail(image: np.ndarray) -> np.ndarray:
+    """The log image less its blur: the texture, without the shading."""
+    log = np.log(np.clip(np.asarray(image, np.float32), 1 / 255, None))
+    return log - cv2.GaussianBlur(log, (0, 0), _DETAIL_BLUR_PX)
+
+
+def texture_axis(frames, hidden) -> np.ndarray:
+    """The colour axis along which the texture varies most (first principal component of
+    the log images' detail over the unhidden pixels of all frames, sign fixed), (3,).
+
+    SIFT reads grey images; tissue whose texture is mostly chromatic (vessels, bile) has
+    little of it in the luminance: on an independent renderer's per-channel texture, SIFT
+    on the grey image gave 155 SfM points at 640x512."""
+    samples = []
+    for frame, mask in zip(frames, hidden, strict=True):
+        detail = _detail(frame.image)[~mask]
+        samples.append(detail[:: max(1, len(detail) // 20_000)])
+    samples = np.concatenate(samples).astype(np.float64)
+    if len(samples) < 3:
+        return np.full(3, 1 / np.sqrt(3))
+    _, vectors = np.linalg.eigh(np.cov(samples.T))
+    axis = vectors[:, -1]
+    return axis if axis[np.argmax(np.abs(axis))] > 0 else -axis
+
+
+def feature_image(image: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The grey image SIFT runs on: the texture along `axis`, 8 bits at mid-grey with a
+    fixed gain (a tenth in log intensity is 25.5 levels; the noise is not stretched into
+    features where there is no texture)."""
+    grey = 127.5 + _GAIN * (_detail(image) @ np.asarray(axis, np.float32))
+    return np.round(np.clip(grey, 0, 255)).astype(np.uint8)
+
+
 def _write_workspace(folder: Path, frames, dilate_px: int) -> None:
     (folder / "images").mkdir(parents=True)
     (folder / "masks").mkdir()
-    for frame in frames:
-        rgb = np.round(np.clip(frame.image, 0, 1) * 255).astype(np.uint8)
-        cv2.imwrite(str(folder / "images" / f"{frame.name}.png"), rgb[..., ::-1])
-        # No features on highlights, nor outside the field of view (border, overlays).
-        hidden = highlight_mask(frame.image, dilate_px) | ~frame.visible
+    # No features on highlights, nor outside the field of view (border, overlays).
+    masks = [highlight_mask(f.image, dilate_px) | ~f.visible for f in frames]
+    axis = texture_axis(frames, masks)
+    for frame, hidden in zip(frames, masks, strict=True):
+        grey = feature_image(frame.image, axis)
+        cv2.imwrite(str(folder / "images" / f"{frame.name}.png"), grey)
         # COLMAP reads the mask of IMAGE.png from MASKS/IMAGE.png.png; 0 = no features.
         cv2.imwrite(
             str(folder / "masks" / f"{frame.name}.png.png"),

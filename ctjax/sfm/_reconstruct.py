@@ -1,8 +1,9 @@
 """`ctjax reconstruct`: the shape of the organ from images alone (paper section 6, step 1).
 
 Sparse rigid SfM (pycolmap, `_colmap.py`), then a dense smooth surface per registered view
-fitted to the points of all frames at once (`_surface.py`), giving depth and normals at every
-pixel inside the convex hull of the points' projections, and the poses.
+fitted to the points of all frames at once (`_surface.py`) and refined by the texture's
+consistency between frames at every pixel (`_photometric.py`), giving depth and normals at
+every pixel inside the convex hull of the points' projections, and the poses.
 
 World frame of the output: the camera frame of the reference view (the first registered
 frame), so its pose is the identity. Length unit: SfM recovers shape up to scale; with
@@ -25,6 +26,7 @@ from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel, sparse_reconstruction
+from ._photometric import SMOOTHING, refine_views
 from ._surface import DepthSurface, fit_depth_surface
 
 # Fraction kept along each axis for the bounding box of `volume_mm3` (robust to stray points).
@@ -33,6 +35,10 @@ SURFACE_MODEL = (
     "penalised cubic B-spline depth map per view (P-spline, thin-plate-like curvature "
     "penalty chosen by block cross-validation, Tukey-robust), fitted to the points of all "
     "frames; normals from its analytic derivatives"
+)
+PHOTOMETRIC_MODEL = (
+    "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
+    "the same texture (high-pass of the log image) in the nearest frames, highlights masked"
 )
 
 
@@ -101,6 +107,7 @@ def reconstruct_capture(
     scale_mm: float | None = None,
     volume_mm3: float | None = None,
     knot_spacing_px: float | None = None,
+    photometric: bool = True,
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> Reconstruction:
@@ -111,6 +118,10 @@ def reconstruct_capture(
     frame. `volume_mm3`: the volume of the axis-aligned bounding box (reference camera axes)
     of the sparse points, each axis trimmed to its 0.5-99.5 percentiles (the paper's known
     size). Without either, depth is up to scale (median reference depth = 1).
+
+    `photometric`: refine each view's surface by the texture seen from the other frames
+    (`_photometric.py`; on by default: SfM's points alone leave the normals 2-3 degrees off
+    where the BRDF is measured).
 
     Raises `ReconstructionError` (too few features, no initial pair); frames that do not
     register are listed in the report and get no geometry.
@@ -153,9 +164,30 @@ def reconstruct_capture(
             residual_rms=surface.residual_rms * scale,
         )
         views[name] = ViewSurface(name, scaled, hulls[name], pose, counts[name])
+    refinements = None
+    if photometric and len(views) > 1:
+        views, refinements = refine_views(camera, views, capture.frames, say)
 
     report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
+    report["surface"]["photometric"] = _photometric_report(refinements)
     return Reconstruction(camera, views, sparse, report)
+
+
+def _photometric_report(refinements) -> dict:
+    if refinements is None:
+        return {"refined": False}
+    number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
+    return {
+        "refined": True,
+        "model": PHOTOMETRIC_MODEL,
+        "smoothing": SMOOTHING,
+        "texture_loss_per_frame": {
+            n: {"before": number(r.residual_before), "after": number(r.residual_after)}
+            for n, r in refinements.items()
+        },
+        "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
+        "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
+    }
 
 
 def _scale(camera, surface, hull, points):
@@ -194,6 +226,7 @@ def reconstruct(
     scale_mm: float | None = None,
     volume_mm3: float | None = None,
     force: bool = False,
+    photometric: bool = True,
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> dict:
@@ -225,7 +258,12 @@ def reconstruct(
             if target.exists():
                 raise CaptureError(f"{target}: exists; not overwriting it (--force replaces it)")
     result = reconstruct_capture(
-        capture, scale_mm=scale_mm, volume_mm3=volume_mm3, progress=progress, verbose=verbose
+        capture,
+        scale_mm=scale_mm,
+        volume_mm3=volume_mm3,
+        photometric=photometric,
+        progress=progress,
+        verbose=verbose,
     )
     for source in copies:
         target = out / source.relative_to(root)

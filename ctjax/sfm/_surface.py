@@ -128,20 +128,9 @@ def fit_depth_surface(
     """
     u_axis = _Axis.covering(bounds[0], bounds[1], knot_spacing_px)
     v_axis = _Axis.covering(bounds[2], bounds[3], knot_spacing_px)
-    nu, nv = u_axis.count, v_axis.count
-    iu, wu, _ = u_axis.locate(u)
-    iv, wv, _ = v_axis.locate(v)
     n = len(z)
-    rows = np.repeat(np.arange(n), 16)
-    cols = (iv[:, None, None] + np.arange(4)[:, None]) * nu + iu[:, None, None] + np.arange(4)
-    values = wv[:, :, None] * wu[:, None, :]
-    design = scipy.sparse.csr_matrix((values.ravel(), (rows, cols.ravel())), shape=(n, nu * nv))
-    eye_u, eye_v = np.eye(nu), np.eye(nv)
-    penalty = (
-        np.kron(eye_v, u_axis.difference_penalty(2))
-        + np.kron(v_axis.difference_penalty(2), eye_u)
-        + 2 * np.kron(v_axis.difference_penalty(1), u_axis.difference_penalty(1))
-    )
+    design = design_matrix(u_axis, v_axis, u, v)
+    penalty = thin_plate_penalty(u_axis, v_axis)
     blocks = _blocks(u, v, 2 * knot_spacing_px)
     weights = np.ones(n)
     smoothing = _INITIAL_SMOOTHING
@@ -154,7 +143,33 @@ def fit_depth_surface(
         weights = _tukey_weights(residual, weights, z)
     inliers = weights > 0
     rms = float(np.sqrt(np.mean(residual[inliers] ** 2))) if inliers.any() else float("nan")
-    return DepthSurface(u_axis, v_axis, coefficients.reshape(nv, nu), smoothing, inliers, rms)
+    return DepthSurface(
+        u_axis, v_axis, coefficients.reshape(v_axis.count, u_axis.count), smoothing, inliers, rms
+    )
+
+
+def design_matrix(u_axis: _Axis, v_axis: _Axis, u: np.ndarray, v: np.ndarray):
+    """The spline's values at pixels (u, v) as a sparse (N, coefficients) matrix: z = B c,
+    with c the coefficients (v_axis.count, u_axis.count) flattened row by row."""
+    nu, nv = u_axis.count, v_axis.count
+    iu, wu, _ = u_axis.locate(u)
+    iv, wv, _ = v_axis.locate(v)
+    n = len(u)
+    rows = np.repeat(np.arange(n), 16)
+    cols = (iv[:, None, None] + np.arange(4)[:, None]) * nu + iu[:, None, None] + np.arange(4)
+    values = wv[:, :, None] * wu[:, None, :]
+    return scipy.sparse.csr_matrix((values.ravel(), (rows, cols.ravel())), shape=(n, nu * nv))
+
+
+def thin_plate_penalty(u_axis: _Axis, v_axis: _Axis) -> np.ndarray:
+    """Second differences of the coefficients in u, in v and across (a discrete thin-plate
+    energy c^T P c)."""
+    eye_u, eye_v = np.eye(u_axis.count), np.eye(v_axis.count)
+    return (
+        np.kron(eye_v, u_axis.difference_penalty(2))
+        + np.kron(v_axis.difference_penalty(2), eye_u)
+        + 2 * np.kron(v_axis.difference_penalty(1), u_axis.difference_penalty(1))
+    )
 
 
 def _tukey_weights(residual, weights, z):
@@ -184,10 +199,10 @@ def _system(design, penalty, weights):
 
 def _solve(design, penalty, z, weights, smoothing):
     normal, scaled_penalty = _system(design, penalty, weights)
-    return _solve_banded(normal + smoothing * scaled_penalty, design.T @ (weights * z))
+    return solve_banded(normal + smoothing * scaled_penalty, design.T @ (weights * z))
 
 
-def _solve_banded(system: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+def solve_banded(system: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Solve a symmetric positive definite system that is banded (B-spline normal
     equations couple coefficients up to 3 knot rows apart): O(n b^2), not O(n^3)."""
     rows, cols = np.nonzero(system)
@@ -217,7 +232,7 @@ def _cross_validated_smoothing(design, penalty, z, weights, folds) -> float:
         normal, _ = _system(design, penalty, train)
         rhs = design.T @ (train * z)
         for k, smoothing in enumerate(_SMOOTHING_GRID):
-            coefficients = _solve_banded(normal + smoothing * scaled_penalty, rhs)
+            coefficients = solve_banded(normal + smoothing * scaled_penalty, rhs)
             residual = (z - design @ coefficients)[held]
             errors[k] += np.sum(weights[held] * residual**2)
     return float(_SMOOTHING_GRID[int(np.argmin(errors))])
