@@ -75,6 +75,9 @@ def test_near_light_with_the_albedo_map_finds_the_offset(independent_near):
     assert fit["albedo"] == "map" and fit["offset_detected"]
     np.testing.assert_allclose(fit["offset_mm"], [6.0, -4.0, 0.0], atol=0.5)
     assert fit["sigma"] == pytest.approx(scenes["offset"].sigma, rel=0.01)
+    # Chosen on the held-out frames, the model's parameters come from every frame's points.
+    assert "every frame" in fit["parameters_from"]
+    assert result.rmse["all_frames"] < 1.3
     # The standard error is small and says so; the light at the lens is far worse.
     assert np.all(np.asarray(fit["offset_stderr_mm"]) < 0.2)
     assert fit["lens_heldout_rmse"] > 1.5 * fit["rgb_rmse_heldout"]
