@@ -290,7 +290,8 @@ tr:first-child td{{font-weight:bold}}img{{max-width:100%}}</style></head><body>
 <h1>ctjax demo: a synthetic laparoscope capture, from images alone</h1>
 <p>{summary["frames"]} frames of {summary["size"]} were synthesised (textured tissue,
 Cook-Torrance reflectance, light at the tip, 1 level of noise, 8 bits); only the images and
-the camera's intrinsics went into the pipeline: structure-from-motion (pycolmap), the specular
+the camera's intrinsics went into the pipeline: structure-from-motion (pycolmap, its surfaces
+refined by the texture seen from the other frames), the specular
 set S and its ring S~, the paper's BRDF estimate (branch-and-bound over sigma), the light
 (a near point light, and the paper's per-pixel light field) and the paper's evaluation of
 Lambertian against Cook-Torrance.</p>
