@@ -249,6 +249,9 @@ def near_light_map(
     if np.isfinite(every.cost):  # the parameters from all the data, once the model is chosen
         result.model = every.model
         result.rmse["all_frames"] = every.rmse["calibration"]
+        if detected:  # the reported offset's standard errors are the refit's
+            result.details["stderr"] = map_standard_errors(every.model, tracks)
+            reported = result.details["stderr"].get("light.position_mm", reported)
     result.details |= {
         "model": "near",
         "albedo": "map",
@@ -265,8 +268,9 @@ def near_light_map(
         "point's albedo fitted to its other views (held-out: the held-out frames' views)",
         "parameters_from": "every frame: the model chosen on the held-out frames (falloff, "
         "offset or none) refitted on the surface points of all frames; its held-out and "
-        "calibration errors and the offset's standard errors are those of the fit on the "
-        "calibration frames",
+        "calibration errors and offset_fitted_mm are those of the fit on the calibration "
+        "frames, the offset's standard errors the refit's (the calibration fit's when no "
+        "offset is detected: they set the bound)",
     }
     if not detected:
         _no_offset(result, offset, stderr, offset_fit, lens_fit, length_unit_of(capture))
