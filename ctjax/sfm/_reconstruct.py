@@ -26,7 +26,7 @@ from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel, sparse_reconstruction
-from ._photometric import SMOOTHING, refine_views
+from ._photometric import POINTS_WEIGHT, SMOOTHING, refine_views
 from ._surface import DepthSurface, fit_depth_surface
 
 # Fraction kept along each axis for the bounding box of `volume_mm3` (robust to stray points).
@@ -38,7 +38,8 @@ SURFACE_MODEL = (
 )
 PHOTOMETRIC_MODEL = (
     "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
-    "the same texture (high-pass of the log image) in the nearest frames, highlights masked"
+    "the same texture (high-pass of the log image) in the nearest frames, highlights masked, "
+    "while staying near its SfM points (weight points_weight beside the texture's)"
 )
 
 
@@ -158,10 +159,12 @@ def reconstruct_capture(
     for name, surface in surfaces.items():
         pose = np.linalg.inv(cams[name])
         pose[:3, 3] *= scale
+        u, v, z, weight = surface.points
         scaled = dataclasses.replace(
             surface,
             coefficients=surface.coefficients * scale,
             residual_rms=surface.residual_rms * scale,
+            points=(u, v, z * scale, weight),
         )
         views[name] = ViewSurface(name, scaled, hulls[name], pose, counts[name])
     refinements = None
@@ -181,6 +184,7 @@ def _photometric_report(refinements) -> dict:
         "refined": True,
         "model": PHOTOMETRIC_MODEL,
         "smoothing": SMOOTHING,
+        "points_weight": POINTS_WEIGHT,
         "texture_loss_per_frame": {
             n: {"before": number(r.residual_before), "after": number(r.residual_after)}
             for n, r in refinements.items()

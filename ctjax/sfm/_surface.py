@@ -78,6 +78,8 @@ class DepthSurface:
     smoothing: float  # cross-validated penalty weight (relative to the data term)
     inliers: np.ndarray  # (N,) bool: points kept by the robust reweighting
     residual_rms: float  # of the inliers, length unit of the points
+    # The points it was fitted to: pixels u, v (N,), depth z (N,), robust weights (N,).
+    points: tuple | None = None
 
     def depth_and_gradient(self, u: np.ndarray, v: np.ndarray):
         """z, dz/du, dz/dv at pixel positions (any matching shapes)."""
@@ -143,9 +145,9 @@ def fit_depth_surface(
         weights = _tukey_weights(residual, weights, z)
     inliers = weights > 0
     rms = float(np.sqrt(np.mean(residual[inliers] ** 2))) if inliers.any() else float("nan")
-    return DepthSurface(
-        u_axis, v_axis, coefficients.reshape(v_axis.count, u_axis.count), smoothing, inliers, rms
-    )
+    coefficients = coefficients.reshape(v_axis.count, u_axis.count)
+    points = (np.asarray(u, float), np.asarray(v, float), np.asarray(z, float), weights)
+    return DepthSurface(u_axis, v_axis, coefficients, smoothing, inliers, rms, points)
 
 
 def design_matrix(u_axis: _Axis, v_axis: _Axis, u: np.ndarray, v: np.ndarray):
