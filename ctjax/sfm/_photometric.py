@@ -17,19 +17,22 @@ other frames by the SfM poses, land on the same texture. Gauss-Newton on
 
 with T the high-pass of the log image per channel (log turns albedo times shading into a
 sum; subtracting a 1.5 px blur removes the shading, which changes from view to view, and
-keeps the texture's detail, which does not) and pi_m the projection into frame m. The view
-itself is one of the frames, but a pixel under its own highlight is still refined from the
-frames where the same point is not (the light moves with the camera). Highlights (S and
-clipped pixels, dilated by 8 px: the specular rim is not multiplicative and does move) and
-pixels outside the field of view are masked in every frame. Each pixel's residuals depend on
-its depth alone, so the normal equations are those of the P-spline, banded.
+keeps the texture's detail, which does not) and pi_m the projection into frame m, plus the
+SfM points' squared depth residuals (weight `POINTS_WEIGHT`). The view itself is one of the
+frames, but a pixel under its own highlight is still refined from the frames where the same
+point is not (the light moves with the camera). Highlights (S and clipped pixels, dilated by
+8 px: the specular rim is not multiplicative and does move) and pixels outside the field of
+view are masked in every frame. Each pixel's residuals depend on its depth alone, so the
+normal equations are those of the P-spline, banded.
 
-Measured (the demo capture, 320x256, 5 frames, texture 30%): normals' median error 2.2 ->
-0.6 degrees; around the highlights median 3.5 -> 0.7, 90th percentile 6.6 -> 2.3; the BRDF
-fitted on them sigma +24.5% -> +4.4%, F_tilde -50% -> -3%. On other captures the error of the
-BRDF from images stays 5-30% in F_tilde: at a lobe of sigma 0.2 a degree of normal error
-at the rim changes the specular by about 20%, and the texture alone does not pin the
-slopes below a degree (nor did it with the true specular removed from the images).
+Measured (README, "Shape from images"): on the demo capture (320x256, 5 frames, texture
+30%) normals' median error 1.5 -> 0.6 degrees, the BRDF fitted on them sigma +9.5% ->
++4.4%, F_tilde -24% -> -2..0%; at 640x512 x 8 sigma +4.1%, F_tilde -4.9..-3.3%. Elsewhere
+the error of the BRDF from images stays 5-30% in F_tilde: with the highlight's core clipped
+the lobe is read on its tails, where a degree of normal error changes the specular by about
+20%, and the texture does not pin the slopes below a degree. A texture smooth at the pixel
+scale (tests/independent.py) does not pin them at all: its high-pass is noise, and the
+refinement leaves SfM's surface where it is.
 """
 
 import dataclasses
