@@ -25,6 +25,7 @@ from ._capture_fit import (
     require_specular,
     thin_frames,
 )
+from ._sensitivity import specular_change
 
 
 def _number(value):
@@ -78,10 +79,35 @@ def _median_albedo(capture, maps) -> np.ndarray:
     return median
 
 
-def _warnings(capture, fit, per_point: int, points: int, coverage) -> list[str]:
-    """Poorly determined parameters, frames with few usable pixels, and frames the map
-    covers thinly."""
+def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
+    """How much the fitted specular changes per degree of normal error where it is
+    measured (`_sensitivity.py`), and whether the normals come from `ctjax reconstruct`."""
+    change, count = specular_change(
+        fit.family, fit.params, shading, fit.weights, fit.albedo, per_point
+    )
+    root = getattr(capture, "root", None)
+    return {
+        "specular_change_per_degree": _number(change),
+        "observations": int(count),
+        "normals_from_reconstruct": bool(root and (root / "reconstruction.json").is_file()),
+        "note": "median relative change of the fitted global lobes when every normal is "
+        "tilted 1 degree away from its half vector, over the tracked observations where they "
+        "are at least 10% of the model",
+    }
+
+
+def _warnings(capture, fit, per_point: int, points: int, coverage, sensitivity) -> list[str]:
+    """Poorly determined parameters, frames with few usable pixels, frames the map covers
+    thinly, and normals from SfM where the specular is sensitive to them."""
     warnings = thin_frames(capture)
+    change = sensitivity["specular_change_per_degree"]
+    if sensitivity["normals_from_reconstruct"] and change is not None and change > 0.05:
+        warnings.append(
+            "the normals come from ctjax reconstruct: around the highlights they are "
+            f"typically 1-5 degrees off, and there the fitted specular changes by {change:.0%} "
+            "per degree (the lobe is read on its tails where the core is clipped): sigma and "
+            "F_tilde may be off by tens of percent (README, 'Shape from images')"
+        )
     poorly = _poorly_determined(fit, per_point)
     if poorly:
         warnings.append(
@@ -168,9 +194,10 @@ def fit_albedo_map(
         "D(sigma)/(pi N.L N.V), L = V",
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": {**_map_fit_json(lambertian, 0), "albedo": "map"},
+        "normals": _normal_sensitivity(capture, fit, shading, per_point),
         "masks": dataclasses.asdict(masks),
     }
-    warnings = _warnings(capture, fit, per_point, len(tracks), coverage)
+    warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
     arrays = {f"albedo/{f.name}": m for f, m in zip(capture.frames, maps, strict=True)}
     return Estimate(
         ShadingModel(brdf, ColocatedLight()),
