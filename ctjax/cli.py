@@ -205,6 +205,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         volume_mm3=args.volume_mm3,
         force=args.force,
         photometric=not args.no_photometric,
+        shading=args.shading,
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
         verbose=args.verbose,
     )
@@ -218,6 +219,18 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         f"{report['mean_reprojection_error_px']:.2f} px, coverage {report['coverage']:.1%}; "
         f"depth {unit}; wrote {report['out']}"
     )
+    shading = report["surface"].get("shading")
+    if shading and shading["refined"]:
+        print(
+            f"shape refined by the shading: {shading['points']} points, sigma "
+            f"{shading['sigma_before']:.4f} -> {shading['sigma_after']:.4f}, normals turned by "
+            f"{shading['median_normal_change_deg']:.2f} degrees (median)"
+        )
+    elif shading:
+        print(
+            f"ctjax reconstruct: warning: no shading refinement: {shading['reason']}",
+            file=sys.stderr,
+        )
     for warning in report["warnings"]:
         print(f"ctjax reconstruct: warning: {warning}", file=sys.stderr)
     return 0
@@ -240,10 +253,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
         print(
             f"ctjax fit: {args.capture} has images only; reconstructing its shape by SfM "
-            "first (in memory; `ctjax reconstruct` writes it to the capture)",
+            "first (in memory; `ctjax reconstruct` writes it to the capture)"
+            + ("" if args.no_shading else ", then refining it by the shading"),
             file=sys.stderr,
         )
-        capture, shape = with_reconstructed_shape(capture)
+        capture, shape = with_reconstructed_shape(capture, shading=not args.no_shading)
         for warning in shape["warnings"]:
             print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
@@ -624,6 +638,12 @@ def _recon_command(commands) -> None:
         action="store_true",
         help="keep the surfaces fitted to the SfM points alone (not refined by the texture)",
     )
+    recon.add_argument(
+        "--shading",
+        action="store_true",
+        help="then refine the shape by every frame's shading, one world surface fitted with "
+        "the BRDF (assumes the light at the camera; minutes at 640x512)",
+    )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")
     recon.set_defaults(run=_cmd_reconstruct)
@@ -653,6 +673,12 @@ def _fit_command(commands) -> None:
         metavar="DIR",
         help="write DIR/NAME.npy per frame: float32 (H, W, 3) rho_tilde per pixel, NaN where "
         "not estimated",
+    )
+    fit.add_argument(
+        "--no-shading",
+        action="store_true",
+        help="images only: keep SfM's shape (refined by the texture) without refining it by "
+        "the shading (faster; sigma and F_tilde then off by up to tens of percent)",
     )
     _add_mask_arguments(fit)
     fit.set_defaults(run=_cmd_fit)

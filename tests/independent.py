@@ -226,7 +226,7 @@ def map_errors(albedos: dict, estimate):
     return np.concatenate(errors), min(coverage), min(channels)
 
 
-def _reconstructed(folder: Path, photometric: bool) -> Path:
+def _reconstructed(folder: Path, photometric: bool, shading: bool = False) -> Path:
     """A copy of the capture's images and camera with the shape reconstructed from them."""
     import shutil
 
@@ -238,7 +238,7 @@ def _reconstructed(folder: Path, photometric: bool) -> Path:
     for image in sorted((folder / "images").iterdir()):
         shutil.copy(image, out / "images" / image.name)
     first = np.load(sorted((folder / "depth").iterdir())[0])
-    reconstruct(out, scale_mm=float(np.nanmedian(first)), photometric=photometric)
+    reconstruct(out, scale_mm=float(np.nanmedian(first)), photometric=photometric, shading=shading)
     return out
 
 
@@ -269,6 +269,11 @@ def _main():
     parser.add_argument(
         "--no-photometric", action="store_true", help="with --images-only: SfM's points only"
     )
+    parser.add_argument(
+        "--shading",
+        action="store_true",
+        help="with --images-only: the shape refined by the shading (reconstruct --shading)",
+    )
     args = parser.parse_args()
     width, height = map(int, args.size.split("x"))
     scene = Scene(texture_strength=args.strength)
@@ -286,7 +291,7 @@ def _main():
             )
             started = time.perf_counter()
             if args.images_only:
-                folder = _reconstructed(Path(folder), not args.no_photometric)
+                folder = _reconstructed(Path(folder), not args.no_photometric, args.shading)
             estimate = fit_capture(load_capture(folder))
             seconds = time.perf_counter() - started
         fit = estimate.to_json()

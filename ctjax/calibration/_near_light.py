@@ -167,6 +167,43 @@ def _at_the_lens(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
     return roughness_variants(eqx.tree_at(lambda m: m.light, paper_model(1.0, 0.3, 0.2), light))
 
 
+def _details(result, capture, choices, errors, detected, offset, reported) -> dict:
+    """The near-light estimate's details: the model, the falloff chosen and the others'
+    held-out errors, the offset (fitted, detected, its standard errors) and their notes."""
+    return {
+        "model": "near",
+        "albedo": "map",
+        "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
+        "falloff": falloff_json(result.model.light),
+        "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
+        "offset_detected": detected,
+        "offset_fitted_mm": offset.tolist(),
+        "offset_stderr_mm": reported,  # None where the data do not determine it
+        "length_unit": length_unit_of(capture),
+        "rmse_note": "each view of a tracked point predicted with the model fixed and the "
+        "point's albedo fitted to its other views (held-out: the held-out frames' views)",
+        "parameters_from": "every frame: the model chosen on the held-out frames (falloff, "
+        "offset or none) refitted on the surface points of all frames; its held-out and "
+        "calibration errors and offset_fitted_mm are those of the fit on the calibration "
+        "frames, the offset's standard errors the refit's (the calibration fit's when no "
+        "offset is detected: they set the bound)",
+    }
+
+
+def _take_refit(result, every, tracks, detected: bool, reported):
+    """The chosen model's parameters from the refit on every frame (when it is finite),
+    its RMSE there, and the offset's standard errors: the refit's when an offset is
+    detected, else the calibration fit's (`reported`), which set the bound."""
+    if not np.isfinite(every.cost):
+        return reported
+    result.model = every.model
+    result.rmse["all_frames"] = every.rmse["calibration"]
+    if detected:
+        result.details["stderr"] = map_standard_errors(every.model, tracks)
+        reported = result.details["stderr"].get("light.position_mm", reported)
+    return reported
+
+
 def near_light_map(
     capture: "Capture | Observations",
     *,
@@ -246,31 +283,11 @@ def near_light_map(
     say("the chosen model refitted on every frame's surface points")
     tracks = capture.tracks(max_points=max_points, seed=seed)
     every = fit([result.model], () if detected else ("light.position_mm",), tracks)
-    if np.isfinite(every.cost):  # the parameters from all the data, once the model is chosen
-        result.model = every.model
-        result.rmse["all_frames"] = every.rmse["calibration"]
-        if detected:  # the reported offset's standard errors are the refit's
-            result.details["stderr"] = map_standard_errors(every.model, tracks)
-            reported = result.details["stderr"].get("light.position_mm", reported)
+    reported = _take_refit(result, every, tracks, detected, reported)
+    result.details |= _details(result, capture, choices, errors, detected, offset, reported)
     result.details |= {
-        "model": "near",
-        "albedo": "map",
-        "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
-        "falloff": falloff_json(result.model.light),
-        "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
-        "offset_detected": detected,
-        "offset_fitted_mm": offset.tolist(),
-        "offset_stderr_mm": reported,  # None where the data do not determine it
         "offset_heldout_rmse": offset_fit.heldout_rmse,
         "lens_heldout_rmse": lens_fit.heldout_rmse,
-        "length_unit": length_unit_of(capture),
-        "rmse_note": "each view of a tracked point predicted with the model fixed and the "
-        "point's albedo fitted to its other views (held-out: the held-out frames' views)",
-        "parameters_from": "every frame: the model chosen on the held-out frames (falloff, "
-        "offset or none) refitted on the surface points of all frames; its held-out and "
-        "calibration errors and offset_fitted_mm are those of the fit on the calibration "
-        "frames, the offset's standard errors the refit's (the calibration fit's when no "
-        "offset is detected: they set the bound)",
     }
     if not detected:
         _no_offset(result, offset, stderr, offset_fit, lens_fit, length_unit_of(capture))

@@ -231,6 +231,7 @@ def reconstruct(
     volume_mm3: float | None = None,
     force: bool = False,
     photometric: bool = True,
+    shading: bool = False,
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> dict:
@@ -243,6 +244,10 @@ def reconstruct(
     never overwritten unless `force=True` (else `CaptureError` naming the file). With a
     distorted camera, depth and normals are evaluated at the undistorted position of every
     pixel, so that `load_capture` (which undistorts them) reads them back on its grid.
+    `shading`: then refine the shape by the shading of every frame, one world surface fitted
+    with the BRDF (`_shading.py`; assumes the paper's light, at the camera); the report's
+    `surface.shading` says what it did, or why it was skipped.
+
     Returns the report (see `reconstruct_capture`).
     """
     _check_scale(scale_mm, volume_mm3)
@@ -291,8 +296,29 @@ def reconstruct(
     poses = {name: view.pose.tolist() for name, view in result.views.items()}
     atomic_write_json(out / "poses.json", poses)
     report = {**result.report, "capture": str(root), "out": str(out)}
+    if shading:
+        report["surface"]["shading"] = _refine_by_shading(out, distorted is not None, progress)
     atomic_write_json(out / "reconstruction.json", report)
     return report
+
+
+def _refine_by_shading(out: Path, distorted: bool, progress) -> dict:
+    """Refine the written shape by the shading (`_shading.py`) and write it back; the
+    refinement's report, or why it was skipped."""
+    from .._errors import CtjaxError
+    from ._shading import refine_shape_by_shading
+
+    if distorted:
+        return {"refined": False, "reason": "a distorted camera (not supported yet)"}
+    say = progress or (lambda message: None)
+    try:
+        refined, report = refine_shape_by_shading(load_capture(out), say=say)
+    except CtjaxError as error:
+        return {"refined": False, "reason": str(error)}
+    for frame in refined.frames:
+        atomic_write_npy(out / "depth" / f"{frame.name}.npy", frame.depth.astype(np.float32))
+        atomic_write_npy(out / "normals" / f"{frame.name}.npy", frame.normals.astype(np.float32))
+    return {"refined": True, **report}
 
 
 def _distorted_pixels(root: Path, camera: Camera):
@@ -321,15 +347,23 @@ def _on_distorted_grid(view: ViewSurface, camera: Camera, u: np.ndarray, v: np.n
 
 
 def with_reconstructed_shape(
-    capture: Capture, *, progress: Callable[[str], None] | None = None
+    capture: Capture,
+    *,
+    shading: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[Capture, dict]:
     """The capture with SfM depth, normals and poses in memory (nothing is written).
 
     For commands that need the shape of a capture that has only images (`ctjax fit`).
     Frames that do not register are dropped (listed in the report's `unregistered`). Depth
     is up to scale (`length_unit` "median_depth"): the BRDF fit uses the normals and the
-    view directions, which do not depend on it.
+    view directions, which do not depend on it. `shading`: then refine the shape by the
+    shading (`_shading.py`, the paper's light); the report's `surface.shading` says what it
+    did, or why it was skipped.
     """
+    from .._errors import CtjaxError
+    from ._shading import refine_shape_by_shading
+
     result = reconstruct_capture(capture, progress=progress)
     frames = []
     for frame in capture.frames:
@@ -338,7 +372,16 @@ def with_reconstructed_shape(
             depth, normals = view.depth_and_normals(capture.camera)
             frames.append(dataclasses.replace(frame, depth=depth, normals=normals, pose=view.pose))
     unit = unit_of_reconstruction(result.report)
-    return dataclasses.replace(capture, frames=tuple(frames), length_unit=unit), result.report
+    capture = dataclasses.replace(capture, frames=tuple(frames), length_unit=unit)
+    report = result.report
+    if shading:
+        try:
+            capture, refined = refine_shape_by_shading(capture, say=progress or (lambda m: None))
+            report["surface"]["shading"] = {"refined": True, **refined}
+        except CtjaxError as error:
+            report["surface"]["shading"] = {"refined": False, "reason": str(error)}
+            report["warnings"].append(f"no shading refinement: {error}")
+    return capture, report
 
 
 def _view_surfaces(camera, sparse, points, world_from_ref, unit, knot_spacing_px, say):
