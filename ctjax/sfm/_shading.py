@@ -22,10 +22,14 @@ correction along world z.
 
 Measured (`benchmarks/world_surface.py`: tests/independent.py 640x512 x 8 reconstructed from
 its images, then `fit_capture` with the albedo map): seed 1 normals 3.65 -> 1.11 degrees
-median, sigma +14.2% -> +2.1%, F_tilde -43..-52% -> +2.3..+2.7%; seed 2 normals 1.61 -> 0.29,
-sigma +7.3% -> -0.1%, F_tilde -40..-42% -> -4.0%; 110-140 s. It assumes the paper's light (at
-the camera): on a capture whose light is elsewhere it would bend the shape to fit the wrong
-light, so it is an option (`ctjax reconstruct --shading`).
+median, sigma +14.2% -> +2.1%, F_tilde -43..-52% -> +2.3..+2.7% (another run, SfM's result
+varying: 3.72 -> 0.95 degrees, +13.0% -> +1.5%, -46..-54% -> -0.4..0.0%); seed 2 normals
+1.61 -> 0.29, sigma +7.3% -> -0.1%, F_tilde -40..-42% -> -4.0%; 110-140 s.
+
+It fits the paper's light (at the camera): on a capture whose light is elsewhere it would
+bend the shape to fit the wrong light (and hide the offset from the near-light model), so
+`ctjax reconstruct` does it only when asked (`--shading`); `ctjax fit` on a capture with
+images only, which fits that same model, does it by default (`--no-shading`).
 """
 
 import dataclasses
