@@ -294,3 +294,8 @@ def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp
     estimate = fit_capture(load_capture(copy))
     assert estimate.details["normals"]["normals_from_reconstruct"]
     assert any("come from ctjax reconstruct" in w for w in estimate.warnings)
+    # Refined by the shading (`reconstruct --shading`): no warning.
+    (copy / "reconstruction.json").write_text('{"surface": {"shading": {"refined": true}}}')
+    estimate = fit_capture(load_capture(copy))
+    assert estimate.details["normals"]["refined_by_the_shading"]
+    assert not any("come from ctjax reconstruct" in w for w in estimate.warnings)

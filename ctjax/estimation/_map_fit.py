@@ -7,6 +7,7 @@ from all frames given the fitted lobes (`albedo_maps`).
 """
 
 import dataclasses
+import json
 
 import numpy as np
 
@@ -86,10 +87,19 @@ def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
         fit.family, fit.params, shading, fit.weights, fit.albedo, per_point
     )
     root = getattr(capture, "root", None)
+    report = root / "reconstruction.json" if root else None
+    from_reconstruct = bool(report and report.is_file())
+    refined = False
+    if from_reconstruct:
+        try:
+            refined = bool(json.loads(report.read_text())["surface"]["shading"]["refined"])
+        except (ValueError, KeyError, TypeError):
+            refined = False
     return {
         "specular_change_per_degree": _number(change),
         "observations": int(count),
-        "normals_from_reconstruct": bool(root and (root / "reconstruction.json").is_file()),
+        "normals_from_reconstruct": from_reconstruct,
+        "refined_by_the_shading": refined,
         "note": "median relative change of the fitted global lobes when every normal is "
         "tilted 1 degree away from its half vector, over the tracked observations where they "
         "are at least 10% of the model",
@@ -101,9 +111,11 @@ def _warnings(capture, fit, per_point: int, points: int, coverage, sensitivity) 
     thinly, and normals from SfM where the specular is sensitive to them."""
     warnings = thin_frames(capture)
     change = sensitivity["specular_change_per_degree"]
-    if sensitivity["normals_from_reconstruct"] and change is not None and change > 0.05:
+    from_sfm = sensitivity["normals_from_reconstruct"] and not sensitivity["refined_by_the_shading"]
+    if from_sfm and change is not None and change > 0.05:
         warnings.append(
-            "the normals come from ctjax reconstruct: around the highlights they are "
+            "the normals come from ctjax reconstruct (not refined by the shading, --shading): "
+            "around the highlights they are "
             f"typically 1-5 degrees off, and there the fitted specular changes by {change:.0%} "
             "per degree (the lobe is read on its tails where the core is clipped): sigma and "
             "F_tilde may be off by tens of percent (README, 'Shape from images')"
