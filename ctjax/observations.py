@@ -188,6 +188,27 @@ class Observations:
 
         return capture_sets(self.capture, self.masks or MaskOptions())
 
+    def specular_distance(self, index: int) -> np.ndarray:
+        """(H, W): each pixel's distance (px) to the nearest pixel of S in frame `index` (inf
+        in a frame without S)."""
+        import cv2
+
+        specular = self.sets[index].specular
+        if not specular.any():
+            return np.full(specular.shape, np.inf, np.float32)
+        return cv2.distanceTransform((~specular).astype(np.uint8), cv2.DIST_L2, 5)
+
+    def near_specular(self, tracks, radius_px: float = DEFAULT_TRACK_RADIUS_PX) -> np.ndarray:
+        """(P,) whether each of `tracks` is anchored within `radius_px` of S in its frame:
+        the points that `tracks` anchors near the highlights, where the specular lobe is
+        measured (the others are drawn at random from the rest)."""
+        near = np.zeros(len(tracks), bool)
+        for index in np.unique(tracks.anchor_frame):
+            mine = tracks.anchor_frame == index
+            distance = self.specular_distance(int(index))
+            near[mine] = distance[tracks.anchor_row[mine], tracks.anchor_col[mine]] <= radius_px
+        return near
+
     def points(self, index: int) -> np.ndarray:
         """(H, W, 3): frame `index`'s camera-frame points (mm), NaN without depth."""
         return points_from_depth(self.capture.camera, self.capture.frames[index].depth)
@@ -262,8 +283,6 @@ class Observations:
         `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`). `frames`: only these frames'
         points, followed into these frames only (one side of a held-out split);
         `anchor_frames`: only these frames' points, followed into every frame."""
-        import cv2
-
         from . import _tracks
 
         _tracks.require_poses(self.capture)
@@ -272,15 +291,11 @@ class Observations:
         chosen_frames = range(len(self)) if frames is None else frames
         if anchor_frames is not None:
             chosen_frames = [i for i in chosen_frames if i in anchor_frames]
-        for index, (frame, s) in enumerate(zip(self.capture.frames, self.sets, strict=True)):
+        for index, frame in enumerate(self.capture.frames):
             geometry = frame.geometry_mask
             if index not in chosen_frames:
                 geometry = np.zeros_like(geometry)
-            if s.specular.any():
-                distance = cv2.distanceTransform((~s.specular).astype(np.uint8), cv2.DIST_L2, 5)
-                near = geometry & (distance <= radius_px)
-            else:
-                near = np.zeros_like(geometry)
+            near = geometry & (self.specular_distance(index) <= radius_px)
             rest = np.flatnonzero(geometry & ~near)
             # As many elsewhere as near S (a frame without S: its share of `max_points`).
             share = (max_points or DEFAULT_MAX_TRACKS) // (2 * len(self))

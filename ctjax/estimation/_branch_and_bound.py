@@ -5,10 +5,9 @@ the convex subproblem at each centre, keeps the best sub-interval and repeats un
 shorter than a threshold ([1e-5, 1] down to 1e-3). Here each level evaluates a whole grid of
 centres at once (`vmap`), keeps the best `candidates` sub-intervals (more than one, so that a
 second basin of the cost is not lost to a coarse first level), and zooms into each, all
-inside one compiled function: when every level has the same shape (one parameter, the first
-grid `candidates` times the zoom grid) one level is traced and looped (`lax.scan`), else the
-levels are unrolled. Several nonlinear parameters (e.g. two roughness scales) use a tensor
-grid.
+inside one compiled function: the first level tiles the box, and every later level (the same
+shape: `candidates` boxes of the zoom grid) is traced once and looped (`lax.scan`). Several
+nonlinear parameters (e.g. two roughness scales) use a tensor grid.
 """
 
 from collections.abc import Callable
@@ -133,27 +132,21 @@ def grid_search(
         return jnp.clip(flat_centres[order] - widths / 2, lo, hi - widths), widths, best, spacing
 
     best = ((lo + hi) / 2, jnp.asarray(jnp.inf, dtype))
-    if dims == 1 and levels > 1 and grid == candidates * zoom_grid:
-        # Every level is `candidates` boxes of `zoom_grid` points (the first tiles [lo, hi],
-        # its minima found along the whole grid): one level traced, looped `levels` times.
-        def body(carry, first):
+    # Level 1 tiles the box; every later level has the same shape (`candidates` boxes of
+    # `zoom_grid`^D points): traced once and looped.
+    minima = lambda points: lambda c: _local_minima(c, dims, points)  # noqa: E731
+    starts, widths, best, spacing = search_level(lo[None, :], hi - lo, grid, best, minima(grid))
+    kept = min(candidates, grid**dims)
+    if levels > 1:
+
+        def body(carry, _):
             starts, widths, best = carry
-            boxed = lambda c: _local_minima(c, 1, zoom_grid)  # noqa: E731
-            whole = lambda c: _local_minima(c.reshape(1, -1), 1, grid).reshape(c.shape)  # noqa: E731
-            minima = lambda c: jnp.where(first, whole(c), boxed(c))  # noqa: E731
-            starts, widths, best, spacing = search_level(starts, widths, zoom_grid, best, minima)
+            starts, widths, best, spacing = search_level(
+                starts, widths, zoom_grid, best, minima(zoom_grid)
+            )
             return (starts, widths, best), spacing
 
-        tile = (hi - lo) / candidates
-        starts = lo[None, :] + jnp.arange(candidates, dtype=dtype)[:, None] * tile
-        first = jnp.arange(levels) == 0
-        (_, _, best), spacings = jax.lax.scan(body, (starts, tile, best), first)
-        return GridSearchResult(best[0], best[1], spacings[-1] / 2, levels * grid)
-    starts, widths = lo[None, :], hi - lo  # (M, D) lower corners of the boxes, (D,) size
-    evaluations = 0
-    for level in range(levels):
-        points = grid if level == 0 else zoom_grid
-        minima = lambda c, points=points: _local_minima(c, dims, points)  # noqa: E731
-        evaluations += starts.shape[0] * points**dims
-        starts, widths, best, spacing = search_level(starts, widths, points, best, minima)
+        (_, _, best), spacings = jax.lax.scan(body, (starts, widths, best), length=levels - 1)
+        spacing = spacings[-1]
+    evaluations = grid**dims + (levels - 1) * kept * zoom_grid**dims
     return GridSearchResult(best[0], best[1], spacing / 2, evaluations)

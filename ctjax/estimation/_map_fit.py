@@ -3,21 +3,25 @@
 Surface points near the highlights (and as many elsewhere) are followed across every frame by
 depth and poses (`Observations.tracks`), the BRDF is fitted with every point's albedo
 eliminated in closed form (`fit_brdf_map`), and each frame's albedo map is then estimated
-from all frames given the fitted lobes (`albedo_maps`).
+from all frames given the fitted lobes (`albedo_maps`; summarised on a sparse grid of
+pixels, estimated whole when read).
 """
 
+import collections.abc
 import dataclasses
+import functools
 import json
 
 import numpy as np
 
+from .._buckets import bucket
 from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
 from .._tracks import DEFAULT_NEIGHBOURS, require_poses
 from ..lights import ColocatedLight
 from ..observations import Observations
-from ._albedo_map import albedo_maps, fit_brdf_map, track_shading
+from ._albedo_map import albedo_maps, albedo_samples, fit_brdf_map, track_shading
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
 from ._capture_fit import (
     _WELL_DETERMINED,
@@ -68,16 +72,54 @@ def _poorly_determined(fit, per_point: int) -> list[str]:
     return warnings
 
 
-def _median_albedo(capture, maps) -> np.ndarray:
-    """The maps' median albedo per channel (NaN where that channel clipped ignored)."""
+# The fit summarises the maps (rho_tilde their median, their coverage per frame) on every
+# 4th pixel of every 4th row: 1/16 of the work of the maps, which are estimated whole only
+# when read (`_AlbedoMaps`).
+SUMMARY_STRIDE = 4
+
+
+def _summary(capture, samples):
+    """The median albedo per channel (each channel where it is estimated), and per frame the
+    coverage (pixels with an albedo in all three channels, of those with geometry) and the
+    median view count, from `albedo_samples`."""
     median = np.zeros(3)
-    for c in range(3):  # one channel at a time: bounded memory at 1080p
-        values = np.concatenate([m[..., c][np.isfinite(m[..., c])] for m in maps])
+    for c in range(3):
+        values = np.concatenate([albedo[:, c] for albedo, _ in samples])
+        values = values[np.isfinite(values)]
         if values.size == 0:
             raise CtjaxError(f"{capture.root}: no pixel's albedo could be estimated in {'RGB'[c]}")
         median[c] = np.median(values)
-        del values
-    return median
+    coverage, views = [], []
+    for albedo, count in samples:
+        estimated = np.all(np.isfinite(albedo), -1)
+        coverage.append(float(np.mean(estimated)) if len(albedo) else 0.0)
+        views.append(float(np.median(count[estimated])) if estimated.any() else 0.0)
+    return median, coverage, views
+
+
+class _AlbedoMaps(collections.abc.Mapping):
+    """`Estimate.arrays` of the map fit: "albedo/NAME" is frame NAME's albedo map (H, W, 3),
+    every frame's estimated at the first read (`albedo_maps`)."""
+
+    def __init__(self, capture, brdf, per_point: int, neighbours):
+        self._keys = [f"albedo/{f.name}" for f in capture.frames]
+        self._compute = functools.partial(
+            albedo_maps, capture, brdf, per_point=per_point, neighbours=neighbours
+        )
+        self._maps = None
+
+    def __getitem__(self, key):
+        if key not in self._keys:
+            raise KeyError(key)
+        if self._maps is None:
+            self._maps = dict(zip(self._keys, self._compute()[0], strict=True))
+        return self._maps[key]
+
+    def __iter__(self):
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
 
 
 def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
@@ -148,7 +190,8 @@ def fit_albedo_map(
 
     Returns an `Estimate` of the `ShadingModel` whose `rho_tilde` is the median of the
     albedo maps per channel; `arrays["albedo/NAME"]` is frame NAME's map (H, W, 3),
-    rho_tilde per pixel in the same linear units, NaN where not estimated;
+    rho_tilde per pixel in the same linear units, NaN where not estimated (every frame's
+    map is estimated at the first read: about as long as the fit);
     `rmse["calibration"]` the RMSE (8-bit levels) over every observation of the tracked
     points; `details` the standard errors of the global parameters (albedos eliminated), the
     counts, the maps' coverage and the Lambertian fit of the same tracks (with its own map).
@@ -166,29 +209,36 @@ def fit_albedo_map(
     options = {} if max_points is None else {"max_points": max_points}
     tracks = obs.tracks(neighbours=neighbours, **options)
     views = tracks.views
-    shading = track_shading(tracks)
-    fit = fit_brdf_map(shading, family, tolerance=tolerance)
+    # Padded here to the fitters' bucket size (`ctjax._buckets`), once for every fit below.
+    shading = track_shading(tracks.padded(bucket(len(tracks))))
+    # The sigma search on the points anchored near the highlights: the others' specular is
+    # negligible in every view, their cost the same for every sigma (320x256 x 8 frames:
+    # the same sigma and F_tilde in half the time).
+    near = obs.near_specular(tracks)
+    search = None
+    if 0 < near.sum() < len(tracks):
+        search = track_shading(tracks.select(near).padded(bucket(int(near.sum()))))
+    fit = fit_brdf_map(shading, family, tolerance=tolerance, search=search)
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
     for result in (fit, lambertian):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
         ):
             raise CtjaxError("the BRDF fit with an albedo map did not produce finite estimates")
-    maps, counts = albedo_maps(capture, fit.brdf, per_point=per_point, neighbours=neighbours)
-    median = _median_albedo(capture, maps)
+    samples = albedo_samples(
+        capture, fit.brdf, stride=SUMMARY_STRIDE, per_point=per_point, neighbours=neighbours
+    )
+    median, coverage, median_views = _summary(capture, samples)
     weights = np.asarray(fit.weights).copy()
     weights[per_point] = median
     brdf = fit.brdf.with_weights(weights.astype(np.asarray(fit.weights).dtype))
-    coverage = [
-        float(np.mean(np.all(np.isfinite(m), -1)[f.geometry_mask])) if f.geometry_mask.any() else 0
-        for m, f in zip(maps, capture.frames, strict=True)
-    ]
     details = {
         **_map_fit_json(fit, per_point),
         "rho_tilde": median.tolist(),
         "albedo": "map",
-        "albedo_note": "rho_tilde is the median of the albedo maps per channel; the maps hold "
-        "rho_tilde per pixel (`ctjax fit --albedo-maps DIR`)",
+        "albedo_note": "rho_tilde is the median of the albedo maps per channel (over every "
+        f"{SUMMARY_STRIDE}th pixel of every {SUMMARY_STRIDE}th row, as the coverage); the maps "
+        "hold rho_tilde per pixel (`ctjax fit --albedo-maps DIR`)",
         "n_points": len(tracks),
         "n_observations": int(tracks.observed.sum()),
         "n_points_seen_twice": int(np.sum(views > 1)),
@@ -198,9 +248,9 @@ def fit_albedo_map(
                 "name": f.name,
                 "specular_pixels": int(s.specular.sum()),
                 "albedo_coverage": cov,
-                "median_views": float(np.median(c[c > 0])) if np.any(c > 0) else 0.0,
+                "median_views": v,
             }
-            for f, s, cov, c in zip(capture.frames, sets, coverage, counts, strict=True)
+            for f, s, cov, v in zip(capture.frames, sets, coverage, median_views, strict=True)
         ],
         "model": "eq. (4) with rho_tilde per surface point: rho_tilde(p) N.L/pi + F_tilde "
         "D(sigma)/(pi N.L N.V), L = V",
@@ -210,7 +260,7 @@ def fit_albedo_map(
         "masks": dataclasses.asdict(masks),
     }
     warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
-    arrays = {f"albedo/{f.name}": m for f, m in zip(capture.frames, maps, strict=True)}
+    arrays = _AlbedoMaps(capture, fit.brdf, per_point, neighbours)
     return Estimate(
         ShadingModel(brdf, ColocatedLight()),
         {"calibration": float(fit.rgb_rmse)},

@@ -12,6 +12,7 @@ Frames are the images, sorted by name; depth, normals and poses are matched by N
 """
 
 import dataclasses
+import functools
 import json
 import math
 from pathlib import Path
@@ -58,10 +59,17 @@ class Frame:
     @property
     def geometry_mask(self) -> np.ndarray:
         """Pixels of the scene with a finite normal and (where depth is known) a finite
-        positive depth."""
+        positive depth (a new array: the caller may change it)."""
+        return self._geometry_mask.copy()
+
+    @functools.cached_property
+    def _geometry_mask(self) -> np.ndarray:
+        # Computed once per frame (the estimators read it many times); frames are frozen.
         if self.normals is None:
             return np.zeros(self.image.shape[:2], bool)
-        mask = np.all(np.isfinite(self.normals), axis=-1)
+        mask = np.isfinite(self.normals[..., 0])
+        for c in (1, 2):
+            mask &= np.isfinite(self.normals[..., c])
         if self.depth is not None:
             mask &= np.isfinite(self.depth) & (self.depth > 0)
         if self.field_of_view is not None:
