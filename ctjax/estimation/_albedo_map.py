@@ -69,12 +69,11 @@ _NEGLIGIBLE = 1e-12
 MIN_COSINE = 0.05
 # Pixels whose albedo is estimated at once (bounds memory at 1080p).
 _MAP_CHUNK = 1 << 17
-# Grid points evaluated at once by the BnB (each is a pass over every observation's
-# corners): up to a zoom box of 8, fewer when 8 copies of the corners would exceed this
-# many (8 evaluations at once ran 1.3x faster than 4 on 200k observations; at 1080p x 50
-# frames, 8 cost 0.4 GB more).
-_GRID_BATCH = 8
-_BATCH_CORNERS = 1 << 23
+# Grid points evaluated at once by the BnB (each a pass over every observation's corners):
+# one, measured: 80 evaluations on 16k tracks x 8 views took 0.11 s one at a time, 0.22 s
+# two at a time and 0.29 s eight at a time (XLA's CPU code reduces the leading axes of the
+# batched (sigmas, views, points) arrays element by element).
+_GRID_BATCH = 1
 # The paper's light: at the camera centre, L = V.
 _PAPER_LIGHT = ColocatedLight()
 
@@ -163,6 +162,13 @@ class _Sums(NamedTuple):
     s_ag: list
 
 
+def _over_views(x: Float[Array, "M ..."]) -> Float[Array, "..."]:
+    """The sum over the leading axis (views, or corners) as adds of contiguous slices: XLA's
+    CPU code reduces a leading axis element by element (a batch of 8 sigmas x 8 views x 16k
+    points: 3.4 ms as `jnp.sum(axis=0)`, 0.11 ms as adds)."""
+    return functools.reduce(jnp.add, [x[m] for m in range(x.shape[0])])
+
+
 def _sums(columns, values, weight, per_point) -> _Sums:
     # Double where: weights may depend on fitted parameters (undone image effects), and the
     # slope of sqrt at an unobserved slot's 0 would make their gradient NaN.
@@ -171,7 +177,7 @@ def _sums(columns, values, weight, per_point) -> _Sums:
     a = columns[per_point] * w
     others = [c * w for k, c in enumerate(columns) if k != per_point]
     values = [values[c] * w for c in range(values.shape[0])]
-    total = lambda x, y: jnp.sum(x * y, axis=0)  # noqa: E731
+    total = lambda x, y: _over_views(x * y)  # noqa: E731
     return _Sums(
         a,
         others,
@@ -281,7 +287,7 @@ def _columns(family, params, shading: TrackShading):
     bilinearly combined like the image."""
     corners = shading.corner_weight
     return tuple(
-        jnp.sum(c.reshape(corners.shape) * corners, axis=0)
+        _over_views(c.reshape(corners.shape) * corners)  # the four corners: leading axis
         for c in design_columns(family, params, shading.samples)
     )
 
@@ -312,12 +318,15 @@ class AlbedoMapFit(eqx.Module):
         return self.family.build(self.params).with_weights(self.weights)
 
 
-def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
+def _standard_errors(family, params, weights, albedo, shading, per_point, variance):
     """Standard errors of the global parameters with every albedo eliminated: from the
     Jacobian of the projected residuals (the albedos' clamped set held fixed), whose
-    Gauss-Newton covariance is the global block of the joint one (a Schur complement)."""
+    Gauss-Newton covariance is the global block of the joint one (a Schur complement),
+    scaled by the residual `variance`. `shading` may be a subset of the fitted tracks
+    (`fit_brdf_map`'s `search`): the others' residuals do not depend on the global
+    parameters, and their rows of the Jacobian are 0."""
     k, channels = weights.shape
-    values, weight, observed = _values(shading), shading.weight, shading.observed
+    values, weight = _values(shading), shading.weight
     free = albedo.T > 0
     globals_ = [i for i in range(k) if i != per_point]
     if not globals_ and params.shape[0] == 0:  # every weight is per point: nothing global
@@ -337,11 +346,8 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
 
     theta = jnp.concatenate([weights[jnp.array(globals_, int)].reshape(-1), params])
     jacobian = jax.jacfwd(residuals)(theta)
-    n_observed = jnp.sum(observed) * channels
-    n_unknowns = theta.shape[0] + jnp.sum(free)
-    dof = jnp.maximum(n_observed - n_unknowns, 1)
     information = jacobian.T @ jacobian
-    covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
+    covariance = variance * jnp.linalg.pinv(information, hermitian=True)
     variance = jnp.diagonal(covariance)
     rank_deficient = jnp.linalg.matrix_rank(information) < theta.shape[0]
     stderr = jnp.where(rank_deficient | (variance < 0), jnp.inf, jnp.sqrt(jnp.abs(variance)))
@@ -363,7 +369,7 @@ def _fit(shading, search, family, per_point, tolerance, grid, candidates, zoom, 
 
     dtype = values.dtype
     if family.names:
-        search = grid_search(
+        found = grid_search(
             cost,
             family.lo,
             family.hi,
@@ -373,16 +379,24 @@ def _fit(shading, search, family, per_point, tolerance, grid, candidates, zoom, 
             zoom=zoom,
             zoom_grid=zoom_grid,
             dtype=dtype,
-            batch=max(1, min(_GRID_BATCH, _BATCH_CORNERS // search.corner_weight.size)),
+            batch=_GRID_BATCH,
         )
-        params, half_width = search.params, search.half_width
+        params, half_width = found.params, found.half_width
     else:
         params = jnp.zeros((0,), dtype)
         half_width = params
     columns = _columns(family, params, shading)
     albedo, weights, best = project_weights(columns, values, weight, per_point)
+    # The residual variance from every track; the Jacobian on the search's (see
+    # `_standard_errors`: 29k tracks, half of them near the highlights: 0.16 s -> 0.08).
+    unknowns = len(family.names) + (len(family.weight_names) - 1) * values.shape[0]
+    unknowns = unknowns + jnp.sum(albedo > 0)
+    variance = best / jnp.maximum(jnp.sum(observed) * values.shape[0] - unknowns, 1)
+    search_albedo = project_weights(
+        _columns(family, params, search), _values(search), search.weight, per_point
+    )[0]
     params_stderr, weights_stderr = _standard_errors(
-        family, params, weights, albedo, shading, per_point, best
+        family, params, weights, search_albedo, search, per_point, variance
     )
     # The RMSE of every observation, unweighted: what a user compares with the noise.
     model = sum(
