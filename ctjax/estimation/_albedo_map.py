@@ -645,9 +645,10 @@ def _frames_of(
     weights = np.asarray(brdf.weights, np.float64)
     for index in range(len(capture)) if frames is None else frames:
         mask = capture.frames[index].geometry_mask
-        if stride > 1:
-            mask = mask & (np.arange(mask.shape[0]) % stride == 0)[:, None]
-            mask &= (np.arange(mask.shape[1]) % stride == 0)[None, :]
+        if stride > 1:  # (every pixel of a frame whose geometry misses the grid)
+            grid = (np.arange(mask.shape[0]) % stride == 0)[:, None]
+            grid = grid & (np.arange(mask.shape[1]) % stride == 0)[None, :]
+            mask = mask & grid if np.any(mask & grid) else mask
         rows, cols = np.nonzero(mask)
         albedo = np.full((len(rows), 3), np.nan)
         seen_count = np.zeros(len(rows), int)
