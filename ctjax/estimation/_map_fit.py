@@ -122,6 +122,16 @@ class _AlbedoMaps(collections.abc.Mapping):
         return len(self._keys)
 
 
+def _near_tracks(fit, shading, search, near):
+    """The tracks near the highlights (`search`; all of `shading` when None) and their
+    albedos from `fit`: where the specular is measured, so where its sensitivity is read."""
+    if search is None:
+        return shading, fit.albedo
+    albedo = np.zeros((search.shape[1], 3), np.asarray(fit.albedo).dtype)
+    albedo[: near.sum()] = np.asarray(fit.albedo)[: len(near)][near]
+    return search, albedo
+
+
 def _normal_sensitivity(capture, fit, shading, albedo, per_point: int) -> dict:
     """How much the fitted specular changes per degree of normal error where it is
     measured (`_sensitivity.py`; on `shading`, tracks whose albedos are `albedo`), and
@@ -218,12 +228,6 @@ def fit_albedo_map(
     if 0 < near.sum() < len(tracks):
         search = track_shading(tracks.select(near).padded(bucket(int(near.sum()))))
     fit = fit_brdf_map(shading, family, tolerance=tolerance, search=search)
-    # The specular is measured near the highlights: its sensitivity is read there too.
-    near_tracks = (shading, fit.albedo)
-    if search is not None:
-        albedo = np.zeros((search.shape[1], 3), np.asarray(fit.albedo).dtype)
-        albedo[: near.sum()] = np.asarray(fit.albedo)[: len(tracks)][near]
-        near_tracks = (search, albedo)
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
     for result in (fit, lambertian):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
@@ -261,7 +265,9 @@ def fit_albedo_map(
         "D(sigma)/(pi N.L N.V), L = V",
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": {**_map_fit_json(lambertian, 0), "albedo": "map"},
-        "normals": _normal_sensitivity(capture, fit, *near_tracks, per_point),
+        "normals": _normal_sensitivity(
+            capture, fit, *_near_tracks(fit, shading, search, near), per_point
+        ),
         "masks": dataclasses.asdict(masks),
     }
     warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
