@@ -198,17 +198,6 @@ class Observations:
             return np.full(specular.shape, np.inf, np.float32)
         return cv2.distanceTransform((~specular).astype(np.uint8), cv2.DIST_L2, 5)
 
-    def near_specular(self, tracks, radius_px: float = DEFAULT_TRACK_RADIUS_PX) -> np.ndarray:
-        """(P,) whether each of `tracks` is anchored within `radius_px` of S in its frame:
-        the points that `tracks` anchors near the highlights, where the specular lobe is
-        measured (the others are drawn at random from the rest)."""
-        near = np.zeros(len(tracks), bool)
-        for index in np.unique(tracks.anchor_frame):
-            mine = tracks.anchor_frame == index
-            distance = self.specular_distance(int(index))
-            near[mine] = distance[tracks.anchor_row[mine], tracks.anchor_col[mine]] <= radius_px
-        return near
-
     def points(self, index: int) -> np.ndarray:
         """(H, W, 3): frame `index`'s camera-frame points (mm), NaN without depth."""
         return points_from_depth(self.capture.camera, self.capture.frames[index].depth)

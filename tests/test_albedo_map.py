@@ -305,24 +305,3 @@ def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp
     estimate = fit_capture(load_capture(copy))
     assert estimate.details["normals"]["refined_by_the_shading"]
     assert not any("come from ctjax reconstruct" in w for w in estimate.warnings)
-
-
-def test_the_search_near_the_highlights_finds_the_fit_of_every_track(textured):
-    """The sigma search and the standard errors' Jacobian on the tracks anchored near S
-    (what `fit_capture` does) give the fit of every track: the others' specular is
-    negligible in every view."""
-    from ctjax.estimation._albedo_map import fit_brdf_map, track_shading
-    from ctjax.observations import Observations
-
-    observations = Observations.of(load_capture(textured[(1, 1.0)]))
-    tracks = observations.tracks()
-    near = observations.near_specular(tracks)
-    assert 0 < near.sum() < len(tracks)
-    shading = track_shading(tracks)
-    every = fit_brdf_map(shading)
-    searched = fit_brdf_map(shading, search=track_shading(tracks.select(near)))
-    half_width = float(every.search_half_width[0])
-    assert abs(float(searched.params[0]) - float(every.params[0])) <= 2 * half_width
-    np.testing.assert_allclose(searched.weights[1], every.weights[1], rtol=2e-3)
-    np.testing.assert_allclose(searched.params_stderr, every.params_stderr, rtol=0.05)
-    np.testing.assert_allclose(searched.weights_stderr[1], every.weights_stderr[1], rtol=0.05)

@@ -322,9 +322,7 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, varian
     """Standard errors of the global parameters with every albedo eliminated: from the
     Jacobian of the projected residuals (the albedos' clamped set held fixed), whose
     Gauss-Newton covariance is the global block of the joint one (a Schur complement),
-    scaled by the residual `variance`. `shading` may be a subset of the fitted tracks
-    (`fit_brdf_map`'s `search`): the others' residuals do not depend on the global
-    parameters, and their rows of the Jacobian are 0."""
+    scaled by the residual `variance`."""
     k, channels = weights.shape
     values, weight = _values(shading), shading.weight
     free = albedo.T > 0
@@ -360,12 +358,11 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, varian
 
 
 @persistent_jit
-def _fit(shading, search, family, per_point, tolerance, grid, candidates, zoom, zoom_grid):
+def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_grid):
     values, weight, observed = _values(shading), shading.weight, shading.observed
 
     def cost(params):
-        columns = _columns(family, params, search)
-        return project_weights(columns, _values(search), search.weight, per_point)[2]
+        return project_weights(_columns(family, params, shading), values, weight, per_point)[2]
 
     dtype = values.dtype
     if family.names:
@@ -387,16 +384,11 @@ def _fit(shading, search, family, per_point, tolerance, grid, candidates, zoom, 
         half_width = params
     columns = _columns(family, params, shading)
     albedo, weights, best = project_weights(columns, values, weight, per_point)
-    # The residual variance from every track; the Jacobian on the search's (see
-    # `_standard_errors`: 29k tracks, half of them near the highlights: 0.16 s -> 0.08).
     unknowns = len(family.names) + (len(family.weight_names) - 1) * values.shape[0]
     unknowns = unknowns + jnp.sum(albedo > 0)
     variance = best / jnp.maximum(jnp.sum(observed) * values.shape[0] - unknowns, 1)
-    search_albedo = project_weights(
-        _columns(family, params, search), _values(search), search.weight, per_point
-    )[0]
     params_stderr, weights_stderr = _standard_errors(
-        family, params, weights, search_albedo, search, per_point, variance
+        family, params, weights, albedo, shading, per_point, variance
     )
     # The RMSE of every observation, unweighted: what a user compares with the noise.
     model = sum(
@@ -451,29 +443,21 @@ def fit_brdf_map(
     candidates: int = 2,
     zoom: int = 2,
     zoom_grid: int = 8,
-    search: TrackShading | None = None,
 ) -> AlbedoMapFit:
     """The BRDF with one albedo per tracked point (see the module doc): the sigma BnB over
     closed-form solves in which every albedo and the global weights are eliminated.
-    `search`: the tracks the BnB runs on (all of `shading` by default), e.g. those anchored
-    near the highlights (`Observations.near_specular`): a point whose specular is negligible
-    in every view adds a cost that does not depend on sigma. The weights, albedos, standard
-    errors and RMSE are then those of all of `shading` at the sigma found.
     `grid` points per axis at the first level, `zoom_grid` at the later ones, `candidates`
     boxes kept per level (see `grid_search`): each cost evaluation passes over every
     observation, and 8 points in 2 boxes reach the same tolerance as 32 in 4 in 80
-    evaluations instead of 288 (29k points x 8 frames at 320x256: 0.96 s, against 1.47 s for
-    4 boxes of 8, the same sigma; the first level's 32 points find the basins).
+    evaluations instead of 128 (the same sigma on every capture tried; the first level's 32
+    points find the basins).
 
     The global weights' per-point row (`rho_tilde`) reports the median albedo per channel.
     """
     observed = np.asarray(shading.observed)
     views = observed.sum(axis=0)
     k = len(family.weight_names)
-    needed = 3 * (k - 1) + len(family.names) + 1
-    if search is None or _informative(search) < needed:
-        search = shading
-    if _informative(shading) < needed:
+    if _informative(shading) < 3 * (k - 1) + len(family.names) + 1:
         raise CtjaxError(
             f"{len(views)} tracked points with {int(observed.sum())} observations: too few "
             "points seen in two frames or more to separate the albedo from the BRDF (poses "
@@ -485,7 +469,6 @@ def fit_brdf_map(
     per_point = _per_point_index(family)
     params, weights, albedo, cost, rmse, p_err, w_err, half = _fit(
         _padded_points(shading),
-        _padded_points(search),
         family,
         per_point,
         tolerance,

@@ -122,21 +122,12 @@ class _AlbedoMaps(collections.abc.Mapping):
         return len(self._keys)
 
 
-def _near_tracks(fit, shading, search, near):
-    """The tracks near the highlights (`search`; all of `shading` when None) and their
-    albedos from `fit`: where the specular is measured, so where its sensitivity is read."""
-    if search is None:
-        return shading, fit.albedo
-    albedo = np.zeros((search.shape[1], 3), np.asarray(fit.albedo).dtype)
-    albedo[: near.sum()] = np.asarray(fit.albedo)[: len(near)][near]
-    return search, albedo
-
-
-def _normal_sensitivity(capture, fit, shading, albedo, per_point: int) -> dict:
+def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
     """How much the fitted specular changes per degree of normal error where it is
-    measured (`_sensitivity.py`; on `shading`, tracks whose albedos are `albedo`), and
-    whether the normals come from `ctjax reconstruct`."""
-    change, count = specular_change(fit.family, fit.params, shading, fit.weights, albedo, per_point)
+    measured (`_sensitivity.py`), and whether the normals come from `ctjax reconstruct`."""
+    change, count = specular_change(
+        fit.family, fit.params, shading, fit.weights, fit.albedo, per_point
+    )
     root = getattr(capture, "root", None)
     report = root / "reconstruction.json" if root else None
     from_reconstruct = bool(report and report.is_file())
@@ -220,14 +211,10 @@ def fit_albedo_map(
     views = tracks.views
     # Padded here to the fitters' bucket size (`ctjax._buckets`), once for every fit below.
     shading = track_shading(tracks.padded(bucket(len(tracks))))
-    # The sigma search on the points anchored near the highlights: the others' specular is
-    # negligible in every view, their cost the same for every sigma (320x256 x 8 frames:
-    # the same sigma and F_tilde in half the time).
-    near = obs.near_specular(tracks)
-    search = None
-    if 0 < near.sum() < len(tracks):
-        search = track_shading(tracks.select(near).padded(bucket(int(near.sum()))))
-    fit = fit_brdf_map(shading, family, tolerance=tolerance, search=search)
+    # The search on every track, not only those anchored near the highlights: with exact
+    # geometry the others change nothing (same sigma and F_tilde on 6 captures), but with
+    # SfM's (the demo's capture) sigma went from +4.1% to +5.8% without them.
+    fit = fit_brdf_map(shading, family, tolerance=tolerance)
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
     for result in (fit, lambertian):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
@@ -265,9 +252,7 @@ def fit_albedo_map(
         "D(sigma)/(pi N.L N.V), L = V",
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": {**_map_fit_json(lambertian, 0), "albedo": "map"},
-        "normals": _normal_sensitivity(
-            capture, fit, *_near_tracks(fit, shading, search, near), per_point
-        ),
+        "normals": _normal_sensitivity(capture, fit, shading, per_point),
         "masks": dataclasses.asdict(masks),
     }
     warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
