@@ -318,13 +318,12 @@ class AlbedoMapFit(eqx.Module):
         return self.family.build(self.params).with_weights(self.weights)
 
 
-def _standard_errors(family, params, weights, albedo, shading, per_point, variance):
+def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     """Standard errors of the global parameters with every albedo eliminated: from the
     Jacobian of the projected residuals (the albedos' clamped set held fixed), whose
-    Gauss-Newton covariance is the global block of the joint one (a Schur complement),
-    scaled by the residual `variance`."""
+    Gauss-Newton covariance is the global block of the joint one (a Schur complement)."""
     k, channels = weights.shape
-    values, weight = _values(shading), shading.weight
+    values, weight, observed = _values(shading), shading.weight, shading.observed
     free = albedo.T > 0
     globals_ = [i for i in range(k) if i != per_point]
     if not globals_ and params.shape[0] == 0:  # every weight is per point: nothing global
@@ -344,8 +343,11 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, varian
 
     theta = jnp.concatenate([weights[jnp.array(globals_, int)].reshape(-1), params])
     jacobian = jax.jacfwd(residuals)(theta)
+    n_observed = jnp.sum(observed) * channels
+    n_unknowns = theta.shape[0] + jnp.sum(free)
+    dof = jnp.maximum(n_observed - n_unknowns, 1)
     information = jacobian.T @ jacobian
-    covariance = variance * jnp.linalg.pinv(information, hermitian=True)
+    covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
     variance = jnp.diagonal(covariance)
     rank_deficient = jnp.linalg.matrix_rank(information) < theta.shape[0]
     stderr = jnp.where(rank_deficient | (variance < 0), jnp.inf, jnp.sqrt(jnp.abs(variance)))
@@ -384,11 +386,8 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
         half_width = params
     columns = _columns(family, params, shading)
     albedo, weights, best = project_weights(columns, values, weight, per_point)
-    unknowns = len(family.names) + (len(family.weight_names) - 1) * values.shape[0]
-    unknowns = unknowns + jnp.sum(albedo > 0)
-    variance = best / jnp.maximum(jnp.sum(observed) * values.shape[0] - unknowns, 1)
     params_stderr, weights_stderr = _standard_errors(
-        family, params, weights, albedo, shading, per_point, variance
+        family, params, weights, albedo, shading, per_point, best
     )
     # The RMSE of every observation, unweighted: what a user compares with the noise.
     model = sum(
@@ -428,12 +427,6 @@ def _padded_points(shading: TrackShading) -> TrackShading:
     )
 
 
-def _informative(shading: TrackShading) -> int:
-    """Observations beyond each point's first: what constrains the global parameters."""
-    views = np.asarray(shading.observed).sum(axis=0)
-    return int(np.sum(views[views > 1] - 1))
-
-
 def fit_brdf_map(
     shading: TrackShading,
     family: BRDFFamily = PAPER,
@@ -457,7 +450,8 @@ def fit_brdf_map(
     observed = np.asarray(shading.observed)
     views = observed.sum(axis=0)
     k = len(family.weight_names)
-    if _informative(shading) < 3 * (k - 1) + len(family.names) + 1:
+    informative = int(np.sum(views[views > 1] - 1))
+    if informative < 3 * (k - 1) + len(family.names) + 1:
         raise CtjaxError(
             f"{len(views)} tracked points with {int(observed.sum())} observations: too few "
             "points seen in two frames or more to separate the albedo from the BRDF (poses "
