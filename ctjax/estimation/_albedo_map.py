@@ -342,7 +342,9 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
         return jnp.stack(residual).reshape(-1)
 
     theta = jnp.concatenate([weights[jnp.array(globals_, int)].reshape(-1), params])
-    jacobian = jax.jacfwd(residuals)(theta)
+    # Materialised before J^T J: fused into the product, XLA's CPU code took 2.2x as long
+    # (29k tracks x 8 views: 0.16 s against 0.074 s).
+    jacobian = jax.lax.optimization_barrier(jax.jacfwd(residuals)(theta))
     n_observed = jnp.sum(observed) * channels
     n_unknowns = theta.shape[0] + jnp.sum(free)
     dof = jnp.maximum(n_observed - n_unknowns, 1)
