@@ -74,6 +74,8 @@ _MAP_CHUNK = 1 << 17
 # two at a time and 0.29 s eight at a time (XLA's CPU code reduces the leading axes of the
 # batched (sigmas, views, points) arrays element by element).
 _GRID_BATCH = 1
+# The BnB's first level evaluates every this-many-th track (`_fit`).
+_COARSE_STEP = 4
 # The paper's light: at the camera centre, L = V.
 _PAPER_LIGHT = ColocatedLight()
 
@@ -98,6 +100,20 @@ class TrackShading(eqx.Module):
     @property
     def observed(self) -> Bool[Array, "M P"]:
         return self.weight > 0
+
+    def every(self, step: int) -> "TrackShading":
+        """Every `step`-th point (an unbiased subset: tracks are ordered by anchor frame)."""
+        m, p = self.shape
+
+        def flat(leaf):  # flattened corners (4 M P, ...)
+            return leaf.reshape(4, m, p, *leaf.shape[1:])[:, :, ::step].reshape(-1, *leaf.shape[1:])
+
+        return TrackShading(
+            jax.tree.map(flat, self.samples),
+            self.corner_weight[..., ::step],
+            self.values[..., ::step],
+            self.weight[..., ::step],
+        )
 
 
 def _shade(light: AbstractLight, point: Vec3, normal: Vec3, pixel):
@@ -321,39 +337,70 @@ class AlbedoMapFit(eqx.Module):
 def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     """Standard errors of the global parameters with every albedo eliminated: from the
     Jacobian of the projected residuals (the albedos' clamped set held fixed), whose
-    Gauss-Newton covariance is the global block of the joint one (a Schur complement)."""
+    Gauss-Newton covariance is the global block of the joint one (a Schur complement).
+
+    The residual of channel c is linear in the global weights w_gc given the columns:
+    r_c = v_c - a rho_c - sum_g g w_gc with rho_c = (s_aIc - sum_g s_ag w_gc) / s_aa, so
+    d r_c / d w_gc = a s_ag / s_aa - g (0 for a clamped albedo, and in the other channels).
+    Only the nonlinear parameters are differentiated by autodiff (`jax.jacfwd`): a forward
+    pass per parameter instead of one per weight and channel.
+    """
     k, channels = weights.shape
-    values, weight, observed = _values(shading), shading.weight, shading.observed
-    free = albedo.T > 0
+    free = albedo.T > 0  # (C, P)
     globals_ = [i for i in range(k) if i != per_point]
     if not globals_ and params.shape[0] == 0:  # every weight is per point: nothing global
         return params, jnp.full((k, channels), jnp.nan, weights.dtype)
+    w = weights[jnp.array(globals_, int)]  # (G, C)
 
-    def residuals(theta):
-        w = theta[: len(globals_) * channels].reshape(len(globals_), channels)
-        p = theta[len(globals_) * channels :]
-        s = _sums(_columns(family, p, shading), values, weight, per_point)
+    def sums(p):
+        s = _sums(_columns(family, p, shading), shading.values, shading.weight, per_point)
         inverse = jnp.where(s.s_aa > 0, 1 / jnp.where(s.s_aa > 0, s.s_aa, 1), 0)
-        residual = []
-        for c, (v, s_ai) in enumerate(zip(s.values, s.s_ai, strict=True)):
-            rho = (s_ai - sum(ag * w[g, c] for g, ag in enumerate(s.s_ag))) * inverse
-            rho = jnp.where(free[c], rho, 0)
-            residual.append(v - s.a * rho - sum(g * w[i, c] for i, g in enumerate(s.others)))
-        return jnp.stack(residual).reshape(-1)
+        return s, [jnp.where(f, inverse, 0) for f in free]
 
-    theta = jnp.concatenate([weights[jnp.array(globals_, int)].reshape(-1), params])
-    # Materialised before J^T J: fused into the product, XLA's CPU code took 2.2x as long
-    # (29k tracks x 8 views: 0.16 s against 0.074 s).
-    jacobian = jax.lax.optimization_barrier(jax.jacfwd(residuals)(theta))
-    n_observed = jnp.sum(observed) * channels
-    n_unknowns = theta.shape[0] + jnp.sum(free)
+    def residuals(p):  # (C, M, P)
+        s, inverse = sums(p)
+        return jnp.stack(
+            [
+                v
+                - s.a * (s_ai - sum(ag * w[g, c] for g, ag in enumerate(s.s_ag))) * inverse[c]
+                - sum(g * w[i, c] for i, g in enumerate(s.others))
+                for c, (v, s_ai) in enumerate(zip(s.values, s.s_ai, strict=True))
+            ]
+        )
+
+    s, inverse = sums(params)
+    # (C, G) Jacobians of the residuals (M, P) by the weights, then (C, D) by the parameters.
+    by_weight = [
+        [s.a * (ag * inverse[c]) - g for ag, g in zip(s.s_ag, s.others, strict=True)]
+        for c in range(channels)
+    ]
+    by_param = jnp.moveaxis(jax.jacfwd(residuals)(params), -1, 0)  # (D, C, M, P)
+    dot = lambda x, y: jnp.sum(x * y)  # noqa: E731
+    n_weights, dims = len(globals_) * channels, params.shape[0]
+    information = jnp.zeros((n_weights + dims, n_weights + dims), weights.dtype)
+    for c in range(channels):
+        for g in range(len(globals_)):
+            i = g * channels + c
+            for h in range(g, len(globals_)):
+                j = h * channels + c
+                value = dot(by_weight[c][g], by_weight[c][h])
+                information = information.at[i, j].set(value).at[j, i].set(value)
+            for d in range(dims):
+                value = dot(by_weight[c][g], by_param[d, c])
+                j = n_weights + d
+                information = information.at[i, j].set(value).at[j, i].set(value)
+    for d in range(dims):
+        for e in range(d, dims):
+            value = dot(by_param[d], by_param[e])
+            i, j = n_weights + d, n_weights + e
+            information = information.at[i, j].set(value).at[j, i].set(value)
+    n_observed = jnp.sum(shading.observed) * channels
+    n_unknowns = n_weights + dims + jnp.sum(free)
     dof = jnp.maximum(n_observed - n_unknowns, 1)
-    information = jacobian.T @ jacobian
     covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
     variance = jnp.diagonal(covariance)
-    rank_deficient = jnp.linalg.matrix_rank(information) < theta.shape[0]
+    rank_deficient = jnp.linalg.matrix_rank(information) < n_weights + dims
     stderr = jnp.where(rank_deficient | (variance < 0), jnp.inf, jnp.sqrt(jnp.abs(variance)))
-    n_weights = len(globals_) * channels
     weights_stderr = jnp.full((k, channels), jnp.nan, weights.dtype)
     weights_stderr = weights_stderr.at[jnp.array(globals_, int)].set(
         stderr[:n_weights].reshape(len(globals_), channels)
@@ -365,10 +412,14 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
 def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_grid):
     values, weight, observed = _values(shading), shading.weight, shading.observed
 
-    def cost(params):
-        return project_weights(_columns(family, params, shading), values, weight, per_point)[2]
+    def cost(params, shading=shading):
+        columns = _columns(family, params, shading)
+        return project_weights(columns, shading.values, shading.weight, per_point)[2]
 
     dtype = values.dtype
+    # The first level only picks the boxes the later ones narrow (`grid_search`): on every
+    # `_COARSE_STEP`-th track it finds the same ones at a fraction of the cost.
+    coarse = shading.every(_COARSE_STEP)
     if family.names:
         found = grid_search(
             cost,
@@ -381,6 +432,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
             zoom_grid=zoom_grid,
             dtype=dtype,
             batch=_GRID_BATCH,
+            coarse=lambda params: cost(params, coarse),
         )
         params, half_width = found.params, found.half_width
     else:

@@ -74,6 +74,7 @@ def grid_search(
     zoom_grid: int | None = None,
     dtype=None,
     batch: int | None = None,
+    coarse: Callable[[Float[Array, " D"]], Scalar] | None = None,
 ) -> GridSearchResult:
     """Minimise `cost(params)` over the box [lo, hi] by zooming grids (see module doc).
 
@@ -88,6 +89,9 @@ def grid_search(
     evaluations.
     `batch` evaluates the grid `batch` points at a time (`jax.lax.map`) instead of all at
     once: for costs over many samples, whose batched intermediates would not stay in cache.
+    `coarse` (default `cost`) is what the first level evaluates: a cheaper cost with the
+    same basins (e.g. `cost` on a subset of the samples), since that level only picks the
+    boxes the later ones narrow; the result's cost is then the best of the later levels'.
     """
     # The box is configuration (it sets the number of levels): concrete, not traced.
     lo = np.atleast_1d(np.asarray(lo, float))
@@ -102,22 +106,22 @@ def grid_search(
         offsets = (jnp.arange(points, dtype=dtype) + 0.5) / points  # centres in [0, 1]
         return jnp.stack(jnp.meshgrid(*([offsets] * dims), indexing="ij"), -1).reshape(-1, dims)
 
-    def safe_cost(params):
-        value = cost(params)
-        return jnp.where(jnp.isfinite(value), value, jnp.inf)
+    def evaluate(cost, centres):  # (M, G^D, D) -> (M, G^D)
+        def safe_cost(params):
+            value = cost(params)
+            return jnp.where(jnp.isfinite(value), value, jnp.inf)
 
-    def evaluate(centres):  # (M, G^D, D) -> (M, G^D)
         if batch is None:
             return jax.vmap(jax.vmap(safe_cost))(centres)
         flat = centres.reshape(-1, dims)
         return jax.lax.map(safe_cost, flat, batch_size=batch).reshape(centres.shape[:2])
 
-    def search_level(starts, widths, points, best, minima):
+    def search_level(starts, widths, points, best, minima, cost=cost):
         """Evaluate `points`^D centres in each box (lower corners `starts` (M, D), size
         `widths`), keep the best, and return the next level's boxes around the candidates."""
         spacing = widths / points
         centres = starts[:, None, :] + unit_grid(points)[None, :, :] * widths  # (M, G^D, D)
-        costs = evaluate(centres)
+        costs = evaluate(cost, centres)
         flat_centres, flat_costs = centres.reshape(-1, dims), costs.reshape(-1)
         is_minimum = minima(costs).reshape(-1)
         order = jnp.lexsort((flat_costs, ~is_minimum))[: min(candidates, flat_costs.shape[0])]
@@ -135,9 +139,14 @@ def grid_search(
     # Level 1 tiles the box; every later level has the same shape (`candidates` boxes of
     # `zoom_grid`^D points): traced once and looped.
     minima = lambda points: lambda c: _local_minima(c, dims, points)  # noqa: E731
-    starts, widths, best, spacing = search_level(lo[None, :], hi - lo, grid, best, minima(grid))
+    first = cost if coarse is None or levels == 1 else coarse
+    starts, widths, best, spacing = search_level(
+        lo[None, :], hi - lo, grid, best, minima(grid), first
+    )
     kept = min(candidates, grid**dims)
     if levels > 1:
+        if first is not cost:  # its costs are not comparable with `cost`'s
+            best = (best[0], jnp.asarray(jnp.inf, dtype))
 
         def body(carry, _):
             starts, widths, best = carry

@@ -15,6 +15,7 @@ import math
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from .._numerics import safe_normalize
 from .._programs import persistent_jit
@@ -39,13 +40,23 @@ def tilted(samples: ShadingSamples, degrees: float) -> ShadingSamples:
     return eqx.tree_at(lambda s: s.normal, samples, turned)
 
 
-@persistent_jit
 def specular_change(family, params, shading: TrackShading, weights, albedo, per_point: int):
     """The median relative change of the global lobes' prediction (summed over channels)
     when every normal is tilted 1 degree away from its half vector, over the observed
     tracks where those lobes are at least `SPECULAR_SHARE` of the model, and how many such
     observations there are. `weights` (K, 3) are the fitted global weights, `albedo`
     (P, 3) the points' (`fit_brdf_map`)."""
+    # The median on the host: XLA's CPU sort of 8 x 32k changes took 0.11 s, NumPy's
+    # selection 2 ms.
+    change = np.asarray(_changes(family, params, shading, weights, albedo, per_point))
+    counted = np.isfinite(change)
+    median = float(np.median(change[counted])) if counted.any() else float("nan")
+    return median, int(counted.sum())
+
+
+@persistent_jit
+def _changes(family, params, shading: TrackShading, weights, albedo, per_point: int):
+    """Every observation's relative change (M, P), NaN where it is not counted."""
     turned = eqx.tree_at(lambda s: s.samples, shading, tilted(shading.samples, 1.0))
 
     def split(columns):
@@ -57,4 +68,4 @@ def specular_change(family, params, shading: TrackShading, weights, albedo, per_
     counts = shading.observed & (specular > SPECULAR_SHARE * (specular + diffuse))
     counts = counts & (specular > 0)
     change = jnp.abs(tilted_specular - specular) / jnp.where(counts, specular, 1)
-    return jnp.nanmedian(jnp.where(counts, change, jnp.nan)), jnp.sum(counts)
+    return jnp.where(counts, change, jnp.nan)
