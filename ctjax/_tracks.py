@@ -159,11 +159,16 @@ def sample_image(
     # OpenCV's maps are at most 32767 wide: lay the N positions out as rows of 1024.
     n = u.shape[0]
     rows = -(-n // 1024)
-    grid = lambda a: np.pad(np.asarray(a, np.float32), (0, rows * 1024 - n), constant_values=-10)  # noqa: E731
+
+    def grid(a):  # (np.pad costs 30 us a call, which adds up over frames and views)
+        out = np.full((rows, 1024), -10, np.float32)
+        out.reshape(-1)[:n] = a
+        return out
+
     out = cv2.remap(
         np.ascontiguousarray(image, np.float32),
-        grid(u).reshape(rows, 1024),
-        grid(v).reshape(rows, 1024),
+        grid(u),
+        grid(v),
         how,
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=np.nan,
@@ -405,7 +410,7 @@ def follow(
     frames = list(range(len(capture))) if frames is None else sorted(frames)
     count = len(frames) - 1 if neighbours is None else min(neighbours, len(frames) - 1)
     data = {i: FrameData.of(capture.frames[i], saturation_level) for i in frames}
-    parts = []
+    followed = []  # (anchor frame, rows, cols, the frames it is looked for in, observations)
     for index, (rows, cols) in enumerate(anchors):
         if index not in data:
             continue
@@ -416,33 +421,52 @@ def follow(
         if len(rows) == 0:
             continue
         world = world_points(camera, frame, rows, cols)
+        seen_in = partners(capture, index, count, frames)
         slots = [
             observe_own(camera, data[index], rows, cols, saturation_level)
             if other == index
             else observe(camera, data[other], world, tolerance)
-            for other in partners(capture, index, count, frames)
+            for other in seen_in
         ]
-
-        def stack(name, slots=slots):
-            return np.stack([getattr(o, name) for o in slots], axis=1)
-
-        seen_in = np.array(partners(capture, index, count, frames))
-        parts.append(
-            {
-                "corner_point": stack("corner_point"),
-                "corner_normal": stack("corner_normal"),
-                "corner_pixel": stack("corner_pixel"),
-                "corner_weight": stack("corner_weight"),
-                "values": stack("values"),
-                # The BRDF fit drops an observation with any clipped channel.
-                "observed": stack("seen"),
-                "weight": stack("weight") * stack("seen"),
-                "frame": np.where(stack("seen"), seen_in[None, :], -1),
-                "anchor_frame": np.full(len(rows), index),
-                "anchor_row": rows,
-                "anchor_col": cols,
-            }
-        )
-    if not parts:
+        followed.append((index, rows, cols, seen_in, slots))
+    if not followed:
         raise CtjaxError(f"{capture.root}: no anchor pixel with depth and a normal to follow")
-    return Tracks(**{k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    return _assembled(followed)
+
+
+def _assembled(followed) -> Tracks:
+    """`Tracks` of the observations `follow` made, written once into arrays of their final
+    size (stacking per frame and then concatenating copied each twice: 0.06 s of 0.18)."""
+    points, views = sum(len(rows) for _, rows, _, _, _ in followed), len(followed[0][3])
+    example = followed[0][4][0]
+    source = {
+        "corner_point": "corner_point",
+        "corner_normal": "corner_normal",
+        "corner_pixel": "corner_pixel",
+        "corner_weight": "corner_weight",
+        "values": "values",
+        "observed": "seen",
+        "weight": "weight",
+    }
+    out = {}
+    for name, attribute in source.items():
+        like = getattr(example, attribute)
+        out[name] = np.empty((points, views, *like.shape[1:]), like.dtype)
+    out["frame"] = np.empty((points, views), int)
+    anchor = {name: np.empty(points, int) for name in ("anchor_frame", "anchor_row", "anchor_col")}
+    start = 0
+    for index, rows, cols, seen_in, slots in followed:
+        part = slice(start, start + len(rows))
+        for m, (obs, other) in enumerate(zip(slots, seen_in, strict=True)):
+            for name in ("corner_point", "corner_normal", "corner_pixel", "corner_weight"):
+                out[name][part, m] = getattr(obs, name)
+            out["values"][part, m] = obs.values
+            # The BRDF fit drops an observation with any clipped channel.
+            out["observed"][part, m] = obs.seen
+            out["weight"][part, m] = obs.weight * obs.seen
+            out["frame"][part, m] = np.where(obs.seen, other, -1)
+        anchor["anchor_frame"][part] = index
+        anchor["anchor_row"][part] = rows
+        anchor["anchor_col"][part] = cols
+        start += len(rows)
+    return Tracks(**out, **anchor)

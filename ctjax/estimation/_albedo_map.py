@@ -48,7 +48,6 @@ from .._tracks import (
     sample_image,
     sight,
     sight_own,
-    views_first,
     world_points,
 )
 from .._typing import Array, Bool, Float, Scalar
@@ -122,37 +121,46 @@ def _shade(light: AbstractLight, point: Vec3, normal: Vec3, pixel):
     return normal, direction, view, irradiance
 
 
-def _shading_samples(light, point, normal, pixel, dtype) -> ShadingSamples:
-    """Shading samples under `light` of points, normals (N, 3) and pixels (N, 2)."""
-    as_host = lambda a: np.ascontiguousarray(a, dtype)  # noqa: E731
-    return _shade_all(light, as_host(point), as_host(normal), as_host(pixel))
+def _views_first(array):
+    """`ctjax._tracks.views_first` traced (XLA fuses the transposition into its consumers:
+    in NumPy it was 40% of the tracks' shading)."""
+    if array.ndim == 2:
+        return array.T
+    moved = jnp.moveaxis(array, (0, 2), (2, 0))
+    return moved if array.ndim == 3 else moved.reshape(-1, array.shape[-1])
 
 
 @persistent_jit
-def _shade_all(light, point, normal, pixel) -> ShadingSamples:
+def _track_shading(light, point, normal, pixel, corner_weight, values, weight) -> TrackShading:
     # Compiled (and kept between processes): op by op, a new process spent 0.2 s lowering
     # each operation of the light's model.
+    point, normal, pixel = (_views_first(a) for a in (point, normal, pixel))
     n, l, v, e = jax.vmap(lambda p, q, x: _shade(light, p, q, x))(
         Vec3.from_array(point), Vec3.from_array(normal), (pixel[:, 0], pixel[:, 1])
     )
-    return ShadingSamples(n, l, v, e, jnp.zeros((len(point), 3), point.dtype))
+    samples = ShadingSamples(n, l, v, e, jnp.zeros((len(point), 3), point.dtype))
+    return TrackShading(
+        samples, _views_first(corner_weight), _views_first(values), _views_first(weight)
+    )
 
 
 def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=None):
     """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading`."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
-    samples = _shading_samples(
+    as_host = lambda a: np.asarray(a, dtype)  # noqa: E731
+    return _track_shading(
         light,
-        views_first(tracks.corner_point),
-        views_first(tracks.corner_normal),
-        views_first(tracks.corner_pixel),
-        dtype,
-    )
-    return TrackShading(
-        samples,
-        jnp.asarray(views_first(tracks.corner_weight), dtype),
-        jnp.asarray(views_first(tracks.values), dtype),
-        jnp.asarray(views_first(tracks.weight), dtype),
+        *(
+            as_host(a)
+            for a in (
+                tracks.corner_point,
+                tracks.corner_normal,
+                tracks.corner_pixel,
+                tracks.corner_weight,
+                tracks.values,
+                tracks.weight,
+            )
+        ),
     )
 
 
