@@ -14,6 +14,12 @@ from ._typing import Array, Float
 
 def as_float(x) -> Float[Array, "..."]:
     """`jnp.asarray`, promoting integers and bools to the default float dtype."""
+    # Python scalars without an eager JAX op (`jnp.asarray` of one, or `astype`, compiles a
+    # program: milliseconds each in a new process), with the same dtype and weak type.
+    if isinstance(x, float):
+        return jax.device_put(x)
+    if isinstance(x, int | np.integer | np.bool_):  # bool is an int
+        return jnp.asarray(np.asarray(x, jax.dtypes.canonicalize_dtype(float)))
     x = jnp.asarray(x)
     return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(float)
 

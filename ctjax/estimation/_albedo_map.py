@@ -339,13 +339,16 @@ class AlbedoMapFit(eqx.Module):
 
     @property
     def brdf(self):
-        return self.family.build(self.params).with_weights(self.weights)
+        # Built from host values: eager JAX ops would each compile a program.
+        return self.family.build(np.asarray(self.params)).with_weights(np.asarray(self.weights))
 
 
-def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
-    """Standard errors of the global parameters with every albedo eliminated: from the
-    Jacobian of the projected residuals (the albedos' clamped set held fixed), whose
-    Gauss-Newton covariance is the global block of the joint one (a Schur complement).
+def _information(family, params, weights, albedo, shading, per_point, cost):
+    """The Gauss-Newton information matrix of the global parameters (the global weights,
+    channel fastest, then the nonlinear parameters) with every albedo eliminated, and the
+    residual variance: from the Jacobian of the projected residuals (the albedos' clamped
+    set held fixed), whose Gauss-Newton covariance is the global block of the joint one (a
+    Schur complement). Inverted on the host (`_standard_errors`).
 
     The residual of channel c is linear in the global weights w_gc given the columns:
     r_c = v_c - a rho_c - sum_g g w_gc with rho_c = (s_aIc - sum_g s_ag w_gc) / s_aa, so
@@ -356,8 +359,11 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     k, channels = weights.shape
     free = albedo.T > 0  # (C, P)
     globals_ = [i for i in range(k) if i != per_point]
-    if not globals_ and params.shape[0] == 0:  # every weight is per point: nothing global
-        return params, jnp.full((k, channels), jnp.nan, weights.dtype)
+    n_weights, dims = len(globals_) * channels, params.shape[0]
+    n_observed = jnp.sum(shading.observed) * channels
+    scale = cost / jnp.maximum(n_observed - (n_weights + dims + jnp.sum(free)), 1)
+    if n_weights + dims == 0:  # every weight is per point: nothing global
+        return jnp.zeros((0, 0), weights.dtype), scale
     w = weights[jnp.array(globals_, int)]  # (G, C)
 
     def sums(p):
@@ -384,7 +390,6 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
     ]
     by_param = jnp.moveaxis(jax.jacfwd(residuals)(params), -1, 0)  # (D, C, M, P)
     dot = lambda x, y: jnp.sum(x * y)  # noqa: E731
-    n_weights, dims = len(globals_) * channels, params.shape[0]
     information = jnp.zeros((n_weights + dims, n_weights + dims), weights.dtype)
     for c in range(channels):
         for g in range(len(globals_)):
@@ -402,17 +407,28 @@ def _standard_errors(family, params, weights, albedo, shading, per_point, cost):
             value = dot(by_param[d], by_param[e])
             i, j = n_weights + d, n_weights + e
             information = information.at[i, j].set(value).at[j, i].set(value)
-    n_observed = jnp.sum(shading.observed) * channels
-    n_unknowns = n_weights + dims + jnp.sum(free)
-    dof = jnp.maximum(n_observed - n_unknowns, 1)
-    covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
-    variance = jnp.diagonal(covariance)
-    rank_deficient = jnp.linalg.matrix_rank(information) < n_weights + dims
-    stderr = jnp.where(rank_deficient | (variance < 0), jnp.inf, jnp.sqrt(jnp.abs(variance)))
-    weights_stderr = jnp.full((k, channels), jnp.nan, weights.dtype)
-    weights_stderr = weights_stderr.at[jnp.array(globals_, int)].set(
-        stderr[:n_weights].reshape(len(globals_), channels)
-    )
+    return information, scale
+
+
+def _standard_errors(information, scale, weight_names, per_point: int, channels: int):
+    """The standard errors of the nonlinear parameters (D,) and of the global weights (K, C;
+    NaN in the per-point row) from `_information`, in NumPy: a matrix this small needs no
+    LAPACK kernels in the compiled program (initialising them imported SciPy: 0.1 s of a
+    `ctjax fit` process)."""
+    information, scale = np.asarray(information), np.asarray(scale)
+    n, k = information.shape[0], len(weight_names)
+    n_weights = (k - 1) * channels
+    weights_stderr = np.full((k, channels), np.nan, information.dtype)
+    if n == 0:
+        return np.zeros(0, information.dtype), weights_stderr
+    # jnp.linalg's default tolerances, in the information's own precision.
+    rtol = 10 * n * np.finfo(information.dtype).eps
+    covariance = scale * np.linalg.pinv(information, rcond=rtol, hermitian=True)
+    variance = np.diagonal(covariance)
+    rank_deficient = np.linalg.matrix_rank(information, hermitian=True) < n
+    stderr = np.where(rank_deficient | (variance < 0), np.inf, np.sqrt(np.abs(variance)))
+    globals_ = [i for i in range(k) if i != per_point]
+    weights_stderr[globals_] = stderr[:n_weights].reshape(len(globals_), channels)
     return stderr[n_weights:], weights_stderr
 
 
@@ -448,9 +464,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
         half_width = params
     columns = _columns(family, params, shading)
     albedo, weights, best = project_weights(columns, values, weight, per_point)
-    params_stderr, weights_stderr = _standard_errors(
-        family, params, weights, albedo, shading, per_point, best
-    )
+    information = _information(family, params, weights, albedo, shading, per_point, best)
     # The RMSE of every observation, unweighted: what a user compares with the noise.
     model = sum(
         c * (albedo.T[:, None, :] if k == per_point else weights[k][:, None, None])
@@ -459,7 +473,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
     residual = jnp.where(observed, values - model, 0)
     counted = jnp.sum(observed) * values.shape[0]
     rmse = 255 * jnp.sqrt(jnp.sum(residual * residual) / jnp.maximum(counted, 1))
-    return params, weights, albedo, best, rmse, params_stderr, weights_stderr, half_width
+    return params, weights, albedo, best, rmse, information, half_width
 
 
 def _padded_points(shading: TrackShading) -> TrackShading:
@@ -509,7 +523,8 @@ def fit_brdf_map(
 
     The global weights' per-point row (`rho_tilde`) reports the median albedo per channel.
     """
-    observed = np.asarray(shading.observed)
+    # (NumPy here: an eager JAX op compiles a program, milliseconds each in a new process.)
+    observed = np.asarray(shading.weight) > 0
     views = observed.sum(axis=0)
     k = len(family.weight_names)
     informative = int(np.sum(views[views > 1] - 1))
@@ -523,7 +538,7 @@ def fit_brdf_map(
     if not np.all(np.isfinite(values)):
         raise CtjaxError("observed values contain NaN or inf")
     per_point = _per_point_index(family)
-    params, weights, albedo, cost, rmse, p_err, w_err, half = _fit(
+    params, weights, albedo, cost, rmse, information, half = _fit(
         _padded_points(shading),
         family,
         per_point,
@@ -533,10 +548,15 @@ def fit_brdf_map(
         zoom,
         zoom_grid,
     )
-    albedo = albedo[: len(views)]
-    seen = np.asarray(views > 1)
+    if albedo.shape[0] != len(views):  # padded by `_padded_points`
+        albedo = albedo[: len(views)]
+    seen = views > 1
     median = np.median(np.asarray(albedo)[seen], axis=0) if seen.any() else np.zeros(3)
-    weights = weights.at[per_point].set(jnp.asarray(median, weights.dtype))
+    weights = np.array(weights)
+    weights[per_point] = median
+    weights = jax.device_put(weights)
+    errors = _standard_errors(*information, family.weight_names, per_point, weights.shape[1])
+    p_err, w_err = map(jax.device_put, errors)
     return AlbedoMapFit(
         params, weights, albedo, cost, rmse, p_err, w_err, half, int(observed.sum()), family
     )
@@ -677,11 +697,11 @@ def _frames_of(
     @functools.lru_cache(maxsize=count + 2)
     def shading(other):
         frame = capture.frames[other]
-        as_jax = lambda a: jnp.asarray(a, dtype)  # noqa: E731
-        columns = _frame_columns(brdf, light, camera, as_jax(frame.normals), as_jax(frame.depth))
+        as_host = lambda a: np.asarray(a, dtype)  # noqa: E731
+        columns = _frame_columns(brdf, light, camera, as_host(frame.normals), as_host(frame.depth))
         return np.asarray(columns)
 
-    weights = np.asarray(brdf.weights, np.float64)
+    weights = np.stack([np.asarray(lobe.weight, np.float64) for lobe in brdf.lobes])
     for index in range(len(capture)) if frames is None else frames:
         mask = capture.frames[index].geometry_mask
         if stride > 1:  # (every pixel of a frame whose geometry misses the grid)

@@ -127,10 +127,12 @@ def _fit_to_json(fit: BRDFFit) -> dict:
     for k, name in enumerate(fit.family.weight_names):
         out[name] = weights[k].tolist()
         out[f"{name}_stderr"] = weights_err[k].tolist()
+    params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
+    half_width = np.asarray(fit.search_half_width)
     for d, name in enumerate(fit.family.names):
-        out[name] = float(fit.params[d])
-        out[f"{name}_stderr"] = float(fit.params_stderr[d])
-        out[f"{name}_search_half_width"] = float(fit.search_half_width[d])
+        out[name] = float(params[d])
+        out[f"{name}_stderr"] = float(params_stderr[d])
+        out[f"{name}_search_half_width"] = float(half_width[d])
     out["rgb_rmse"] = float(fit.rgb_rmse)
     out["cost"] = float(fit.cost)
     return out
@@ -139,7 +141,7 @@ def _fit_to_json(fit: BRDFFit) -> dict:
 def _poorly_determined(fit: BRDFFit) -> list[str]:
     warnings = []
     for d, name in enumerate(fit.family.names):
-        value, error = float(fit.params[d]), float(fit.params_stderr[d])
+        value, error = float(np.asarray(fit.params)[d]), float(np.asarray(fit.params_stderr)[d])
         if not np.isfinite(error) or error > _WELL_DETERMINED * abs(value):
             warnings.append(f"{name} = {value:.4g} +- {error:.2g}")
     weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)

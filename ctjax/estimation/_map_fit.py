@@ -45,10 +45,12 @@ def _map_fit_json(fit, per_point: int) -> dict:
         out[name] = weights[k].tolist()
         if k != per_point:
             out[f"{name}_stderr"] = [_number(e) for e in errors[k]]
+    params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
+    half_width = np.asarray(fit.search_half_width)
     for d, name in enumerate(fit.family.names):
-        out[name] = float(fit.params[d])
-        out[f"{name}_stderr"] = _number(fit.params_stderr[d])
-        out[f"{name}_search_half_width"] = float(fit.search_half_width[d])
+        out[name] = float(params[d])
+        out[f"{name}_stderr"] = _number(params_stderr[d])
+        out[f"{name}_search_half_width"] = float(half_width[d])
     out["rgb_rmse"] = float(fit.rgb_rmse)
     out["cost"] = float(fit.cost)
     return out
@@ -57,7 +59,7 @@ def _map_fit_json(fit, per_point: int) -> dict:
 def _poorly_determined(fit, per_point: int) -> list[str]:
     warnings = []
     for d, name in enumerate(fit.family.names):
-        value, error = float(fit.params[d]), float(fit.params_stderr[d])
+        value, error = float(np.asarray(fit.params)[d]), float(np.asarray(fit.params_stderr)[d])
         if not np.isfinite(error) or error > _WELL_DETERMINED * abs(value):
             warnings.append(f"{name} = {value:.4g} +- {error:.2g}")
     weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
@@ -132,12 +134,7 @@ def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
     # On every `SENSITIVITY_STEP`-th track: a median over thousands of observations, at a
     # fraction of the cost.
     change, count = specular_change(
-        fit.family,
-        fit.params,
-        shading.every(SENSITIVITY_STEP),
-        fit.weights,
-        fit.albedo[::SENSITIVITY_STEP],
-        per_point,
+        fit.family, fit.params, shading, fit.weights, fit.albedo, per_point, SENSITIVITY_STEP
     )
     root = getattr(capture, "root", None)
     report = root / "reconstruction.json" if root else None
