@@ -1,14 +1,15 @@
 """The BRDF fit with an albedo map against the paper's uniform albedo, same run.
 
     python benchmarks/albedo_map.py [--sizes 320x256 640x512] [--frames 8] [--seed 1]
+                                     [--repeats 5]
 
 On per-channel textured synthetic captures with true depth and poses (1 level of noise,
-8 bits), fits `fit_capture(albedo="map")` and `fit_capture(albedo="uniform")` twice each
-(the first call compiles; the second is reported), and prints the time ratio (the fit, and
-the fit with every frame's dense albedo map read, which `fit_capture` estimates at the first
-read), the errors of sigma and F_tilde against the truth, the albedo maps' median and 90th
-percentile relative error and coverage, and the peak resident memory of the process. One
-JSON line per size.
+8 bits), fits `fit_capture(albedo="map")` and `fit_capture(albedo="uniform")` (the first
+call compiles; the median of the next `--repeats` is reported), and prints the time ratio
+(the fit, and the fit with every frame's dense albedo map read, which `fit_capture`
+estimates at the first read), the errors of sigma and F_tilde against the truth, the albedo
+maps' median and 90th percentile relative error and coverage, and the peak resident memory
+of the process. One JSON line per size.
 """
 
 import argparse
@@ -30,21 +31,24 @@ from ctjax.io import load_capture  # noqa: E402
 from ctjax.synth import SynthOptions, synthesize  # noqa: E402
 
 
-def _timed(capture, albedo):
-    """The estimate, the time of a second call (the first compiles) and, with the map, the
-    time until every frame's albedo map is read too (they are estimated at the first read);
-    the fit's error message instead when it fails (the paper's 3 px ring can be empty at
-    640x512)."""
+def _timed(capture, albedo, repeats):
+    """The estimate, the median time of `repeats` calls after the first (which compiles)
+    and, with the map, the median time until every frame's albedo map is read too (they are
+    estimated at the first read); the fit's error message instead when it fails (the
+    paper's 3 px ring can be empty at 640x512)."""
     try:
         first = fit_capture(capture, albedo=albedo)
         list(first.arrays.values())
     except CtjaxError as error:
         return str(error), float("nan"), float("nan")
-    started = time.perf_counter()
-    estimate = fit_capture(capture, albedo=albedo)
-    fitted = time.perf_counter() - started
-    list(estimate.arrays.values())
-    return estimate, fitted, time.perf_counter() - started
+    fitted, with_maps = [], []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        estimate = fit_capture(capture, albedo=albedo)
+        fitted.append(time.perf_counter() - started)
+        list(estimate.arrays.values())
+        with_maps.append(time.perf_counter() - started)
+    return estimate, float(np.median(fitted)), float(np.median(with_maps))
 
 
 def _map_errors(root, estimate):
@@ -65,6 +69,7 @@ def main():
     parser.add_argument("--sizes", nargs="+", default=["320x256", "640x512"])
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=5, help="timed calls (median)")
     args = parser.parse_args()
     for size in args.sizes:
         width, height = map(int, size.split("x"))
@@ -75,10 +80,10 @@ def main():
             )
             capture = load_capture(root)
             truth = capture.truth
-            mapped, map_s, with_maps_s = _timed(capture, "map")
-            uniform, uniform_s, _ = _timed(capture, "uniform")
+            mapped, map_s, with_maps_s = _timed(capture, "map", args.repeats)
+            uniform, uniform_s, _ = _timed(capture, "uniform", args.repeats)
             median, p90, coverage = _map_errors(root, mapped)
-        row = {"size": size, "frames": args.frames, "seed": args.seed}
+        row = {"size": size, "frames": args.frames, "seed": args.seed, "repeats": args.repeats}
         for name, estimate, seconds in (("map", mapped, map_s), ("uniform", uniform, uniform_s)):
             if isinstance(estimate, str):
                 row[f"{name}_error"] = estimate

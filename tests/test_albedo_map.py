@@ -13,7 +13,7 @@ from ctjax._tracks import views_first
 from ctjax.cli import main
 from ctjax.estimation import PAPER, fit_capture
 from ctjax.estimation._albedo_map import project_weights
-from ctjax.estimation._map_fit import SUMMARY_STRIDE
+from ctjax.estimation._map_fit import summary_stride
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
 
@@ -165,9 +165,9 @@ def test_fit_command_writes_the_albedo_maps(textured, tmp_path, capsys):
         albedo = np.load(maps / f"{frame.name}.npy")
         assert albedo.shape == (*frame.image.shape[:2], 3) and albedo.dtype == np.float32
         assert np.all(np.isnan(albedo[~frame.geometry_mask]))
-    # rho_tilde: the maps' median on every SUMMARY_STRIDE-th pixel of every such row.
+    # rho_tilde: the maps' median on every summary_stride-th pixel of every such row.
     read = [np.load(p) for p in maps.iterdir()]
-    grid = slice(None, None, SUMMARY_STRIDE)
+    grid = slice(None, None, summary_stride(capture.camera))
     sparse = np.nanmedian(np.concatenate([m[grid, grid].reshape(-1, 3) for m in read]), 0)
     np.testing.assert_allclose(result["rho_tilde"], sparse, rtol=1e-6)
     whole = np.nanmedian(np.concatenate([m.reshape(-1, 3) for m in read]), 0)
