@@ -880,3 +880,36 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def run() -> None:
+    """The `ctjax` console command: `main`, then the process ends without the interpreter's
+    finalisation (`_exit`)."""
+    _exit(main())
+
+
+def _exit(code: int) -> None:
+    """End the process with `code` once the `atexit` handlers have run (temporary folders,
+    logging, Dask) and the outputs are flushed, skipping the interpreter's finalisation:
+    with JAX loaded, tearing down its ~1000 modules and their objects takes 0.15-0.3 s on
+    this project's 2-core machine, a seventh of a repeated `ctjax fit`. A command that
+    leaves a non-daemon thread running exits normally (finalisation joins it)."""
+    import atexit
+    import os
+    import threading
+
+    running = [
+        t
+        for t in threading.enumerate()
+        if t is not threading.main_thread() and not t.daemon and t.is_alive()
+    ]
+    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)
+    if running or run_exit_functions is None:
+        sys.exit(code)
+    run_exit_functions()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe: nothing more can be said
+            pass
+    os._exit(code)

@@ -89,3 +89,17 @@ def test_the_compilation_cache_folder_is_documented_and_overridable(monkeypatch,
     assert compilation_cache_dir() == tmp_path / "x" / "ctjax" / "jax"
     monkeypatch.setenv("CTJAX_NO_CACHE", "1")
     assert compilation_cache_dir() is None
+
+
+def test_console_command_exits_with_the_status_after_atexit_and_flushed_output(tmp_path):
+    """`ctjax` (`cli.run`) skips the interpreter's finalisation, but not the atexit
+    handlers, the exit status or what was printed."""
+    code = (
+        "import atexit, sys; atexit.register(lambda: print('atexit ran')); "
+        f"sys.argv = ['ctjax', 'fit', {str(tmp_path / 'missing')!r}, '--json', 'f.json']; "
+        "from ctjax.cli import run; run()"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "capture folder not found" in result.stderr
+    assert result.stdout.strip() == "atexit ran"
