@@ -31,7 +31,6 @@ import numpy as np
 
 from ._camera import Camera
 from ._errors import CtjaxError
-from ._geometry import points_from_depth
 
 # Frames a point is looked for in besides its own: the nearest in camera position. Bounds
 # memory and time on long videos; a short capture uses all of its frames.
@@ -388,7 +387,15 @@ def _masked(obs: Observation) -> Observation:
 
 def world_points(camera: Camera, frame, rows, cols) -> np.ndarray:
     """World points (N, 3) of pixels of `frame` (from its depth and pose)."""
-    local = points_from_depth(camera, frame.depth)[rows, cols]
+    z = frame.depth[rows, cols].astype(np.float64)  # (those pixels only, not the frame's)
+    local = np.stack(
+        [
+            z * (cols - float(camera.cx)) / float(camera.fx),
+            z * (rows - float(camera.cy)) / float(camera.fy),
+            z,
+        ],
+        axis=-1,
+    )
     return local @ frame.pose[:3, :3].T + frame.pose[:3, 3]
 
 
