@@ -383,38 +383,29 @@ def _information(family, params, weights, albedo, shading, per_point, cost):
         )
 
     s, inverse = sums(params)
-    # (C, G) Jacobians of the residuals (M, P) by the weights, then (C, D) by the parameters.
-    by_weight = [
-        [s.a * (ag * inverse[c]) - g for ag, g in zip(s.s_ag, s.others, strict=True)]
-        for c in range(channels)
-    ]
     by_param = jnp.moveaxis(jax.jacfwd(residuals)(params), -1, 0)  # (D, C, M, P)
-    dot = lambda x, y: jnp.sum(x * y)  # noqa: E731
-    information = jnp.zeros((n_weights + dims, n_weights + dims), weights.dtype)
-    for c in range(channels):
-        for g in range(len(globals_)):
-            i = g * channels + c
-            for h in range(g, len(globals_)):
-                j = h * channels + c
-                value = dot(by_weight[c][g], by_weight[c][h])
-                information = information.at[i, j].set(value).at[j, i].set(value)
-            for d in range(dims):
-                value = dot(by_weight[c][g], by_param[d, c])
-                j = n_weights + d
-                information = information.at[i, j].set(value).at[j, i].set(value)
-    for d in range(dims):
-        for e in range(d, dims):
-            value = dot(by_param[d], by_param[e])
-            i, j = n_weights + d, n_weights + e
-            information = information.at[i, j].set(value).at[j, i].set(value)
+    # The Jacobian's columns in the parameters' order, each as {channel: (M, P)} (a weight's
+    # column is 0 in the other channels).
+    jacobian = [
+        {c: s.a * (s.s_ag[g] * inverse[c]) - s.others[g]}
+        for g in range(len(globals_))
+        for c in range(channels)
+    ] + [{c: by_param[d, c] for c in range(channels)} for d in range(dims)]
+    entry = {}
+    for i, x in enumerate(jacobian):
+        for j, y in enumerate(jacobian[i:], start=i):
+            shared = sorted(x.keys() & y.keys())
+            total = sum((jnp.sum(x[c] * y[c]) for c in shared), jnp.zeros((), weights.dtype))
+            entry[i, j] = entry[j, i] = total
+    size = len(jacobian)
+    information = jnp.stack([jnp.stack([entry[i, j] for j in range(size)]) for i in range(size)])
     return information, scale
 
 
 def _standard_errors(information, scale, weight_names, per_point: int, channels: int):
     """The standard errors of the nonlinear parameters (D,) and of the global weights (K, C;
-    NaN in the per-point row) from `_information`, in NumPy: a matrix this small needs no
-    LAPACK kernels in the compiled program (initialising them imported SciPy: 0.1 s of a
-    `ctjax fit` process)."""
+    NaN in the per-point row) from `_information`, in NumPy: a matrix this small is not
+    worth LAPACK kernels in the compiled program."""
     information, scale = np.asarray(information), np.asarray(scale)
     n, k = information.shape[0], len(weight_names)
     n_weights = (k - 1) * channels
