@@ -248,12 +248,13 @@ _AHEAD, _FACING = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
 def _corners(camera: Camera, data: FrameData, index: np.ndarray):
     """Camera-frame points and normals (..., 3) of the pixel centres at flat `index`."""
     rows, cols = np.divmod(index, camera.width)
-    depth = data.depth.reshape(-1)[index].astype(np.float64)
+    # (`np.take`: 4-5x faster than fancy indexing for these (N, 4) gathers.)
+    depth = np.take(data.depth.reshape(-1), index).astype(np.float64)
     point = np.empty((*index.shape, 3))
     point[..., 0] = depth * (cols - float(camera.cx)) / float(camera.fx)
     point[..., 1] = depth * (rows - float(camera.cy)) / float(camera.fy)
     point[..., 2] = depth
-    normal = data.normals.reshape(-1, 3)[index].astype(np.float64)
+    normal = np.take(data.normals.reshape(-1, 3), index, axis=0).astype(np.float64)
     return point, normal
 
 
@@ -315,9 +316,9 @@ def sight(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float) 
     fu, fv = np.where(seen, u, 0) - u0, np.where(seen, v, 0) - v0
     index = (v0 * camera.width + u0)[:, None] + np.array([0, 1, camera.width, camera.width + 1])
     corner_weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1)
-    seen &= _all_last(data.finite.reshape(-1)[index])
+    seen &= _all_last(np.take(data.finite.reshape(-1), index))
     # A channel counts where none of the four corners (of nonzero weight) is clipped in it.
-    bits = data.clipped_bits.reshape(-1)[index] * (corner_weight > 0)
+    bits = np.take(data.clipped_bits.reshape(-1), index) * (corner_weight > 0)
     channel_seen = _channels_seen(seen, _any_last(bits), values.shape[-1])
     weight = observation_weight(np.where(seen, spread, 0.0))
     return _counted(
