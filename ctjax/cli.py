@@ -878,10 +878,6 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 def run() -> None:
     """The `ctjax` console command: `main`, then the process ends without the interpreter's
     finalisation (`_exit`)."""
@@ -913,3 +909,7 @@ def _exit(code: int) -> None:
         except (OSError, ValueError):  # a closed pipe: nothing more can be said
             pass
     os._exit(code)
+
+
+if __name__ == "__main__":  # `python -m ctjax.cli`, as the `ctjax` command
+    run()

@@ -77,7 +77,7 @@ def _poorly_determined(fit, per_point: int) -> list[str]:
 
 # The fit summarises the maps (rho_tilde their median, their coverage per frame) on a grid
 # of pixels, every `summary_stride`-th of every such row: about `SUMMARY_PIXELS` per frame
-# (every 4th at most), whatever the resolution. A median's precision depends on how many
+# whatever the resolution (never denser than every 4th). A median's precision depends on how many
 # pixels it has, not on how dense they are: on 4 captures, within 0.05% of the whole maps'
 # median at 320x256 (every 4th). The maps are estimated whole only when read
 # (`_AlbedoMaps`).
