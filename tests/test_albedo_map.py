@@ -210,6 +210,49 @@ def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):
     assert lm.arrays["track_albedo"].shape == (len(tracks), 3)
 
 
+def test_standard_errors_are_the_global_block_of_the_joint_covariance(textured):
+    """The map fit's standard errors, with every albedo eliminated (the weights' Jacobian in
+    closed form, sigma's by autodiff), are those of the joint Gauss-Newton covariance with
+    every free albedo a parameter (a Schur complement), on real tracks."""
+    from ctjax.estimation._albedo_map import (
+        _columns,
+        _information,
+        _standard_errors,
+        _sums,
+        fit_brdf_map,
+        track_shading,
+    )
+    from ctjax.observations import Observations
+
+    tracks = Observations.of(load_capture(textured[(1, 1.0)])).tracks(max_points=150)
+    shading = track_shading(tracks)
+    fit = fit_brdf_map(shading)
+    params, weights = fit.params, fit.weights
+    free = np.asarray(fit.albedo).T > 0  # (C, P): the albedos not clamped at 0
+    n_free = int(free.sum())
+
+    def joint_residuals(theta):
+        rho = jnp.zeros(free.shape, theta.dtype).at[free].set(theta[:n_free])
+        w = theta[n_free : n_free + 3].reshape(1, 3)  # F_tilde
+        s = _sums(_columns(PAPER, theta[n_free + 3 :], shading), shading.values, shading.weight, 0)
+        return jnp.concatenate(
+            [(v - s.a * rho[c] - s.others[0] * w[0, c]).reshape(-1) for c, v in enumerate(s.values)]
+        )
+
+    theta = jnp.concatenate([jnp.asarray(fit.albedo).T[free], weights[1], params])
+    jacobian = np.asarray(jax.jacfwd(joint_residuals)(theta))
+    joint = np.linalg.inv(jacobian.T @ jacobian)[n_free:, n_free:]  # F_tilde (3), sigma
+    information, scale = _information(PAPER, params, weights, fit.albedo, shading, 0, fit.cost)
+    np.testing.assert_allclose(np.linalg.inv(np.asarray(information)), joint, rtol=1e-6)
+    # And what the fit reports: sqrt(scale * diag(that covariance)).
+    sigma_error, weights_error = _standard_errors(information, scale, PAPER.weight_names, 0, 3)
+    expected = np.sqrt(float(scale) * np.diagonal(joint))
+    np.testing.assert_allclose(np.asarray(fit.params_stderr), expected[3:], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(fit.weights_stderr[1]), expected[:3], rtol=1e-6)
+    np.testing.assert_allclose(sigma_error, expected[3:], rtol=1e-6)
+    assert np.all(np.isnan(weights_error[0]))  # rho_tilde: per point, no global error
+
+
 class _Clip(__import__("ctjax").effects.AbstractImageEffect):
     """An image effect without an inverse."""
 
