@@ -151,15 +151,24 @@ def test_grid_search_finds_the_global_minimum_of_two_basins(zoom_grid, evaluatio
     assert float(result.cost) <= worst + 1e-6
 
 
-def test_grid_search_coarse_first_level_keeps_the_basins_and_reports_the_cost():
-    # The first level on a cheaper cost of another scale (a subset of the samples sums
-    # less): the same minimum, and the reported cost is `cost`'s, not the coarse one's.
+@pytest.mark.parametrize("coarse_levels", [1, 2, 10])
+def test_grid_search_coarse_first_level_keeps_the_basins_and_reports_the_cost(coarse_levels):
+    # The first levels on a cheaper cost of another scale (a subset of the samples sums
+    # less): the same minimum, and the reported cost is `cost`'s, not the coarse one's (10
+    # levels asked: all but the last).
     def cost(p):
         x = p[0]
         return -jnp.exp(-(((x - 0.25) / 0.12) ** 2)) - 1.3 * jnp.exp(-(((x - 0.81) / 0.02) ** 2))
 
     plain = grid_search(cost, 1e-5, 1.0, zoom_grid=8)
-    coarse = grid_search(cost, 1e-5, 1.0, zoom_grid=8, coarse=lambda p: 0.25 * cost(p) - 7.0)
+    coarse = grid_search(
+        cost,
+        1e-5,
+        1.0,
+        zoom_grid=8,
+        coarse=lambda p: 0.25 * cost(p) - 7.0,
+        coarse_levels=coarse_levels,
+    )
     assert abs(float(coarse.params[0]) - 0.81) <= 1e-3
     assert float(coarse.params[0]) == pytest.approx(float(plain.params[0]), abs=1e-12)
     assert float(coarse.cost) == pytest.approx(float(cost(coarse.params)), rel=1e-9)

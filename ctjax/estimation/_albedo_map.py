@@ -73,8 +73,9 @@ _MAP_CHUNK = 1 << 17
 # two at a time and 0.29 s eight at a time (XLA's CPU code reduces the leading axes of the
 # batched (sigmas, views, points) arrays element by element).
 _GRID_BATCH = 1
-# The BnB's first level evaluates every this-many-th track (`_fit`).
+# The BnB's first `_COARSE_LEVELS` levels evaluate every `_COARSE_STEP`-th track (`_fit`).
 _COARSE_STEP = 4
+_COARSE_LEVELS = 2
 # The paper's light: at the camera centre, L = V.
 _PAPER_LIGHT = ColocatedLight()
 
@@ -448,6 +449,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
             dtype=dtype,
             batch=_GRID_BATCH,
             coarse=lambda params: cost(params, coarse),
+            coarse_levels=_COARSE_LEVELS,
         )
         params, half_width = found.params, found.half_width
     else:

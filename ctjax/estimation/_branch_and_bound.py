@@ -75,6 +75,7 @@ def grid_search(
     dtype=None,
     batch: int | None = None,
     coarse: Callable[[Float[Array, " D"]], Scalar] | None = None,
+    coarse_levels: int = 1,
 ) -> GridSearchResult:
     """Minimise `cost(params)` over the box [lo, hi] by zooming grids (see module doc).
 
@@ -89,9 +90,10 @@ def grid_search(
     evaluations.
     `batch` evaluates the grid `batch` points at a time (`jax.lax.map`) instead of all at
     once: for costs over many samples, whose batched intermediates would not stay in cache.
-    `coarse` (default `cost`) is what the first level evaluates: a cheaper cost with the
-    same basins (e.g. `cost` on a subset of the samples), since that level only picks the
-    boxes the later ones narrow; the result's cost is then the best of the later levels'.
+    `coarse` (default `cost`) is what the first `coarse_levels` levels evaluate: a cheaper
+    cost with the same basins (e.g. `cost` on a subset of the samples), since those levels
+    only pick the boxes the later ones narrow (at least the last level evaluates `cost`, and
+    the result's cost is the best of the levels that did).
     """
     # The box is configuration (it sets the number of levels): concrete, not traced.
     lo = np.atleast_1d(np.asarray(lo, float))
@@ -139,23 +141,34 @@ def grid_search(
     # Level 1 tiles the box; every later level has the same shape (`candidates` boxes of
     # `zoom_grid`^D points): traced once and looped.
     minima = lambda points: lambda c: _local_minima(c, dims, points)  # noqa: E731
-    first = cost if coarse is None or levels == 1 else coarse
+    # The first `coarse_levels` levels (all but the last at most) evaluate `coarse`.
+    coarse_levels = 0 if coarse is None else min(coarse_levels, levels - 1)
+    first = coarse if coarse_levels else cost
     starts, widths, best, spacing = search_level(
         lo[None, :], hi - lo, grid, best, minima(grid), first
     )
     kept = min(candidates, grid**dims)
-    if levels > 1:
-        if first is not cost:  # its costs are not comparable with `cost`'s
-            best = (best[0], jnp.asarray(jnp.inf, dtype))
 
+    def zoom_levels_of(cost, count, starts, widths, best):
         def body(carry, _):
             starts, widths, best = carry
             starts, widths, best, spacing = search_level(
-                starts, widths, zoom_grid, best, minima(zoom_grid)
+                starts, widths, zoom_grid, best, minima(zoom_grid), cost
             )
             return (starts, widths, best), spacing
 
-        (_, _, best), spacings = jax.lax.scan(body, (starts, widths, best), length=levels - 1)
-        spacing = spacings[-1]
+        (starts, widths, best), spacings = jax.lax.scan(body, (starts, widths, best), length=count)
+        return starts, widths, best, spacings[-1]
+
+    if coarse_levels > 1:
+        starts, widths, best, spacing = zoom_levels_of(
+            coarse, coarse_levels - 1, starts, widths, best
+        )
+    if coarse_levels:  # its costs are not comparable with `cost`'s
+        best = (best[0], jnp.asarray(jnp.inf, dtype))
+    if levels > max(coarse_levels, 1):
+        _, _, best, spacing = zoom_levels_of(
+            cost, levels - max(coarse_levels, 1), starts, widths, best
+        )
     evaluations = grid**dims + (levels - 1) * kept * zoom_grid**dims
     return GridSearchResult(best[0], best[1], spacing / 2, evaluations)
