@@ -62,6 +62,18 @@ def _local_minima(costs: Float[Array, "M G"], dims: int, grid: int):
     return minimum.reshape(costs.shape)
 
 
+def _looped(level, count: int, starts, widths, best):
+    """`count` applications of `level(starts, widths, best) -> (starts, widths, best,
+    spacing)`, traced once and looped (`lax.scan`), and the last spacing."""
+
+    def body(carry, _):
+        *carry, spacing = level(*carry)
+        return tuple(carry), spacing
+
+    (starts, widths, best), spacings = jax.lax.scan(body, (starts, widths, best), length=count)
+    return starts, widths, best, spacings[-1]
+
+
 def grid_search(
     cost: Callable[[Float[Array, " D"]], Scalar],
     lo,
@@ -149,26 +161,16 @@ def grid_search(
     )
     kept = min(candidates, grid**dims)
 
-    def zoom_levels_of(cost, count, starts, widths, best):
-        def body(carry, _):
-            starts, widths, best = carry
-            starts, widths, best, spacing = search_level(
-                starts, widths, zoom_grid, best, minima(zoom_grid), cost
-            )
-            return (starts, widths, best), spacing
-
-        (starts, widths, best), spacings = jax.lax.scan(body, (starts, widths, best), length=count)
-        return starts, widths, best, spacings[-1]
-
+    # A later level's search, as `_looped` applies it.
+    zoom_level = lambda c: lambda s, w, b: search_level(s, w, zoom_grid, b, minima(zoom_grid), c)  # noqa: E731
     if coarse_levels > 1:
-        starts, widths, best, spacing = zoom_levels_of(
-            coarse, coarse_levels - 1, starts, widths, best
+        starts, widths, best, spacing = _looped(
+            zoom_level(coarse), coarse_levels - 1, starts, widths, best
         )
     if coarse_levels:  # its costs are not comparable with `cost`'s
         best = (best[0], jnp.asarray(jnp.inf, dtype))
     if levels > max(coarse_levels, 1):
-        _, _, best, spacing = zoom_levels_of(
-            cost, levels - max(coarse_levels, 1), starts, widths, best
-        )
+        count = levels - max(coarse_levels, 1)
+        _, _, best, spacing = _looped(zoom_level(cost), count, starts, widths, best)
     evaluations = grid**dims + (levels - 1) * kept * zoom_grid**dims
     return GridSearchResult(best[0], best[1], spacing / 2, evaluations)
