@@ -6,7 +6,9 @@ One 1920x1080 frame of the paper's model (Lambertian + Beckmann specular, light 
 with the camera), from depth and normals. In the same run: the machine's memory bandwidth
 (STREAM-style copy in NumPy, and an XLA streaming kernel), the renderer's bytes per pixel
 (depth and three normal components read, three channels written), and its fraction of the
-memory roofline. Prints a table and one JSON line per precision.
+memory roofline. The variants are timed in interleaved rounds, so that the machine's slow
+spells hit them alike; medians, best and the p90/p10 spread. Prints a table and one JSON
+line per precision.
 """
 
 import argparse
@@ -48,6 +50,7 @@ def numpy_render(camera_k, depth, nx, ny, nz):
 
 
 def timed(fn, repeats):
+    """(best, median) seconds of `repeats` calls after one warm-up call."""
     jax.block_until_ready(fn())
     times = []
     for _ in range(repeats):
@@ -81,28 +84,33 @@ def bench_precision(dtype, camera, depth64, normals64, peak, tuned, repeats) -> 
     light = ctjax.ColocatedLight()
     normals = ctjax.Vec3(jnp.asarray(nx), jnp.asarray(ny), jnp.asarray(nz))
     depth_j = jnp.asarray(depth)
-
-    def run_planar():
-        return ctjax.render(brdf, light, camera, normals, depth_j)
-
     interleaved = jnp.asarray(np.stack([nx, ny, nz], -1))
-
-    def run_interleaved():
-        return ctjax.render(brdf, light, camera, interleaved, depth_j)
-
     k = tuple(dtype(float(getattr(camera, a))) for a in ("fx", "fy", "cx", "cy"))
-
-    def run_numpy():
-        return numpy_render(k, depth, nx, ny, nz)
-
+    runs = {
+        "ctjax": lambda: ctjax.render(brdf, light, camera, normals, depth_j),
+        "ctjax_interleaved_input": lambda: ctjax.render(brdf, light, camera, interleaved, depth_j),
+        "numpy": lambda: numpy_render(k, depth, nx, ny, nz),
+    }
     start = time.perf_counter()
-    image = jax.block_until_ready(run_planar())
+    image = jax.block_until_ready(runs["ctjax"]())
     compile_s = time.perf_counter() - start
     assert image.dtype == dtype, image.dtype
-    jax_min, jax_median = timed(run_planar, repeats)
-    inter_min, _ = timed(run_interleaved, repeats)
-    _, np_median = timed(run_numpy, max(5, repeats // 3))
-    error = float(np.max(np.abs(np.asarray(image) - run_numpy())))
+    reference = runs["numpy"]()
+    error = float(np.max(np.abs(np.asarray(image) - reference)))
+    # Interleaved rounds, so that a slow spell of the machine hits every variant alike.
+    times = {name: [] for name in runs}
+    for fn in runs.values():
+        jax.block_until_ready(fn())
+    for round_ in range(repeats):
+        for name, fn in runs.items():
+            if name.startswith("numpy") and round_ % 3:
+                continue  # NumPy is slow and steady: every third round
+            start = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append(time.perf_counter() - start)
+    median = {name: float(np.median(t)) for name, t in times.items()}
+    best = {name: float(np.min(t)) for name, t in times.items()}
+    spread = {name: float(np.percentile(t, 90) / np.percentile(t, 10)) for name, t in times.items()}
     bytes_per_pixel = 7 * np.dtype(dtype).itemsize  # depth + 3 normal components, 3 channels
     roofline_s = pixels * bytes_per_pixel / peak
     row = {
@@ -110,28 +118,34 @@ def bench_precision(dtype, camera, depth64, normals64, peak, tuned, repeats) -> 
         "dtype": np.dtype(dtype).name,
         "width": camera.width,
         "height": camera.height,
-        "ctjax_mpix_s_median": pixels / jax_median / 1e6,
-        "ctjax_mpix_s_best": pixels / jax_min / 1e6,
-        "ctjax_interleaved_input_mpix_s_best": pixels / inter_min / 1e6,
-        "numpy_mpix_s_median": pixels / np_median / 1e6,
-        "speedup_vs_numpy_median": np_median / jax_median,
         "bytes_per_pixel": bytes_per_pixel,
         "bandwidth_gb_s": peak / 1e9,
-        "roofline_fraction_median": roofline_s / jax_median,
-        "roofline_fraction_best": roofline_s / jax_min,
         "compile_s": compile_s,
         "max_abs_difference_vs_numpy": error,
         "malloc_tuned": tuned,
     }
+    for name in runs:
+        row[f"{name}_mpix_s_median"] = pixels / median[name] / 1e6
+        row[f"{name}_mpix_s_best"] = pixels / best[name] / 1e6
+        row[f"{name}_p90_over_p10"] = spread[name]
+    row["speedup_vs_numpy_median"] = median["numpy"] / median["ctjax"]
+    row["roofline_fraction_median"] = roofline_s / median["ctjax"]
+    row["roofline_fraction_best"] = roofline_s / best["ctjax"]
     print(
-        f"{row['dtype']}: ctjax {row['ctjax_mpix_s_median']:.0f} Mpix/s median "
-        f"({row['ctjax_mpix_s_best']:.0f} best; (H,W,3) input "
-        f"{row['ctjax_interleaved_input_mpix_s_best']:.0f} best), NumPy "
-        f"{row['numpy_mpix_s_median']:.0f} Mpix/s -> {row['speedup_vs_numpy_median']:.1f}x; "
-        f"roofline {100 * row['roofline_fraction_median']:.0f}% median "
-        f"({100 * row['roofline_fraction_best']:.0f}% best) at {bytes_per_pixel} B/pixel; "
-        f"compile {compile_s:.2f} s; max |ctjax - NumPy| {error:.1e}"
+        f"{row['dtype']} ({len(times['ctjax'])} timed calls each, NumPy "
+        f"{len(times['numpy'])}; Mpix/s median, best, p90/p10):"
     )
+    for name in runs:
+        print(
+            f"  {name:24s} {row[f'{name}_mpix_s_median']:6.0f} {row[f'{name}_mpix_s_best']:6.0f}"
+            f"  {spread[name]:.2f}"
+        )
+    print(
+        f"  ctjax: {row['speedup_vs_numpy_median']:.1f}x NumPy (medians), roofline "
+        f"{100 * row['roofline_fraction_median']:.0f}% median "
+        f"({100 * row['roofline_fraction_best']:.0f}% best) at {bytes_per_pixel} B/pixel"
+    )
+    print(f"  compile {compile_s:.2f} s; max |ctjax - NumPy| {error:.1e}")
     return row
 
 
