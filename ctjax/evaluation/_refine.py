@@ -39,6 +39,7 @@ def refine_normal(model, point: Vec3, normal: Vec3, pixel, values, max_steps: in
     saturation, so that a saturated pixel asks only for "at least this bright") best
     matches `values` (linear RGB)."""
 
+    @jax.jit  # traced once for the solver and the two calls below (pjit's cache)
     def residuals(delta, _):
         predicted = jnp.minimum(model(point, tangent_direction(normal, delta), pixel), 1.0)
         return jnp.concatenate([255.0 * (predicted - values), prior * delta])

@@ -221,15 +221,17 @@ def _least_squares(model, samples, names, per_point, solver, max_steps):
         done = jnp.asarray(Status.successful.value)
         return model, albedo, weights, jnp.sum(residual * residual), done, jnp.asarray(0)
 
+    @jax.jit  # traced once for the solver and the solution (pjit's cache)
+    def projected(u):
+        return _projected(constrained(model, parameters, u), samples, per_point)
+
     def residuals(u):
-        fitted = constrained(model, parameters, u)
-        _, _, residual = _projected(fitted, samples, per_point)
-        return 255 * residual.reshape(-1)  # 8-bit levels: so are the tolerances
+        return 255 * projected(u)[2].reshape(-1)  # 8-bit levels: so are the tolerances
 
     start = unconstrained(model, parameters)
     value, status, steps = least_squares(residuals, solver, start, max_steps)
+    albedo, weights, residual = projected(value)
     fitted = constrained(model, parameters, value)
-    albedo, weights, residual = _projected(fitted, samples, per_point)
     return fitted, albedo, weights, jnp.sum(residual * residual), status, steps
 
 

@@ -91,16 +91,18 @@ def _started(model, samples, mask, predict, columns, scale):
 def _least_squares(model, samples, mask, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
+    @jax.jit  # traced once for the solver and the solution (pjit's cache)
+    def masked_residuals(u):
+        return _masked_residuals(constrained(model, parameters, u), samples, mask, predict)
+
     def residuals(u):
-        fitted = constrained(model, parameters, u)
         # Residuals in the user's units (8-bit levels for images): so are the tolerances.
-        return scale * _masked_residuals(fitted, samples, mask, predict).reshape(-1)
+        return scale * masked_residuals(u).reshape(-1)
 
     start = unconstrained(model, parameters)
     value, status, steps = least_squares(residuals, solver, start, max_steps)
-    fitted = constrained(model, parameters, value)
-    residual = _masked_residuals(fitted, samples, mask, predict)
-    return fitted, jnp.sum(residual * residual), status, steps
+    residual = masked_residuals(value)
+    return constrained(model, parameters, value), jnp.sum(residual * residual), status, steps
 
 
 # The default solver (Levenberg-Marquardt on the Jacobian matrix, `ctjax.solvers.DenseLM`):

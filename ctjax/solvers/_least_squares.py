@@ -1,5 +1,6 @@
 """One entry point for every least-squares solver ctjax accepts."""
 
+import jax
 import optimistix as optx
 
 from .._status import Status
@@ -16,6 +17,9 @@ def least_squares(fn, solver, y0, max_steps: int) -> tuple[object, Int[Array, ""
     (`optx.LevenbergMarquardt`...), or a ctjax solver object (`DenseLM`, `ClosedFormLM`),
     in at most `max_steps` steps. Returns the solution, its `Status` code and the number of
     steps: callers take the solver as an argument and never ask which one it is."""
+    # Jitted: the solvers call `fn` at several places (start, trial points, Jacobian), and
+    # pjit's cache traces it once for all of them; XLA inlines the call.
+    fn = jax.jit(fn)
     if isinstance(solver, optx.AbstractLeastSquaresSolver):
         solution = optx.least_squares(
             lambda y, _: fn(y), solver, y0, max_steps=max_steps, throw=False
