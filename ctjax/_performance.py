@@ -7,6 +7,7 @@ from pathlib import Path
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
+_M_ARENA_MAX = -8
 
 
 @functools.cache
@@ -15,17 +16,23 @@ def tune_malloc() -> bool:
 
     XLA allocates a fresh output buffer per call; with glibc's defaults a frame-sized buffer
     is mmapped and unmapped every call, and its first touch page-faults every page. On a
-    2-core machine this halved the renderer's throughput at 1920x1080. Returns True when
-    the settings were applied (glibc only; a no-op elsewhere). Called by the command-line
-    interface and the benchmarks; libraries embedding ctjax may call it themselves.
+    2-core machine this halved the renderer's throughput at 1920x1080. One arena for every
+    thread, too: a thread of XLA's that got an arena of its own allocates from mmapped heaps
+    that glibc unmaps once empty, whatever the thresholds (the renderer then ran at 115-200
+    Mpix/s in some processes and 280-360 in others, 1200-8500 page faults a call against
+    0-1500; with one arena 285-387 in each of 5 processes). Call it before JAX's first
+    computation (its threads choose their arena then). Returns True when the settings
+    were applied (glibc only; a no-op elsewhere). Called by the command-line interface and
+    the benchmarks; libraries embedding ctjax may call it themselves.
     """
     try:
         libc = ctypes.CDLL("libc.so.6")
         ok_mmap = libc.mallopt(_M_MMAP_THRESHOLD, 1 << 30)
         ok_trim = libc.mallopt(_M_TRIM_THRESHOLD, (1 << 31) - 1)
+        ok_arena = libc.mallopt(_M_ARENA_MAX, 1)
     except (OSError, AttributeError):
         return False
-    return bool(ok_mmap and ok_trim)
+    return bool(ok_mmap and ok_trim and ok_arena)
 
 
 # The command line keeps XLA's compiled programs here between runs (`enable_compilation_cache`).

@@ -1,6 +1,7 @@
 """The command line: commands run, and bad input is one line on stderr with status 2."""
 
 import json
+import platform
 import subprocess
 import sys
 
@@ -103,3 +104,12 @@ def test_console_command_exits_with_the_status_after_atexit_and_flushed_output(t
     assert result.returncode == 2
     assert "capture folder not found" in result.stderr
     assert result.stdout.strip() == "atexit ran"
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's mallopt only")
+def test_malloc_tuning_is_applied_before_the_first_computation():
+    """`tune_malloc` (the thresholds and one arena) succeeds in a fresh process, before
+    JAX's threads exist; in a subprocess, so that the test session keeps glibc's defaults."""
+    code = "import ctjax; print(ctjax.tune_malloc())"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0 and result.stdout.strip() == "True", result.stderr
