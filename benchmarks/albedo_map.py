@@ -25,6 +25,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from _results import emit  # noqa: E402
 
+import ctjax  # noqa: E402
 from ctjax import CtjaxError  # noqa: E402
 from ctjax.estimation import fit_capture  # noqa: E402
 from ctjax.io import load_capture  # noqa: E402
@@ -70,7 +71,10 @@ def main():
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=5, help="timed calls (median)")
+    parser.add_argument("--no-malloc-tuning", action="store_true")
     args = parser.parse_args()
+    if not args.no_malloc_tuning:
+        ctjax.tune_malloc()  # as `ctjax fit` does
     for size in args.sizes:
         width, height = map(int, size.split("x"))
         with tempfile.TemporaryDirectory() as folder:
