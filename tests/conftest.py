@@ -25,8 +25,8 @@ jax.config.update(
 # with them (`benchmarks/render.py`, which checks it against NumPy under XLA's defaults).
 #
 # And LLVM's optimisation level 0 for the same reason (the tests' programs run for
-# milliseconds and compile for seconds): 301-307 s -> 281 s for the suite, cold cache,
-# 2 cores, the same results.
+# milliseconds and compile for seconds): 301-307 s -> 281-296 s for the suite, cold
+# cache, fresh clone, 2 cores, the same results.
 _TEST_FLAGS = {"--xla_cpu_use_fusion_emitters": "false", "--xla_backend_optimization_level": "0"}
 for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
