@@ -270,12 +270,13 @@ class Observations:
         """Surface points followed across frames (`ctjax._tracks.Tracks`): the albedo map's
         samples. Anchored at every pixel with geometry within `radius_px` of S in each frame
         (S itself included: saturated there, seen elsewhere), where the specular lobe is
-        measured, plus as many pixels drawn at random from the rest; at most `max_points`
-        in all (a random subset, deterministic for a seed). Each is followed into its
-        frame's `neighbours` nearest frames (all by default) within the relative depth
-        `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`). `frames`: only these frames'
-        points, followed into these frames only (one side of a held-out split);
-        `anchor_frames`: only these frames' points, followed into every frame."""
+        measured, plus as many pixels drawn at random from the rest; about `max_points` at
+        most in all (each anchor kept with probability `max_points` / their number, so the
+        count varies by a few hundred around it; deterministic for a seed). Each is
+        followed into its frame's `neighbours` nearest frames (all by default) within the
+        relative depth `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`). `frames`: only
+        these frames' points, followed into these frames only (one side of a held-out
+        split); `anchor_frames`: only these frames' points, followed into every frame."""
         from . import _tracks
 
         _tracks.require_poses(self.capture)
