@@ -81,3 +81,39 @@ def test_dense_lm_settings_are_checked():
         DenseLM(rtol=-1)
     with pytest.raises(CtjaxError, match="atol must be a nonnegative number, got 'x'"):
         DenseLM(atol="x")
+
+
+@pytest.mark.parametrize(
+    "solver",
+    [DenseLM(), optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)],
+    ids=["dense", "optimistix"],
+)
+def test_the_residual_function_is_traced_once_per_solve(solver):
+    """`least_squares` jits the residual function, so that the solver's uses of it (start,
+    trial points, Jacobian) share one trace: tracing the model is most of a fitter's
+    compilation time."""
+    traces = []
+
+    def counted(y):
+        traces.append(1)
+        return _residuals(y)
+
+    y, status, _ = jax.jit(lambda y0: least_squares(counted, solver, y0, 100))(_start(jnp.float64))
+    assert len(traces) == 1 and Status(int(status)) is Status.successful
+    np.testing.assert_allclose(jnp.append(y[0], y[1]), _TRUTH, rtol=2e-3)
+
+
+def test_the_closed_form_solver_traces_the_residual_function_once():
+    """The same for `ClosedFormLM` (2 unknowns), which calls it three times a step."""
+    from ctjax.solvers import ClosedFormLM
+
+    traces = []
+
+    def counted(ab):
+        traces.append(1)
+        return _residuals((ab, jnp.asarray(_TRUTH[2])))
+
+    solve = jax.jit(lambda y0: least_squares(counted, ClosedFormLM(iterations=30), y0, 30))
+    y, _, _ = solve(jnp.asarray([1.0, 0.5]))
+    assert len(traces) == 1
+    np.testing.assert_allclose(y, _TRUTH[:2], rtol=2e-3)
