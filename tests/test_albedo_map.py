@@ -349,3 +349,27 @@ def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp
     estimate = fit_capture(load_capture(copy))
     assert estimate.details["normals"]["refined_by_the_shading"]
     assert not any("come from ctjax reconstruct" in w for w in estimate.warnings)
+
+
+def test_a_held_parameter_stays_at_its_start_and_the_rest_fit_as_if_frozen(textured):
+    """`fit_model_map(hold=...)`: the held parameter keeps its start value (in the same
+    compiled program as the fit without it), the others reach what `freeze` gives."""
+    import equinox as eqx
+
+    from ctjax.fitting import fit_model_map, paper_model
+    from ctjax.lights import PointLight
+    from ctjax.observations import Observations
+
+    tracks = Observations.of(load_capture(textured[(2, 0.5)])).tracks(max_points=4000)
+    near = eqx.tree_at(lambda m: m.light, paper_model(sigma=0.3), PointLight(jnp.zeros(3)))
+    name = "light.position_mm"
+    held = fit_model_map(near, tracks, hold=(name,), standard_errors=False)
+    frozen = fit_model_map(near, tracks, freeze=(name,), standard_errors=False)
+    assert held.converged and held.details["parameters"] == frozen.details["parameters"]
+    np.testing.assert_array_equal(np.asarray(held.model.light.position_mm), np.zeros(3))
+    assert held.to_json()["sigma"] == pytest.approx(frozen.to_json()["sigma"], rel=1e-6)
+    np.testing.assert_allclose(held.to_json()["F_tilde"], frozen.to_json()["F_tilde"], rtol=1e-5)
+    # Everything held: the projection is the fit, as with everything frozen.
+    sigma = "brdf.lobes[1].distribution.sigma"
+    alone = fit_model_map(paper_model(sigma=0.3), tracks, hold=(sigma,), standard_errors=False)
+    assert alone.converged and alone.to_json()["sigma"] == pytest.approx(0.3, rel=1e-12)

@@ -246,15 +246,15 @@ def near_light_map(
     )
     choices = _choices(capture, falloff)
 
-    def fit(starts, freeze=(), tracks=heldout.train):
+    def fit(starts, tracks=heldout.train, **fixed):  # fixed: `freeze` or `hold`
         return fit_model_map(
             starts,
             tracks,
             solver=solver,
             max_steps=max_steps,
             refine=refine,
-            freeze=freeze,
             standard_errors=False,  # the chosen fit's only, below
+            **fixed,
         )
 
     fits, errors = [], []
@@ -273,7 +273,9 @@ def near_light_map(
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     say("standard errors, and the same model with the light at the lens")
     lens_fit = heldout.judge(
-        fit(_at_the_lens(choices[chosen]), freeze=("light.position_mm",)), noise_floor=False
+        # Held, not frozen: the chosen offset fit's compiled program serves.
+        fit(_at_the_lens(choices[chosen]), hold=("light.position_mm",)),
+        noise_floor=False,
     )
     significant = bool(np.all(np.isfinite(stderr)) and np.linalg.norm(offset / stderr) > 2)
     better = offset_fit.heldout_rmse < (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse
@@ -282,7 +284,8 @@ def near_light_map(
     result.noise_floor = heldout.noise_floor(result.model)
     say("the chosen model refitted on every frame's surface points")
     tracks = capture.tracks(max_points=max_points, seed=seed)
-    every = fit([result.model], () if detected else ("light.position_mm",), tracks)
+    # Frozen, not held: other tracks, another program anyway, and fewer Jacobian columns.
+    every = fit([result.model], tracks, freeze=() if detected else ("light.position_mm",))
     reported = _take_refit(result, every, tracks, detected, reported)
     result.details |= _details(result, capture, choices, errors, detected, offset, reported)
     result.details |= {

@@ -213,25 +213,30 @@ def heldout_map_rmse(
 
 
 @persistent_jit
-def _least_squares(model, samples, names, per_point, solver, max_steps):
+def _least_squares(model, samples, names, per_point, solver, max_steps, held):
+    """LM over the parameters not frozen by `names`; those flagged in `held` (a bool per
+    parameter, an array: one compiled program whatever it holds) stay at their start."""
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
     if not parameters:  # all linear (e.g. Lambertian alone): the projection is the fit
         albedo, weights, residual = _projected(model, samples, per_point)
         done = jnp.asarray(Status.successful.value)
         return model, albedo, weights, jnp.sum(residual * residual), done, jnp.asarray(0)
+    start = unconstrained(model, parameters)
+
+    def kept(u):  # a held parameter's step has a zero Jacobian column: it never moves
+        return [jnp.where(held[i], s, v) for i, (s, v) in enumerate(zip(start, u, strict=True))]
 
     @jax.jit  # traced once for the solver and the solution (pjit's cache)
     def projected(u):
-        return _projected(constrained(model, parameters, u), samples, per_point)
+        return _projected(constrained(model, parameters, kept(u)), samples, per_point)
 
     def residuals(u):
         return 255 * projected(u)[2].reshape(-1)  # 8-bit levels: so are the tolerances
 
-    start = unconstrained(model, parameters)
     value, status, steps = least_squares(residuals, solver, start, max_steps)
     albedo, weights, residual = projected(value)
-    fitted = constrained(model, parameters, value)
+    fitted = constrained(model, parameters, kept(value))
     return fitted, albedo, weights, jnp.sum(residual * residual), status, steps
 
 
@@ -240,6 +245,7 @@ def fit_model_map(
     tracks: Tracks | TrackSamples,
     *,
     freeze: Sequence[str] = (),
+    hold: Sequence[str] = (),
     solver: Solver = LEVENBERG_MARQUARDT,
     max_steps: int = 100,
     refine: int | None = None,
@@ -248,10 +254,11 @@ def fit_model_map(
     """Fit `ShadingModel`s (one or several starts of the same structure) to tracked surface
     points with one albedo per point (the diffuse lobe's weight) and the other lobes' weights
     shared, both eliminated in closed form; LM runs over the remaining parameters (`freeze`
-    holds more fixed). Image effects (a camera gamma, an ambient term) are undone on the
-    measurements (`AbstractImageEffect.inverse`: the albedo is linear again there), each
-    observation weighted by the effects' squared slope; an effect without an inverse is
-    refused.
+    holds more fixed; `hold` too, in the same compiled program as without it: a model
+    with and without a parameter held costs one compilation, not two). Image effects (a
+    camera gamma, an ambient term) are undone on the measurements
+    (`AbstractImageEffect.inverse`: the albedo is linear again there), each observation
+    weighted by the effects' squared slope; an effect without an inverse is refused.
 
     Returns an `Estimate` of the best start: the model with its global weights and, in the
     diffuse lobe, the median albedo of the points seen twice or more; `rmse["calibration"]`
@@ -282,9 +289,13 @@ def fit_model_map(
         costs = [float(projected_cost(m, samples, per_point)) for m in starts]
         starts = [starts[i] for i in np.argsort(costs)[:refine]]
     best = None
+    free = lambda n: n in tuple(freeze) or _weights_frozen(n)  # noqa: E731
+    held = np.array([p.name in hold for p in free_parameters(starts[0], free)], bool)
+    if held.size and held.all():  # nothing left to fit: the projection is the fit
+        freeze, held = (*freeze, *hold), held[:0]
     for start in starts:
         fitted, albedo, weights, cost, result, steps = _least_squares(
-            start, samples, tuple(freeze), per_point, solver, max_steps
+            start, samples, tuple(freeze), per_point, solver, max_steps, held
         )
         cost = float(cost)
         if np.isfinite(cost) and (best is None or cost < best[3]):
@@ -300,9 +311,10 @@ def fit_model_map(
     fitted = eqx.tree_at(lambda m: m.brdf, fitted, brdf)
     total_weight = float(jnp.sum(samples.weight)) * samples.channels
     rmse = 255 * math.sqrt(cost / max(total_weight, 1e-300))
-    frozen = lambda n: n in tuple(freeze) or _weights_frozen(n)  # noqa: E731
+    fixed = (*freeze, *hold)
+    frozen = lambda n: n in fixed or _weights_frozen(n)  # noqa: E731
     parameters = [p.name for p in free_parameters(fitted, frozen)]
-    errors = _standard_errors(fitted, samples, tuple(freeze), per_point) if standard_errors else {}
+    errors = _standard_errors(fitted, samples, fixed, per_point) if standard_errors else {}
     return Estimate(
         fitted,
         {"calibration": rmse},
