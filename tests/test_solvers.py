@@ -76,6 +76,21 @@ def test_dense_lm_keeps_nan_out_of_the_solution():
     np.testing.assert_allclose(y[0], _TRUTH[:2], rtol=2e-3)
 
 
+def test_dense_lm_damps_where_gauss_newton_overshoots():
+    """Freudenstein and Roth's problem from (0.5, -2) ends in its large-residual local
+    minimum, where the Gauss-Newton step overshoots: the gain-ratio damping gets there in 19
+    steps (29 when lambda shrank by 3 at every accepted step)."""
+
+    def residuals(y):
+        a, b = y
+        return jnp.stack([a - 13 + ((5 - b) * b - 2) * b, a - 29 + ((b + 1) * b - 14) * b])
+
+    y, status, steps = least_squares(residuals, DenseLM(), jnp.asarray([0.5, -2.0]), 100)
+    assert Status(int(status)) is Status.successful and int(steps) <= 22
+    np.testing.assert_allclose(y, [11.41277900, -0.89680525], rtol=1e-6)
+    np.testing.assert_allclose(jnp.sum(residuals(y) ** 2), 48.98425368, rtol=1e-9)
+
+
 def test_dense_lm_settings_are_checked():
     with pytest.raises(CtjaxError, match="rtol must be a nonnegative number, got -1"):
         DenseLM(rtol=-1)
