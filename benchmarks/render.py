@@ -155,8 +155,12 @@ def main():
     parser.add_argument("--height", type=int, default=1080)
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--no-malloc-tuning", action="store_true")
+    parser.add_argument(
+        "--no-xla-tuning", action="store_true", help="XLA's default vector width (ctjax.tune_xla)"
+    )
     args = parser.parse_args()
     tuned = False if args.no_malloc_tuning else ctjax.tune_malloc()
+    wide = False if args.no_xla_tuning else ctjax.tune_xla()  # as the command line does
 
     w, h = args.width, args.height
     camera = ctjax.Camera(w, h, 0.8 * w, 0.8 * w, (w - 1) / 2, (h - 1) / 2)
@@ -171,7 +175,7 @@ def main():
     peak = max(bandwidth.values()) * 1e9
     print(
         f"{platform.processor() or platform.machine()}, {jax.device_count()} JAX device(s), "
-        f"malloc tuned: {tuned}"
+        f"malloc tuned: {tuned}, 512-bit vectors (tune_xla): {wide}"
     )
     print(
         f"memory bandwidth: NumPy copy {bandwidth['numpy_copy_gb_s']:.1f} GB/s, "
@@ -179,7 +183,10 @@ def main():
     )
 
     results = [
-        bench_precision(dtype, camera, depth64, normals64, peak, tuned, args.repeats)
+        {
+            **bench_precision(dtype, camera, depth64, normals64, peak, tuned, args.repeats),
+            "xla_tuned": wide,
+        }
         for dtype in (np.float32, np.float64)
     ]
     for row in results:

@@ -22,6 +22,7 @@ from ._json import to_json as to_json
 from ._model import ShadingModel as ShadingModel
 from ._model import paper_model as paper_model
 from ._performance import tune_malloc as tune_malloc
+from ._performance import tune_xla as tune_xla
 from ._render import apply_effects as apply_effects
 from ._render import map_pixels as map_pixels
 from ._render import render as render

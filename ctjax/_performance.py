@@ -35,6 +35,45 @@ def tune_malloc() -> bool:
     return bool(ok_mmap and ok_trim and ok_arena)
 
 
+# XLA's CPU code generator prefers 256-bit vectors, even where the CPU has 512-bit ones.
+VECTOR_WIDTH_FLAG = "--xla_cpu_prefer_vector_width"
+
+
+def _has_avx512() -> bool:
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            for line in cpuinfo:
+                if line.startswith("flags"):
+                    return "avx512f" in line.split()
+    except OSError:
+        pass
+    return False
+
+
+@functools.cache
+def tune_xla() -> bool:
+    """Let XLA's CPU code use 512-bit vectors where the CPU has them (AVX-512).
+
+    XLA generates 256-bit code by default, even on AVX-512 CPUs (wide vectors slowed the
+    clock of older Intel cores). On the AMD EPYC (Zen 4) of the benchmarks, 512-bit code
+    rendered 1920x1080 frames 10-25% faster (`benchmarks/render.py`, alternating
+    processes); the fits ran as before (`benchmarks/albedo_map.py`; identical
+    `ctjax fit` results). Appends `--xla_cpu_prefer_vector_width=512` to `XLA_FLAGS`
+    unless that variable already sets the width (yours is kept); XLA reads it when its
+    backend starts, so call this before JAX's first computation. Returns True when the
+    flag was added. Called by the command-line interface and `benchmarks/render.py`.
+    """
+    from jax._src import xla_bridge
+
+    flags = os.environ.get("XLA_FLAGS", "")
+    if VECTOR_WIDTH_FLAG in flags or xla_bridge.backends_are_initialized():
+        return False
+    if not _has_avx512():
+        return False
+    os.environ["XLA_FLAGS"] = f"{flags} {VECTOR_WIDTH_FLAG}=512".strip()
+    return True
+
+
 # The command line keeps XLA's compiled programs here between runs (`enable_compilation_cache`).
 CACHE_ENV = "CTJAX_CACHE_DIR"
 NO_CACHE_ENV = "CTJAX_NO_CACHE"

@@ -862,11 +862,12 @@ def main(argv: list[str] | None = None) -> int:
         return exit.code if isinstance(exit.code, int) else 0
     import jax
 
-    from ._performance import enable_compilation_cache, tune_malloc
+    from ._performance import enable_compilation_cache, tune_malloc, tune_xla
 
     # Estimation in double precision; renders stay in the dtype of their inputs.
     jax.config.update("jax_enable_x64", True)
     tune_malloc()
+    tune_xla()
     enable_compilation_cache()
     try:
         return args.run(args)

@@ -1,6 +1,7 @@
 """The command line: commands run, and bad input is one line on stderr with status 2."""
 
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -113,3 +114,24 @@ def test_malloc_tuning_is_applied_before_the_first_computation():
     code = "import ctjax; print(ctjax.tune_malloc())"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0 and result.stdout.strip() == "True", result.stderr
+
+
+def test_xla_tuning_adds_the_vector_width_once_and_keeps_the_users():
+    """`tune_xla` adds 512-bit vectors to XLA_FLAGS on an AVX-512 CPU (and nothing
+    elsewhere), keeps a width the user set, and does nothing once the backend runs."""
+    from ctjax._performance import _has_avx512
+
+    code = (
+        "import os, jax, ctjax; first = ctjax.tune_xla(); flags = os.environ.get('XLA_FLAGS', '');"
+        "jax.numpy.zeros(1).block_until_ready(); ctjax.tune_xla.cache_clear();"
+        "print(first, repr(flags), ctjax.tune_xla())"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert result.returncode == 0, result.stderr
+    wide = _has_avx512()
+    expected = "'--xla_cpu_prefer_vector_width=512'" if wide else "''"
+    assert result.stdout.split() == [str(wide), expected, "False"]
+    env["XLA_FLAGS"] = "--xla_cpu_prefer_vector_width=256"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert result.stdout.split() == ["False", "'--xla_cpu_prefer_vector_width=256'", "False"]
