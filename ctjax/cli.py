@@ -79,7 +79,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
-    summary = run_demo(Path(args.out), _synth_options_from(args))
+    summary = run_demo(Path(args.out), _synth_options_from(args), falloff=args.falloff)
     evaluation = summary["evaluation"]
     print(f"report: {Path(args.out) / 'report.html'}")
     print(
@@ -321,14 +321,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate_light(args: argparse.Namespace) -> int:
-    from .calibration import calibrate_near_light
+    from .calibration import calibrate_near_light, named_falloff
     from .io import load_capture
     from .io._atomic import atomic_write_json
 
     if args.model == "field":
         return _calibrate_light_field(args)
     capture = load_capture(args.capture)
-    falloff = _falloff(args.falloff, capture)
+    falloff = named_falloff(args.falloff, capture)
     result = calibrate_near_light(
         capture,
         calibration=args.calib,
@@ -436,20 +436,6 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 # The command line's words for objects, in one place.
-
-
-def _falloff(name: str, capture):
-    """`--falloff`: None (auto: chosen on held-out frames) or the falloff objects."""
-    if name == "auto":
-        return None
-    from .heldout import median_depth_mm
-    from .lights import InverseSquare, SpotFalloff
-
-    factors = {
-        "inverse_square": lambda: InverseSquare(median_depth_mm(capture)),
-        "spot": lambda: SpotFalloff(2.0),
-    }
-    return tuple(factors[part]() for part in name.split("+") if part != "none")
 
 
 def _field_solver(engine: str):
@@ -733,12 +719,7 @@ def _light_command(commands) -> None:
         type=Path,
         help="field: output NPZ with the (H, W, 3) light directions, theta, phi, status",
     )
-    light.add_argument(
-        "--falloff",
-        default="auto",
-        choices=("auto", "none", "inverse_square", "spot", "inverse_square+spot"),
-        help="falloffs of the near light (auto: chosen on held-out frames)",
-    )
+    _add_falloff_argument(light)
     light.add_argument(
         "--engine",
         choices=("optimistix", "closed-form"),
@@ -846,11 +827,22 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     return 0 if not failed else 1
 
 
+def _add_falloff_argument(parser) -> None:
+    parser.add_argument(
+        "--falloff",
+        default="auto",
+        # ctjax.calibration._near_light.FALLOFF_NAMES (not imported here: it loads JAX)
+        choices=("auto", "none", "inverse_square", "spot", "inverse_square+spot"),
+        help="falloffs of the near light (auto: chosen on held-out frames)",
+    )
+
+
 def _demo_command(commands) -> None:
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
     demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")
     # texture contrast: ctjax.demo.DEMO_TEXTURE_CONTRAST (not imported here: it loads JAX)
     _add_synth_arguments(demo, frames=5, texture=True, texture_contrast=0.3)
+    _add_falloff_argument(demo)
     demo.set_defaults(run=_cmd_demo)
 
 

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import ClosedFormLM, calibrate_light_field, calibrate_near_light
+from ._errors import CtjaxError
+from .calibration import ClosedFormLM, calibrate_light_field, calibrate_near_light, named_falloff
+from .calibration._near_light import FALLOFF_NAMES
 from .estimation import MaskOptions, capture_sets, fit_capture
 from .evaluation import evaluate, evaluation_plots
 from .io import load_capture
@@ -366,8 +368,12 @@ def _truth(truth) -> dict:
     }
 
 
-def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
-    """Run the whole pipeline into folder `out`; returns the summary (`out/summary.json`)."""
+def run_demo(out: Path, options: SynthOptions | None = None, *, falloff: str = "auto") -> dict:
+    """Run the whole pipeline into folder `out`; returns the summary (`out/summary.json`).
+    `falloff`: the near light's falloff set by name (`named_falloff`; "auto": every set,
+    chosen on held-out frames)."""
+    if falloff not in FALLOFF_NAMES:  # before the minutes of work that precede its use
+        raise CtjaxError(f"falloff must be one of {', '.join(FALLOFF_NAMES)}, got {falloff!r}")
     options = SynthOptions(texture_contrast=DEMO_TEXTURE_CONTRAST) if options is None else options
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -410,6 +416,7 @@ def run_demo(out: Path, options: SynthOptions | None = None) -> dict:
         "near-light model (LM, all frames)...",
         calibrate_near_light,
         capture,
+        falloff=named_falloff(falloff, capture),
         max_samples=8000,
         heldout_samples=20_000,
     )

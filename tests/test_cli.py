@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from ctjax import CtjaxError
 from ctjax.cli import main
 from ctjax.io import load_capture
 
@@ -46,6 +47,7 @@ def test_demo_command_runs_the_whole_pipeline_from_images(tmp_path):
     (a small, strongly textured capture so that SfM has features at this size)."""
     out = tmp_path / "demo"
     argv = ["demo", "--out", str(out), "--frames", "4", "--width", "192", "--height", "160"]
+    argv += ["--falloff", "spot"]  # one falloff set: the choice among them is test_calibration's
     assert main([*argv, "--texture-contrast", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["reconstruction"]["registered"] == [f"frame_{i:03d}" for i in range(4)]
@@ -135,3 +137,11 @@ def test_xla_tuning_adds_the_vector_width_once_and_keeps_the_users():
     env["XLA_FLAGS"] = "--xla_cpu_prefer_vector_width=256"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert result.stdout.split() == ["False", "'--xla_cpu_prefer_vector_width=256'", "False"]
+
+
+def test_demo_refuses_an_unknown_falloff_before_any_work(tmp_path):
+    from ctjax.demo import run_demo
+
+    with pytest.raises(CtjaxError, match=r"falloff must be one of auto, none, .*got 'spots'"):
+        run_demo(tmp_path / "demo", falloff="spots")
+    assert not (tmp_path / "demo").exists()

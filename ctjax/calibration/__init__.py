@@ -12,4 +12,5 @@ from ._light_field import FIELD_SOLVER as FIELD_SOLVER
 from ._light_field import calibrate_light_field as calibrate_light_field
 from ._near_light import calibrate_near_light as calibrate_near_light
 from ._near_light import falloff_choices as falloff_choices
+from ._near_light import named_falloff as named_falloff
 from ._spline import fit_spline as fit_spline

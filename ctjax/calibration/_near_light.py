@@ -52,6 +52,19 @@ def falloff_choices(capture: "Capture | Observations") -> list[tuple[AbstractFal
     return [c for r in range(len(factors) + 1) for c in itertools.combinations(factors, r)]
 
 
+FALLOFF_NAMES = ("auto", "none", "inverse_square", "spot", "inverse_square+spot")
+
+
+def named_falloff(name: str, capture: "Capture | Observations"):
+    """A falloff set by name (`FALLOFF_NAMES`, the command line's `--falloff`): None for
+    "auto" (every set of `falloff_choices`, chosen on held-out frames), else its factors."""
+    if name not in FALLOFF_NAMES:
+        raise CtjaxError(f"falloff must be one of {', '.join(FALLOFF_NAMES)}, got {name!r}")
+    if name == "auto":
+        return None
+    return next(c for c in falloff_choices(capture) if _name(c) == name)
+
+
 def _name(falloff: tuple[AbstractFalloff, ...]) -> str:
     return "+".join(f.name for f in falloff) or "none"
 
