@@ -32,25 +32,26 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# The slowest files first (seconds per file, warm cache, 2 workers: sfm 65, evaluation 51,
-# cli 49, estimation 38, diagnostics 38, albedo_map 31, calibration 31, light_field 25,
-# video 23, notebooks 19, lobes 18; the rest under 12). CI runs `--dist loadfile`, one file
-# per worker at a time in collection order: a long file collected last keeps one worker
-# busy while the other waits.
+# The slowest files first (worker-seconds per file, cold cache, fresh clone, 2 workers: sfm
+# 68, diagnostics 65, calibration 54, estimation 50, albedo_map 47, evaluation 47, cli 39,
+# light_field 37, video 28, lobes 16, notebooks 15, synth 14; the rest under 7). CI runs
+# `--dist loadfile`, one file per worker at a time in collection order: a long file
+# collected last keeps one worker busy while the other waits.
 _SLOWEST_FIRST = [
     f"test_{name}.py"
     for name in (
         "sfm",
+        "diagnostics",
+        "calibration",
+        "estimation",
+        "albedo_map",
         "evaluation",
         "cli",
-        "estimation",
-        "diagnostics",
-        "albedo_map",
-        "calibration",
         "light_field",
         "video",
-        "notebooks",
         "lobes",
+        "notebooks",
+        "synth",
     )
 ]
 
