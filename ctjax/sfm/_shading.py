@@ -20,8 +20,9 @@ correction changes each point's normal, n ~ (h_x, h_y, -1); the points stay wher
 them. Every frame's normals are then the world surface's, and its depth moves by the
 correction along world z.
 
-Measured (`benchmarks/world_surface.py`: tests/independent.py 640x512 x 8 reconstructed from
-its images, then `fit_capture` with the albedo map): seed 1 normals 3.65 -> 1.11 degrees
+Measured with 3 mm knots (`benchmarks/world_surface.py`: tests/independent.py 640x512 x 8
+reconstructed from its images, then `fit_capture` with the albedo map; 2 mm, now the
+default: `KNOT_FRACTION`): seed 1 normals 3.65 -> 1.11 degrees
 median, sigma +14.2% -> +2.1%, F_tilde -43..-52% -> +2.3..+2.7% (another run, SfM's result
 varying: 3.72 -> 0.95 degrees, +13.0% -> +1.5%, -46..-54% -> -0.4..0.0%); seed 2 normals
 1.61 -> 0.29, sigma +7.3% -> -0.1%, F_tilde -40..-42% -> -4.0%; 110-140 s.
