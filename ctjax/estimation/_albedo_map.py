@@ -214,9 +214,9 @@ def _sums(columns, values, weight, per_point) -> _Sums:
 
 
 def _global_weights(s: _Sums, inverse, ok):
-    """The global weights (G, C) by the reduced NNLS, and the albedos (C arrays (P,)) they
-    leave, the set of albedos clamped at 0 updated `_ACTIVE_SET_ROUNDS` times (one round
-    traced and looped, the channels' solves batched: less to trace and compile)."""
+    """The global weights (G, C) by the reduced NNLS, the set of albedos they clamp at 0
+    updated `_ACTIVE_SET_ROUNDS` times (one round traced and looped, the channels' solves
+    batched: less to trace and compile)."""
     lobes = range(len(s.others))
     gram_total = jnp.stack([jnp.stack([jnp.sum(g * h) for h in s.others]) for g in s.others])
     rhs_total = jnp.stack([jnp.stack([jnp.sum(g * v) for v in s.values]) for g in s.others])
@@ -248,8 +248,7 @@ def _global_weights(s: _Sums, inverse, ok):
         jnp.zeros((len(s.others), len(s.values)), inverse.dtype),
         jnp.stack([ok] * len(s.values)),
     )
-    weights, _ = jax.lax.fori_loop(0, _ACTIVE_SET_ROUNDS, round_, start)
-    return weights, list(albedo_given(weights))
+    return jax.lax.fori_loop(0, _ACTIVE_SET_ROUNDS, round_, start)[0]
 
 
 def _project(columns, values, weight, per_point):
@@ -260,17 +259,49 @@ def _project(columns, values, weight, per_point):
     inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
     channels = values.shape[0]
     if s.others:
-        weights, albedo = _global_weights(s, inverse, ok)
+        weights = _global_weights(s, inverse, ok)
     else:
         weights = jnp.zeros((0, channels), values.dtype)
-        albedo = [s_ai * inverse for s_ai in s.s_ai]
-    albedo = [jnp.where(ok, jnp.maximum(rho, 0), 0) for rho in albedo]
+    albedo, residual = _albedo_and_residuals(s, inverse, ok, weights)
+    full = jnp.insert(weights, per_point, jnp.zeros(channels, values.dtype), axis=0)
+    return albedo, full, residual
+
+
+def _albedo_and_residuals(s: _Sums, inverse, ok, weights):
+    """Each point's albedo given the global weights (G, C), clamped at 0, and the weighted
+    residuals they leave (C arrays each)."""
+    albedo = [
+        jnp.where(
+            ok,
+            jnp.maximum((s_ai - sum(g * weights[i, c] for i, g in enumerate(s.s_ag))) * inverse, 0),
+            0,
+        )
+        for c, s_ai in enumerate(s.s_ai)
+    ]
     residual = [
         v - s.a * rho - sum(g * weights[i, c] for i, g in enumerate(s.others))
         for c, (v, rho) in enumerate(zip(s.values, albedo, strict=True))
     ]
-    full = jnp.insert(weights, per_point, jnp.zeros(channels, values.dtype), axis=0)
-    return albedo, full, residual
+    return albedo, residual
+
+
+def residuals_given_weights(
+    columns: tuple[Float[Array, "M P"], ...],
+    values: Float[Array, "C M P"],
+    weight: Float[Array, "M P"],
+    weights: Float[Array, "K C"],
+    per_point: int = 0,
+) -> Float[Array, "C M P"]:
+    """The weighted residuals with the global `weights` (K, C; row `per_point` ignored)
+    given and each point's albedo eliminated: the same as `projected_residuals` at the
+    weights it returns, but every point's residuals now depend on its own columns alone.
+    The Jacobian of the projected residuals is this function's (local to each point) plus
+    its derivative along the weights times theirs (rank (K - 1) C): see `ctjax.sfm._shading`."""
+    s = _sums(columns, values, weight, per_point)
+    ok = s.s_aa > _NEGLIGIBLE * jnp.max(s.s_aa)
+    inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
+    others = jnp.concatenate([weights[:per_point], weights[per_point + 1 :]])
+    return jnp.stack(_albedo_and_residuals(s, inverse, ok, others)[1])
 
 
 def projected_residuals(

@@ -20,6 +20,14 @@ correction changes each point's normal, n ~ (h_x, h_y, -1); the points stay wher
 them. Every frame's normals are then the world surface's, and its depth moves by the
 correction along world z.
 
+How. LM's normal equations are assembled from their structure, not from a dense Jacobian:
+with F_tilde given, a point's residuals depend on its own slopes (h_x, h_y) and sigma alone,
+the slopes are linear in its 16 coefficients, and F_tilde* (eliminated) adds a rank-3 part
+(`_Problem.gauss_newton_terms`, `_normal_equations`; equal to the dense Jacobian's to
+rounding, tests/test_sfm.py). On tests/independent.py 640x512 x 8 seed 2 from its images
+(6777 points, 1880 coefficients, 10 iterations): 436 s with the dense Jacobian (16 columns
+a forward pass, J^T J at n^2 per residual), 14 s now, the same iterates to 12 digits.
+
 Measured with 3 mm knots (`benchmarks/world_surface.py`: tests/independent.py 640x512 x 8
 reconstructed from its images, then `fit_capture` with the albedo map; 2 mm, now the
 default: `KNOT_FRACTION`): seed 1 normals 3.65 -> 1.11 degrees
@@ -36,9 +44,11 @@ images only, which fits that same model, does it by default (`--no-shading`).
 import dataclasses
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 from scipy import sparse
 
 # Knot spacing over the median working distance: 2 mm at 68 mm. 3 mm knots left the rims'
@@ -57,8 +67,6 @@ ITERATIONS = 10
 # lowered it in the fifth digit (sigma 0.1967 -> 0.1966), 20 s of Jacobian each.
 RTOL = 1e-4
 MAX_POINTS = 8000
-# Jacobian columns computed at once (forward mode over the parameters).
-_CHUNK = 16
 
 
 def _bspline(t):
@@ -106,15 +114,32 @@ class HeightSpline:
         return index, value, d_x, d_y, inside
 
     def penalty(self, c):
-        grid = c.reshape(self.shape)
-        return jnp.concatenate(
+        """The coefficients' second differences along y, along x and across."""
+        return _second_differences(self.shape, c)
+
+    def penalty_matrix(self) -> sparse.csr_matrix:
+        """`penalty` as a sparse matrix (it is linear in the coefficients)."""
+        rows, cols = self.shape
+        second = lambda k: sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], (k - 2, k))  # noqa: E731
+        first = lambda k: sparse.diags([-1.0, 1.0], [0, 1], (k - 1, k))  # noqa: E731
+        return sparse.vstack(
             [
-                (grid[2:] - 2 * grid[1:-1] + grid[:-2]).ravel(),
-                (grid[:, 2:] - 2 * grid[:, 1:-1] + grid[:, :-2]).ravel(),
-                np.sqrt(2)
-                * (grid[1:, 1:] - grid[1:, :-1] - grid[:-1, 1:] + grid[:-1, :-1]).ravel(),
+                sparse.kron(second(rows), sparse.eye(cols)),
+                sparse.kron(sparse.eye(rows), second(cols)),
+                np.sqrt(2) * sparse.kron(first(rows), first(cols)),
             ]
-        )
+        ).tocsr()
+
+
+def _second_differences(shape: tuple[int, int], c):
+    grid = c.reshape(shape)
+    return jnp.concatenate(
+        [
+            (grid[2:] - 2 * grid[1:-1] + grid[:-2]).ravel(),
+            (grid[:, 2:] - 2 * grid[:, 1:-1] + grid[:, :-2]).ravel(),
+            np.sqrt(2) * (grid[1:, 1:] - grid[1:, :-1] - grid[:-1, 1:] + grid[:-1, :-1]).ravel(),
+        ]
+    )
 
 
 def _slopes(world_normal):
@@ -158,8 +183,8 @@ def base_surface(capture, spline: "HeightSpline", samples: int = 200_000) -> np.
     design = sparse.csr_matrix((value.ravel(), (rows, index.ravel())), (len(z), spline.size))
     normal = (design.T @ design).toarray()
     rhs = design.T @ z
-    penalty = jax.jacfwd(spline.penalty)(jnp.zeros(spline.size))
-    penalty = np.asarray(penalty).T @ np.asarray(penalty)
+    penalty = spline.penalty_matrix()
+    penalty = (penalty.T @ penalty).toarray()
     scale = np.trace(normal) / np.trace(penalty)
     return np.linalg.solve(
         normal + 1e-3 * scale * penalty + 1e-9 * scale * np.eye(spline.size), rhs
@@ -167,9 +192,9 @@ def base_surface(capture, spline: "HeightSpline", samples: int = 200_000) -> np.
 
 
 class _Points:
-    """Tracked surface points: each observation's rotation (camera to world) and view
-    direction, the values and weights (views first), the SfM slopes at the points and the
-    spline's basis there."""
+    """Tracked surface points (`shading`, `count` of them) under one height spline
+    (`spline`, its coefficients fitted to the frames' depth: `base`), and the refinement's
+    data on them (`problem`)."""
 
     def __init__(self, capture, spline_spacing: float, max_points: int):
         from ..observations import Observations
@@ -195,75 +220,193 @@ class _Points:
         self.count = int(keep.sum())
         start = start[keep] / np.linalg.norm(start[keep], axis=-1, keepdims=True)
         self.spline = HeightSpline.covering(world[keep, :2], spline_spacing)
-        self.index, _, self.d_x, self.d_y, _ = map(jnp.asarray, self.spline.basis(world[keep, :2]))
+        index, _, d_x, d_y, _ = self.spline.basis(world[keep, :2])
         self.base = base_surface(capture, self.spline)
-        base = jnp.asarray(self.base)
-        self.slopes = jnp.stack(
-            [jnp.sum(base[self.index] * self.d_x, -1), jnp.sum(base[self.index] * self.d_y, -1)], -1
-        )
-        self.rotation = jnp.asarray(rotation[keep])
+        base = self.base[index]
         view = -point[keep] / np.maximum(np.linalg.norm(point[keep], axis=-1, keepdims=True), 1e-9)
-        self.view = jnp.asarray(np.where(tracks.observed[keep][..., None], view, [0, 0, 1.0]))
-        self.values = jnp.asarray(np.transpose(np.nan_to_num(tracks.values[keep]), (2, 1, 0)))
-        self.weight = jnp.asarray(np.where(tracks.observed[keep], tracks.weight[keep], 0).T)
+        self.problem = _Problem(
+            *map(
+                jnp.asarray,
+                (
+                    index,
+                    d_x,
+                    d_y,
+                    np.stack([np.sum(base * d_x, -1), np.sum(base * d_y, -1)], -1),
+                    rotation[keep],
+                    np.where(tracks.observed[keep][..., None], view, [0, 0, 1.0]),
+                    np.transpose(np.nan_to_num(tracks.values[keep]), (2, 1, 0)),
+                    np.where(tracks.observed[keep], tracks.weight[keep], 0).T,
+                ),
+            ),
+            self.spline.shape,
+        )
         self.shading = tracks.select(np.nonzero(keep)[0])
 
-    def normals(self, c):
-        hx = self.slopes[:, 0] + jnp.sum(c[self.index] * self.d_x, -1)
-        hy = self.slopes[:, 1] + jnp.sum(c[self.index] * self.d_y, -1)
-        return _normals_from_slopes(hx, hy, jnp)
 
-    def residuals(self, theta, smoothing):
-        """The observations' weighted residuals, each point's albedo and F_tilde eliminated
-        (paper's model, L = V), then the penalty; and F_tilde (3,)."""
+class _Problem(eqx.Module):
+    """The refinement's data, passed to its compiled functions as arguments (not baked into
+    them as constants): the spline's basis at the points (`index`, `d_x`, `d_y`, (P, 16)),
+    the base surface's slopes there (P, 2), each observation's rotation (camera to world,
+    (P, M, 3, 3)) and view direction (P, M, 3), the values (C, M, P) and weights (M, P)."""
+
+    index: Array
+    d_x: Array
+    d_y: Array
+    slopes: Array
+    rotation: Array
+    view: Array
+    values: Array
+    weight: Array
+    grid: tuple[int, int] = eqx.field(static=True)
+
+    def slopes_of(self, c):
+        """Each point's height-field slopes (h_x, h_y) with correction coefficients `c`."""
+        return (
+            self.slopes[:, 0] + jnp.sum(c[self.index] * self.d_x, -1),
+            self.slopes[:, 1] + jnp.sum(c[self.index] * self.d_y, -1),
+        )
+
+    def columns(self, hx, hy, sigma):
+        """The paper's lobes' values for unit weight at every observation, (views, P) each."""
         from .._vector import Vec3
-        from ..estimation._albedo_map import projected_residuals
         from ..estimation._brdf import PAPER, design_columns
         from ..observations import ShadingSamples
 
-        c, sigma = theta[:-1], theta[-1]
-        camera = jnp.einsum("pmji,pj->pmi", self.rotation, self.normals(c))
+        camera = jnp.einsum("pmji,pj->pmi", self.rotation, _normals_from_slopes(hx, hy, jnp))
         flat = lambda a, k: a[..., k].T.ravel()  # noqa: E731  views first, flattened
         normal = Vec3(*(flat(camera, k) for k in range(3)))
         view = Vec3(*(flat(self.view, k) for k in range(3)))
         size, views = normal.x.shape[0], camera.shape[1]
         samples = ShadingSamples(normal, view, view, jnp.ones(size), jnp.zeros((size, 3)))
-        columns = tuple(c.reshape(views, -1) for c in design_columns(PAPER, sigma[None], samples))
+        return tuple(c.reshape(views, -1) for c in design_columns(PAPER, sigma[None], samples))
+
+    def residuals(self, theta, smoothing):
+        """The observations' weighted residuals, each point's albedo and F_tilde eliminated
+        (paper's model, L = V), then the penalty; and F_tilde (3,)."""
+        from ..estimation._albedo_map import projected_residuals
+
+        c, sigma = theta[:-1], theta[-1]
+        columns = self.columns(*self.slopes_of(c), sigma)
         _, weights, residual = projected_residuals(columns, self.values, self.weight, 0)
-        penalty = smoothing / 255 * self.spline.penalty(c)
+        penalty = smoothing / 255 * _second_differences(self.grid, c)
         return jnp.concatenate([residual.ravel(), penalty]), weights[1]
+
+    def gauss_newton_terms(self, theta):
+        """The data residuals' Gauss-Newton terms over h = (every point's h_x, h_y; sigma).
+
+        With F_tilde given, a point's residuals depend on its own slopes and sigma alone
+        (its albedo is eliminated from its own observations): that Jacobian A is a 2x2
+        block per point plus the sigma column. F_tilde* (eliminated) depends on all: the
+        projected residuals' Jacobian is A + U W^T with U = dr/dF_tilde (R, 3) and
+        W = dF_tilde*/dh (3 columns), exactly (chain rule). Returns per point the sums over
+        its rows of A's products (A^T A's blocks, A^T U, A^T r), and U^T U, U^T r, W, and
+        the cost: everything J^T J and J^T r need, in one pass of 6 tangents and 3
+        cotangents instead of a dense (R, n) Jacobian."""
+        from ..estimation._albedo_map import projected_residuals, residuals_given_weights
+
+        c, sigma = theta[:-1], theta[-1]
+        hx, hy = self.slopes_of(c)
+
+        def brdf_weights(hx, hy, sigma):
+            columns = self.columns(hx, hy, sigma)
+            return projected_residuals(columns, self.values, self.weight, 0)[1]
+
+        weights, pullback = jax.vjp(lambda *h: brdf_weights(*h)[1], hx, hy, sigma)
+        w_x, w_y, w_sigma = jax.vmap(pullback)(jnp.eye(3, dtype=theta.dtype))
+
+        def local(hx, hy, sigma, f):
+            columns = self.columns(hx, hy, sigma)
+            return residuals_given_weights(columns, self.values, self.weight, jnp.stack([f, f]))
+
+        zero, one = jnp.zeros_like(hx), jnp.ones_like(hx)
+        eye = jnp.eye(3, dtype=theta.dtype)
+        tangents = (
+            jnp.stack([one, zero, zero, zero, zero, zero]),
+            jnp.stack([zero, one, zero, zero, zero, zero]),
+            jnp.asarray([0, 0, 1, 0, 0, 0], theta.dtype),
+            jnp.concatenate([jnp.zeros((3, 3), theta.dtype), eye]),
+        )
+        primals = (hx, hy, sigma, weights)
+        r, derivatives = jax.vmap(lambda *t: jax.jvp(local, primals, t), out_axes=(None, 0))(
+            *tangents
+        )
+        a_x, a_y, a_sigma, u = derivatives[0], derivatives[1], derivatives[2], derivatives[3:]
+        per_point = lambda x, y: jnp.sum(x * y, axis=(0, 1))  # noqa: E731  (C, M, P) -> (P,)
+        at_a = jnp.stack(
+            [per_point(*pair) for pair in ((a_x, a_x), (a_x, a_y), (a_y, a_y), (a_x, a_sigma))]
+            + [per_point(a_y, a_sigma)]
+        )
+        at_u = jnp.stack([jnp.stack([per_point(a, u_k) for u_k in u]) for a in (a_x, a_y)])
+        return {
+            "at_a": at_a,  # (5, P): xx, xy, yy, x sigma, y sigma
+            "sigma_sigma": jnp.sum(a_sigma * a_sigma),
+            "at_u": at_u,  # (2, 3, P)
+            "sigma_u": jnp.stack([jnp.sum(a_sigma * u_k) for u_k in u]),
+            "at_r": jnp.stack([per_point(a_x, r), per_point(a_y, r)]),
+            "sigma_r": jnp.sum(a_sigma * r),
+            "ut_u": jnp.stack([jnp.stack([jnp.sum(u_k * u_l) for u_l in u]) for u_k in u]),
+            "ut_r": jnp.stack([jnp.sum(u_k * r) for u_k in u]),
+            "w": (w_x, w_y, w_sigma),  # (3, P), (3, P), (3,)
+            "cost": jnp.sum(r * r),
+        }
+
+
+def _slope_map(points: _Points) -> sparse.csr_matrix:
+    """S (2P + 1, n): h = (h_x, h_y, sigma) is affine in theta = (coefficients, sigma)."""
+    count, n = points.count, points.spline.size + 1
+    index = np.asarray(points.problem.index)
+    rows = np.concatenate(
+        [np.repeat(np.arange(count), 16), np.repeat(np.arange(count), 16) + count]
+    )
+    cols = np.concatenate([index.ravel(), index.ravel()])
+    values = np.concatenate([np.ravel(points.problem.d_x), np.ravel(points.problem.d_y)])
+    rows, cols = np.append(rows, 2 * count), np.append(cols, n - 1)
+    return sparse.csr_matrix((np.append(values, 1.0), (rows, cols)), (2 * count + 1, n))
+
+
+def _normal_equations(terms, slope_map):
+    """J^T J (n, n) and J^T r (n,) of the data residuals from `gauss_newton_terms`."""
+    t = jax.tree_util.tree_map(np.asarray, terms)
+    count = t["at_a"].shape[1]
+    xx, xy, yy, xs, ys = t["at_a"]
+    p, q, last = np.arange(count), np.arange(count) + count, 2 * count
+    rows = np.concatenate([p, p, q, q, p, q, np.full(count, last), np.full(count, last), [last]])
+    cols = np.concatenate([p, q, p, q, np.full(count, last), np.full(count, last), p, q, [last]])
+    values = np.concatenate([xx, xy, xy, yy, xs, ys, xs, ys, [t["sigma_sigma"]]])
+    at_a = sparse.csr_matrix((values, (rows, cols)), (last + 1, last + 1))
+    normal = (slope_map.T @ at_a @ slope_map).toarray()
+    stack = lambda x, y, sigma: np.concatenate([x, y, sigma[None]])  # noqa: E731  h-space
+    at_u = slope_map.T @ stack(t["at_u"][0].T, t["at_u"][1].T, t["sigma_u"])  # (n, 3)
+    w = slope_map.T @ stack(t["w"][0].T, t["w"][1].T, t["w"][2])  # (n, 3)
+    normal += at_u @ w.T + w @ at_u.T + w @ t["ut_u"] @ w.T
+    gradient = slope_map.T @ stack(*t["at_r"], np.asarray(t["sigma_r"])) + w @ t["ut_r"]
+    return normal, gradient
 
 
 def _levenberg_marquardt(points: _Points, sigma: float, smoothing: float, iterations: int, say):
-    """(coefficients, sigma) by LM from 0 and the BnB's sigma; the Jacobian by forward mode
-    in chunks of `_CHUNK` parameters. Returns theta, the cost before and after, the steps."""
-    residual = jax.jit(lambda t: points.residuals(t, smoothing)[0])
-
-    @jax.jit
-    def jacobian_columns(theta, basis):
-        return jax.vmap(jax.linearize(residual, theta)[1], in_axes=1, out_axes=1)(basis)
+    """(coefficients, sigma) by LM from 0 and the BnB's sigma, on the normal equations
+    assembled from `gauss_newton_terms` (the penalty's own are constant). Returns theta,
+    the cost before and after, the steps."""
+    residual = jax.jit(lambda problem, t: problem.residuals(t, smoothing)[0])
+    terms_at = jax.jit(lambda problem, t: problem.gauss_newton_terms(t))
+    slope_map = _slope_map(points)
+    penalty = points.spline.penalty_matrix() * (smoothing / 255)
+    penalty_normal = np.zeros((slope_map.shape[1],) * 2)
+    penalty_normal[:-1, :-1] = (penalty.T @ penalty).toarray()
 
     theta = jnp.concatenate([jnp.zeros(points.spline.size), jnp.asarray([sigma])])
-    n = theta.shape[0]
-    eye = np.eye(n)
-    r = np.asarray(residual(theta))
+    r = np.asarray(residual(points.problem, theta))
     first = cost = float(r @ r)
     damping, steps = 1e-3, 0
     for iteration in range(iterations):
         previous = cost
-        # Written into one array (concatenating the blocks held the Jacobian twice).
-        jacobian = np.empty((r.size, n))
-        for start in range(0, n, _CHUNK):
-            basis = np.pad(
-                eye[:, start : start + _CHUNK], ((0, 0), (0, max(0, start + _CHUNK - n)))
-            )
-            block = np.asarray(jacobian_columns(theta, jnp.asarray(basis)))
-            jacobian[:, start : start + _CHUNK] = block[:, : min(_CHUNK, n - start)]
-        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r
+        normal, gradient = _normal_equations(terms_at(points.problem, theta), slope_map)
+        normal += penalty_normal
+        gradient += penalty_normal @ np.asarray(theta)
         while damping < 1e8:
             step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), gradient)
             trial = theta + jnp.asarray(step)
-            r_trial = np.asarray(residual(trial))
+            r_trial = np.asarray(residual(points.problem, trial))
             if float(trial[-1]) > 0.01 and float(r_trial @ r_trial) < cost:
                 theta, r, cost, damping, steps = (
                     trial,
