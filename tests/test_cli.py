@@ -59,6 +59,8 @@ def test_demo_command_runs_the_whole_pipeline_from_images(tmp_path):
         for key in ("rgb_rmse_calibration", "rgb_rmse_test", "sfs_error_mm"):
             assert np.isfinite(evaluation[f"{model}_{key}"])
     assert evaluation["cook_torrance_rgb_rmse_test"] < evaluation["lambertian_rgb_rmse_test"]
+    assert evaluation["albedo"] == "map"
+    assert any("one albedo per model" in note for note in evaluation["notes"])
     assert set(summary["timings_s"]) >= {"reconstruct", "fit", "evaluate", "total"}
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") >= 5 and "Cook-Torrance" in page

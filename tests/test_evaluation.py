@@ -314,10 +314,12 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path):
 
     render_capture(tmp_path / "c", 128, 96, 5, 1, Scene())
     capture = load_capture(tmp_path / "c")
-    mapped = evaluate(capture, cook_torrance=fit_colocated).to_json()
+    # SfS with the map (one albedo per model, and a note that says so): the demo's test;
+    # here it took 9 s of the test's 23.
+    mapped = evaluate(capture, cook_torrance=fit_colocated, sfs=False).to_json()
     assert mapped["albedo"] == "map" and "surface points" in mapped["units"]
-    assert any("one albedo per model" in note for note in mapped["notes"])
-    # measured: Cook-Torrance 1.21 / Lambertian 21.8 levels on the test frames (one albedo:
+    assert not any("one albedo per model" in note for note in mapped["notes"])
+    # measured: Cook-Torrance 1.21 / Lambertian 19.7 levels on the test frames (one albedo:
     # 14.7 / 27.5); SfS 1.7 / 11.4 mm
     assert mapped["cook_torrance_rgb_rmse_test"] <= 1.4
     assert mapped["cook_torrance_rgb_rmse_test"] <= 0.5 * mapped["lambertian_rgb_rmse_test"]

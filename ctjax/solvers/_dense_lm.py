@@ -80,19 +80,23 @@ class DenseLM(eqx.Module):
         def residuals(x):
             return fn(unravel(x)).reshape(-1).astype(dtype)
 
-        def normal_equations(x):
+        def normal_equations(x, _):
             jac, r = jax.jacfwd(lambda x: (residuals(x),) * 2, has_aux=True)(x)
             jac = jnp.nan_to_num(jac, nan=0.0, posinf=0.0, neginf=0.0)
-            return jac.T @ jac, jac.T @ r
+            return jac.T @ jac, jac.T @ r, r @ r
 
         def tiny(y, dy):
             return jnp.max(jnp.abs(dy)) <= self.atol + self.rtol * jnp.max(jnp.abs(y))
 
         def step(carry):
             y, cost, linear, stale, (damping, grow), iterations, _ = carry
-            # The normal equations at y, recomputed only after an accepted step: one copy
-            # of the Jacobian's program in the compiled loop.
-            normal, gradient = jax.lax.cond(stale, normal_equations, lambda _: linear, y)
+            # The normal equations at y, recomputed only after an accepted step (and at the
+            # start, where they give the first cost too): one copy of the Jacobian's program
+            # and one of the residuals' (the trials) in the compiled loop.
+            normal, gradient, cost = jax.lax.cond(
+                stale, normal_equations, lambda _, known: (*known, cost), y, linear
+            )
+            finite = jnp.isfinite(cost)  # false only at a start that is not finite
             diagonal = jnp.diag(normal)
             scale = jnp.maximum(diagonal, 1e-12 * jnp.max(diagonal)) + jnp.finfo(dtype).tiny
             factor = cho_factor(normal + jnp.diag(damping * scale))
@@ -102,7 +106,7 @@ class DenseLM(eqx.Module):
             trial = y + dy
             r = residuals(trial)
             trial_cost = r @ r
-            better = solved & jnp.isfinite(trial_cost) & (trial_cost < cost)
+            better = finite & solved & jnp.isfinite(trial_cost) & (trial_cost < cost)
             done = (
                 solved
                 & tiny(y, dy)
@@ -121,29 +125,30 @@ class DenseLM(eqx.Module):
                     jnp.minimum(jnp.where(better, accepted, damping * grow), ceiling),
                     jnp.where(better, 2.0, grow * 2).astype(dtype),
                 ),
-                iterations + 1,
-                done,
+                iterations + finite,
+                done | ~finite,
             )
 
         def running(carry):
             *_, iterations, done = carry
             return ~done & (iterations < max_steps)
 
-        r0 = residuals(flat)
-        cost0 = r0 @ r0
-        finite = jnp.isfinite(cost0)
+        if max_steps <= 0:
+            finite = jnp.isfinite(jnp.sum(residuals(flat) ** 2))
+            code = jnp.where(finite, Status.max_steps_reached.value, Status.nonfinite.value)
+            return y0, code, jnp.asarray(0)
         start = (
             flat,
-            cost0,
+            jnp.asarray(jnp.inf, dtype),  # the first step computes it
             (jnp.zeros((flat.size, flat.size), dtype), jnp.zeros(flat.size, dtype)),
             jnp.asarray(True),
             (jnp.asarray(d0, dtype), jnp.asarray(2.0, dtype)),
             jnp.asarray(0),
-            ~finite,
+            jnp.asarray(False),
         )
-        y, _, _, _, _, iterations, done = jax.lax.while_loop(running, step, start)
+        y, cost, _, _, _, iterations, done = jax.lax.while_loop(running, step, start)
         code = jnp.where(
-            finite,
+            jnp.isfinite(cost),
             jnp.where(done, Status.successful.value, Status.max_steps_reached.value),
             Status.nonfinite.value,
         )
