@@ -628,7 +628,7 @@ def _recon_command(commands) -> None:
         "--shading",
         action="store_true",
         help="then refine the shape by every frame's shading, one world surface fitted with "
-        "the BRDF (assumes the light at the camera; minutes at 640x512)",
+        "the BRDF (assumes the light at the camera; about 15 s at 640x512 x 8)",
     )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")

@@ -32,26 +32,26 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# The slowest files first (worker-seconds per file, cold cache, fresh clone, 2 workers: sfm
-# 68, diagnostics 65, calibration 54, estimation 50, albedo_map 47, evaluation 47, cli 39,
-# light_field 37, video 28, lobes 16, notebooks 15, synth 14; the rest under 7). CI runs
-# `--dist loadfile`, one file per worker at a time in collection order: a long file
-# collected last keeps one worker busy while the other waits.
+# The slowest files first (worker-seconds per file, cold cache, 2 workers: diagnostics 60,
+# sfm 56, estimation 50, cli 48, calibration 47, albedo_map 46, light_field 37, evaluation
+# 32, lobes 16, synth 12, notebooks 12, video 8; the rest under 7). CI runs `--dist
+# loadfile`, one file per worker at a time in collection order: a long file collected last
+# keeps one worker busy while the other waits.
 _SLOWEST_FIRST = [
     f"test_{name}.py"
     for name in (
-        "sfm",
         "diagnostics",
-        "calibration",
+        "sfm",
         "estimation",
-        "albedo_map",
-        "evaluation",
         "cli",
+        "calibration",
+        "albedo_map",
         "light_field",
-        "video",
+        "evaluation",
         "lobes",
-        "notebooks",
         "synth",
+        "notebooks",
+        "video",
     )
 ]
 

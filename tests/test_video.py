@@ -31,7 +31,9 @@ def _write_video(path, images, held=HELD, blurred=()):
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
     root = tmp_path_factory.mktemp("video")
-    truth = synthesize(root / "truth", SynthOptions(frames=8, seed=2))
+    # Small and strongly textured (as the demo's test), so SfM registers the views quickly.
+    options = SynthOptions(width=192, height=160, frames=8, seed=2, texture_contrast=1.0)
+    truth = synthesize(root / "truth", options)
     images = [frame.image for frame in load_capture(truth).frames]
     # The sharpest frame of a view is kept: blur one of the copies, and every copy but one.
     blurred = {(3, 2)} | {(5, r) for r in range(HELD) if r != 4}
@@ -53,7 +55,8 @@ def test_import_keeps_one_sharp_frame_per_view_and_reconstruct_registers_them(vi
     capture = load_capture(out)
     assert len(capture.frames) == result["kept"]
     recon = tmp_path / "recon.json"
-    assert main(["reconstruct", str(out), "--json", str(recon)]) == 0
+    # (SfM's points alone: the texture's refinement is test_sfm's.)
+    assert main(["reconstruct", str(out), "--no-photometric", "--json", str(recon)]) == 0
     assert len(json.loads(recon.read_text())["registered"]) >= 6
     # Imported once: a second import asks for --force.
     assert main(argv) == 2

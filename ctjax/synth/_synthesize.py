@@ -27,7 +27,7 @@ from ..io._atomic import atomic_write_npy
 from ..lights import ColocatedLight
 from ..lobes import Lambertian, cook_torrance_brdf
 from ._organ import OrganSurface, cast_rays
-from ._texture import sample_texture, tissue_texture
+from ._texture import sample_texture, seeded_texture
 from ._trajectory import exploration
 
 # Default tissue: reddish diffuse albedo, white highlights (F is the same in every channel).
@@ -169,7 +169,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     rng = np.random.default_rng(options.seed)
     surface_rng, texture_rng, path_rng, noise_rng = rng.spawn(4)
     surface = OrganSurface.random(surface_rng, WORKING_DISTANCE_MM)
-    texture = tissue_texture(texture_rng) if options.texture else None
+    texture = seeded_texture(texture_rng.bit_generator.seed_seq) if options.texture else None
     poses = exploration(options.frames, path_rng, WORKING_DISTANCE_MM)
     camera = synthetic_camera(options)
     frames = []

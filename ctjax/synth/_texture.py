@@ -5,6 +5,8 @@ coordinates so that every view sees the same tissue. The map multiplies the diff
 per channel and has mean 1 over the organ, so `rho_tilde` stays the average albedo.
 """
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -60,6 +62,21 @@ def tissue_texture(rng: np.random.Generator) -> np.ndarray:
     )
     texture = np.clip(texture, 0.3, 1.7)
     return (texture / texture.mean(axis=(0, 1))).astype(np.float32)
+
+
+def seeded_texture(seed: np.random.SeedSequence) -> np.ndarray:
+    """`tissue_texture` of a generator seeded by `seed`, read-only; the last few are kept
+    (1.4 s each to make: a process synthesising several captures of one seed, e.g. a test
+    session, makes it once)."""
+    return _texture_of(seed.entropy, tuple(seed.spawn_key), seed.pool_size)
+
+
+@functools.lru_cache(maxsize=3)
+def _texture_of(entropy, spawn_key, pool_size) -> np.ndarray:
+    seed = np.random.SeedSequence(entropy, spawn_key=spawn_key, pool_size=pool_size)
+    texture = tissue_texture(np.random.default_rng(seed))
+    texture.setflags(write=False)
+    return texture
 
 
 def sample_texture(texture: np.ndarray, points_world: np.ndarray) -> np.ndarray:
