@@ -33,7 +33,8 @@ reconstructed from its images, then `fit_capture` with the albedo map; 2 mm, now
 default: `KNOT_FRACTION`): seed 1 normals 3.65 -> 1.11 degrees
 median, sigma +14.2% -> +2.1%, F_tilde -43..-52% -> +2.3..+2.7% (another run, SfM's result
 varying: 3.72 -> 0.95 degrees, +13.0% -> +1.5%, -46..-54% -> -0.4..0.0%); seed 2 normals
-1.61 -> 0.29, sigma +7.3% -> -0.1%, F_tilde -40..-42% -> -4.0%; 110-140 s.
+1.61 -> 0.29, sigma +7.3% -> -0.1%, F_tilde -40..-42% -> -4.0%; 110-140 s with the
+dense Jacobian.
 
 It fits the paper's light (at the camera): on a capture whose light is elsewhere it would
 bend the shape to fit the wrong light (and hide the offset from the near-light model), so
@@ -64,7 +65,7 @@ SMOOTHING = 10.0
 ITERATIONS = 10
 # LM stops once an iteration lowers the cost by less than this fraction: on `ctjax synth`
 # 640x512 x 8 (seed 1) the cost reached 0.6063 at the second iteration and the other eight
-# lowered it in the fifth digit (sigma 0.1967 -> 0.1966), 20 s of Jacobian each.
+# lowered it in the fifth digit (sigma 0.1967 -> 0.1966), 20 s of dense Jacobian each.
 RTOL = 1e-4
 MAX_POINTS = 8000
 
@@ -207,7 +208,8 @@ class _Points:
         normal = np.sum(tracks.corner_normal * tracks.corner_weight[..., None], axis=2)
         rotation = rotations[np.where(tracks.observed, tracks.frame, 0)]
         world_normal = np.einsum("pmij,pmj->pmi", rotation, normal)
-        start = np.sum(np.where(tracks.observed[..., None], np.nan_to_num(world_normal), 0), 1)
+        # The sum of each point's world normals over its views: it must face the reference camera.
+        facing = np.sum(np.where(tracks.observed[..., None], np.nan_to_num(world_normal), 0), 1)
         # A point's world position from its own view, or its first view where its own
         # pixel is clipped (the highlights' cores: seen elsewhere, the most informative).
         own_slot = (tracks.frame == tracks.anchor_frame[:, None]) & tracks.observed
@@ -215,10 +217,9 @@ class _Points:
         frame = tracks.frame[np.arange(count), slot]
         world = np.einsum("pij,pj->pi", rotations[frame], point[np.arange(count), slot])
         world += shifts[frame]
-        keep = (np.linalg.norm(start, axis=-1) > 0) & tracks.observed[np.arange(count), slot]
-        keep &= np.all(np.isfinite(world), -1) & (start[:, 2] < 0)
+        keep = (np.linalg.norm(facing, axis=-1) > 0) & tracks.observed[np.arange(count), slot]
+        keep &= np.all(np.isfinite(world), -1) & (facing[:, 2] < 0)
         self.count = int(keep.sum())
-        start = start[keep] / np.linalg.norm(start[keep], axis=-1, keepdims=True)
         self.spline = HeightSpline.covering(world[keep, :2], spline_spacing)
         index, _, d_x, d_y, _ = self.spline.basis(world[keep, :2])
         self.base = base_surface(capture, self.spline)
