@@ -1,6 +1,6 @@
 """jaxtyping aliases used across ctjax (named dimensions, one place)."""
 
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree, Real
 
 Scalar = Float[Array, ""]
 ScalarLike = Real[ArrayLike, ""] | float
@@ -16,6 +16,7 @@ __all__ = [
     "Float",
     "Int",
     "Pixel",
+    "PyTree",
     "RGBLike",
     "Real",
     "Scalar",

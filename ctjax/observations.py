@@ -72,8 +72,46 @@ class ShadingSamples(eqx.Module):
 # fits 1.26-1.33 s -> 1.03-1.05 s, the same sigma and F_tilde to 0.05%; on the demo's SfM
 # capture sigma +3.6% against +3.9%, F_tilde 0..+1.9% against -1.2..+0.7%).
 DEFAULT_TRACK_RADIUS_PX = 12.0
-DEFAULT_MAX_TRACKS = 32_000
+DEFAULT_MAX_TRACKS = 16_000
 DEFAULT_NEIGHBOURS = 12  # = ctjax._tracks.DEFAULT_NEIGHBOURS
+
+
+@functools.lru_cache(maxsize=4)
+def _z_order(shape: tuple[int, int]) -> np.ndarray:
+    """The flat indices of an image's pixels in Z-order (Morton: the bits of row and column
+    interleaved; images up to 65536 pixels wide and high)."""
+
+    def spread(x):  # bit k of x to bit 2k
+        x = x.astype(np.uint64)
+        for shift, mask in ((8, 0x00FF00FF), (4, 0x0F0F0F0F), (2, 0x33333333), (1, 0x55555555)):
+            x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+        return x
+
+    rows, cols = np.divmod(np.arange(shape[0] * shape[1]), shape[1])
+    order = np.argsort(spread(cols) | (spread(rows) << np.uint64(1)), kind="stable")
+    order.flags.writeable = False
+    return order
+
+
+def _pixels(shape: tuple[int, int], flat: np.ndarray) -> np.ndarray:
+    """The (H, W) mask of the pixels at `flat` indices."""
+    mask = np.zeros(shape, bool)
+    mask.reshape(-1)[flat] = True
+    return mask
+
+
+def _evenly(mask: np.ndarray, count: int, rng) -> np.ndarray:
+    """`count` of the pixels of `mask` (H, W), as sorted flat indices: evenly spaced along
+    the Z-order curve from a random offset, i.e. spread evenly over the image (a
+    stratified sample: on a capture with SfM's shape, half the spread of the fitted sigma
+    and F_tilde over draws of independent random ones)."""
+    order = _z_order(mask.shape)
+    inside = order[mask.reshape(-1)[order]]
+    count = min(count, len(inside))
+    if count <= 0:
+        return np.zeros(0, int)
+    step = len(inside) / count
+    return np.sort(inside[np.floor(rng.uniform(0, step) + step * np.arange(count)).astype(int)])
 
 
 def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
@@ -270,9 +308,9 @@ class Observations:
         """Surface points followed across frames (`ctjax._tracks.Tracks`): the albedo map's
         samples. Anchored at every pixel with geometry within `radius_px` of S in each frame
         (S itself included: saturated there, seen elsewhere), where the specular lobe is
-        measured, plus as many pixels drawn at random from the rest; about `max_points` at
-        most in all (each anchor kept with probability `max_points` / their number, so the
-        count varies by a few hundred around it; deterministic for a seed). Each is
+        measured, plus as many spread evenly over the rest of the frame; at most
+        `max_points` in all (each frame's anchors thinned by the same fraction, evenly over
+        the frame: `_evenly`; deterministic for a seed). Each is
         followed into its frame's `neighbours` nearest frames (all by default) within the
         relative depth `tolerance` (`ctjax._tracks.DEFAULT_TOLERANCE`). `frames`: only
         these frames' points, followed into these frames only (one side of a held-out
@@ -290,19 +328,15 @@ class Observations:
             if index not in chosen_frames:
                 geometry = np.zeros_like(geometry)
             near = geometry & (self.specular_distance(index) <= radius_px)
-            rest = np.flatnonzero(geometry & ~near)
             # As many elsewhere as near S (a frame without S: its share of `max_points`).
             share = (max_points or DEFAULT_MAX_TRACKS) // (2 * len(self))
             wanted = int(near.sum()) if near.any() else share
-            drawn = rng.choice(rest, min(len(rest), wanted), replace=False)
-            chosen = np.union1d(np.flatnonzero(near), drawn)
-            anchors.append(np.unravel_index(chosen, geometry.shape))
-        total = sum(len(r) for r, _ in anchors)
+            anchors.append(near | _pixels(geometry.shape, _evenly(geometry & ~near, wanted, rng)))
+        total = sum(int(mask.sum()) for mask in anchors)
         if max_points is not None and total > max_points:
             keep = max_points / total
-            anchors = [
-                (r[mask], c[mask]) for r, c in anchors for mask in [rng.random(len(r)) < keep]
-            ]
+            anchors = [_pixels(m.shape, _evenly(m, int(keep * m.sum()), rng)) for m in anchors]
+        anchors = [np.nonzero(mask) for mask in anchors]
         options = {} if tolerance is None else {"tolerance": tolerance}
         return _tracks.follow(
             self.capture, anchors, neighbours=neighbours, frames=frames, **options

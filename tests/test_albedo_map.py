@@ -70,6 +70,15 @@ def test_projection_equals_the_joint_nonnegative_least_squares(seed, clamp):
     assert float(cost) == pytest.approx(joint_cost, rel=1e-9)
     if clamp:
         assert np.any(np.asarray(albedo)[0] == 0)
+    # float32 takes the cost from the residuals (float64 from the sums): the same solution.
+    single = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    albedo, weights, cost = jax.jit(project_weights, static_argnums=3)(
+        (single(a.T), single(b.T)), single(views_first(values)), single(weight.T), 0
+    )
+    assert cost.dtype == jnp.float32
+    np.testing.assert_allclose(np.asarray(albedo), joint[:-1], atol=2e-5)
+    np.testing.assert_allclose(np.asarray(weights[1]), joint[-1], atol=2e-5)
+    assert float(cost) == pytest.approx(joint_cost, rel=1e-4)
 
 
 def test_projected_cost_gradient_matches_finite_differences():

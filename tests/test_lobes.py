@@ -180,3 +180,40 @@ def test_brdf_is_the_sum_of_its_lobes():
 def test_bad_parameters_raise_ctjax_errors(make):
     with pytest.raises(ctjax.ParameterError):
         make()
+
+
+def test_radiance_given_geometry_is_the_radiance(lobe):
+    # The BnB computes each lobe's geometry once and evaluates `radiance_given` at every
+    # sigma: same values and parameter gradients as `radiance`, and the geometry reads none
+    # of the lobe's fields (a lobe with other parameters and weights gives the same).
+    import equinox as eqx
+
+    arrays = _directions(6, n=32)
+    n, l, v = (vec3(x) for x in arrays)
+    geometry = jax.vmap(lobe.geometry)(n, l, v)
+
+    def direct(lobe):
+        return jnp.sum(jax.vmap(lobe.radiance)(n, l, v))
+
+    def given(lobe):
+        return jnp.sum(jax.vmap(lobe.radiance_given)(geometry))
+
+    np.testing.assert_allclose(
+        np.asarray(jax.vmap(lobe.radiance_given)(geometry)),
+        np.asarray(_radiance(lobe, *arrays)),
+        rtol=1e-13,
+        atol=1e-300,
+    )
+    for a, b in zip(
+        jax.tree.leaves(eqx.filter_grad(direct)(lobe)),
+        jax.tree.leaves(eqx.filter_grad(given)(lobe)),
+        strict=True,
+    ):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-300)
+    other = jax.tree.map(lambda x: x * 1.3 if eqx.is_inexact_array(x) else x, lobe)
+    for a, b in zip(
+        jax.tree.leaves(geometry),
+        jax.tree.leaves(jax.vmap(other.geometry)(n, l, v)),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -47,3 +47,22 @@ def test_no_usable_pixel_is_one_clear_error(capture):
     obs.usable = [np.zeros_like(u) for u in obs.usable]
     with pytest.raises(CtjaxError, match="no usable pixel"):
         obs.pixels([0])
+
+
+def test_tracked_points_are_spread_evenly_over_the_frame():
+    # The anchors kept are evenly spaced along the Z-order curve: on a 64 x 64 frame, 256
+    # of its 4096 pixels are one in each aligned 4 x 4 block, whatever the random offset.
+    from ctjax.observations import _evenly
+
+    everywhere = np.ones((64, 64), bool)
+    for seed in range(3):
+        kept = _evenly(everywhere, 256, np.random.default_rng(seed))
+        assert len(kept) == 256 and np.all(np.diff(kept) > 0)
+        rows, cols = np.divmod(kept, 64)
+        assert sorted((rows // 4) * 16 + cols // 4) == list(range(256))
+    # Any mask, any count: distinct pixels of the mask, sorted; all of them at most.
+    mask = np.random.default_rng(0).random((64, 64)) < 0.3
+    kept = _evenly(mask, 100, np.random.default_rng(1))
+    assert len(kept) == 100 and np.all(np.diff(kept) > 0) and np.all(mask.reshape(-1)[kept])
+    assert np.array_equal(_evenly(mask, 10**6, np.random.default_rng(1)), np.flatnonzero(mask))
+    assert len(_evenly(mask, 0, np.random.default_rng(0))) == 0

@@ -55,7 +55,7 @@ from .._vector import Vec3
 from ..lights import AbstractLight, ColocatedLight
 from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
-from ._brdf import PAPER, BRDFFamily, design_columns
+from ._brdf import PAPER, BRDFFamily, design_geometry
 from ._closed_form import nnls_normal_equations
 
 # Rounds of the clamped-albedo update (see the module doc).
@@ -177,7 +177,8 @@ class _Sums(NamedTuple):
     (C, M, P) arrays): `a` the per-point lobe's column (M, P), `others` the global lobes'
     (G of them), `values` C arrays (M, P), all times the root of each observation's
     weight; `s_aa` (P,), `s_ai` C arrays (P,) and `s_ag` G arrays (P,): the sums over views
-    of a a, a I and a g."""
+    of a a, a I and a g; `t_gg` (G, G) and `t_gi` (G, C): the sums over every observation
+    of g h and g I, `t_ii` (scalar) of I I over every channel too."""
 
     a: Array
     others: list
@@ -185,6 +186,9 @@ class _Sums(NamedTuple):
     s_aa: Array
     s_ai: list
     s_ag: list
+    t_gg: Array
+    t_gi: Array
+    t_ii: Array
 
 
 def _over_views(x: Float[Array, "M ..."]) -> Float[Array, "..."]:
@@ -203,6 +207,13 @@ def _sums(columns, values, weight, per_point) -> _Sums:
     others = [c * w for k, c in enumerate(columns) if k != per_point]
     values = [values[c] * w for c in range(values.shape[0])]
     total = lambda x, y: _over_views(x * y)  # noqa: E731
+
+    def every(x, y):  # (len(x), len(y)): the sums over every observation
+        sums = [jnp.sum(p * q) for p in x for q in y]
+        if not sums:
+            return jnp.zeros((len(x), len(y)), a.dtype)
+        return jnp.stack(sums).reshape(len(x), len(y))
+
     return _Sums(
         a,
         others,
@@ -210,6 +221,9 @@ def _sums(columns, values, weight, per_point) -> _Sums:
         total(a, a),
         [total(a, v) for v in values],
         [total(a, g) for g in others],
+        every(others, others),
+        every(others, values),
+        sum(jnp.sum(v * v) for v in values),
     )
 
 
@@ -218,8 +232,6 @@ def _global_weights(s: _Sums, inverse, ok):
     updated `_ACTIVE_SET_ROUNDS` times (one round traced and looped, the channels' solves
     batched: less to trace and compile)."""
     lobes = range(len(s.others))
-    gram_total = jnp.stack([jnp.stack([jnp.sum(g * h) for h in s.others]) for g in s.others])
-    rhs_total = jnp.stack([jnp.stack([jnp.sum(g * v) for v in s.values]) for g in s.others])
     solve = jax.vmap(lambda g, r: nnls_normal_equations(g, r[:, None])[:, 0], (2, 1), 1)
 
     def albedo_given(weights):  # (C, P)
@@ -241,7 +253,7 @@ def _global_weights(s: _Sums, inverse, ok):
         )  # (G, G, C)
         s_ai = jnp.stack(s.s_ai)
         rhs = jnp.stack([jnp.sum(s.s_ag[g] * projected * s_ai, axis=-1) for g in lobes])
-        weights = solve(gram_total[..., None] - gram, rhs_total - rhs)
+        weights = solve(s.t_gg[..., None] - gram, s.t_gi - rhs)
         return weights, ok & (albedo_given(weights) > 0)
 
     start = (
@@ -252,25 +264,21 @@ def _global_weights(s: _Sums, inverse, ok):
 
 
 def _project(columns, values, weight, per_point):
-    """The albedos (C arrays (P,)), the global weights (K, C; 0 in row `per_point`) and the
-    weighted residuals (C arrays (M, P)): see `project_weights`."""
+    """The sums (`_Sums`), the albedos (C arrays (P,), clamped at 0) and the global weights
+    (G, C): see `project_weights`."""
     s = _sums(columns, values, weight, per_point)
     ok = s.s_aa > _NEGLIGIBLE * jnp.max(s.s_aa)
     inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
-    channels = values.shape[0]
     if s.others:
         weights = _global_weights(s, inverse, ok)
     else:
-        weights = jnp.zeros((0, channels), values.dtype)
-    albedo, residual = _albedo_and_residuals(s, inverse, ok, weights)
-    full = jnp.insert(weights, per_point, jnp.zeros(channels, values.dtype), axis=0)
-    return albedo, full, residual
+        weights = jnp.zeros((0, values.shape[0]), values.dtype)
+    return s, _albedo(s, inverse, ok, weights), weights
 
 
-def _albedo_and_residuals(s: _Sums, inverse, ok, weights):
-    """Each point's albedo given the global weights (G, C), clamped at 0, and the weighted
-    residuals they leave (C arrays each)."""
-    albedo = [
+def _albedo(s: _Sums, inverse, ok, weights):
+    """Each point's albedo given the global weights (G, C), clamped at 0 (C arrays (P,))."""
+    return [
         jnp.where(
             ok,
             jnp.maximum((s_ai - sum(g * weights[i, c] for i, g in enumerate(s.s_ag))) * inverse, 0),
@@ -278,11 +286,35 @@ def _albedo_and_residuals(s: _Sums, inverse, ok, weights):
         )
         for c, s_ai in enumerate(s.s_ai)
     ]
-    residual = [
+
+
+def _residuals(s: _Sums, albedo, weights):
+    """The weighted residuals the albedos and global weights leave (C arrays (M, P))."""
+    return [
         v - s.a * rho - sum(g * weights[i, c] for i, g in enumerate(s.others))
         for c, (v, rho) in enumerate(zip(s.values, albedo, strict=True))
     ]
-    return albedo, residual
+
+
+def _cost(s: _Sums, albedo, weights):
+    """The sum of the squared weighted residuals. In float64 from the sums, without a
+    second pass over the observations: with the albedos eliminated, a point's residuals
+    are those of the global lobes alone less what its albedo explains, s_aa rho^2 (0 where
+    it is clamped), so the cost is t_II - 2 w.t_gI + w^T t_gg w - sum_p s_aa rho_p^2 per
+    channel (the cancellation leaves about 1e-16 of t_II: far below the differences the
+    search compares). In float32 that cancellation would not be, from the residuals."""
+    if s.a.dtype != jnp.float64:
+        return sum(jnp.sum(r * r) for r in _residuals(s, albedo, weights))
+    cost = s.t_ii
+    for c, rho in enumerate(albedo):
+        w = weights[:, c]
+        cost = cost - 2 * (w @ s.t_gi[:, c]) + w @ s.t_gg @ w - jnp.sum(s.s_aa * rho * rho)
+    return cost
+
+
+def _with_per_point_row(weights, per_point: int):
+    """The global weights (G, C) with the per-point lobe's row (0) inserted: (K, C)."""
+    return jnp.insert(weights, per_point, jnp.zeros(weights.shape[1], weights.dtype), axis=0)
 
 
 def residuals_given_weights(
@@ -301,7 +333,7 @@ def residuals_given_weights(
     ok = s.s_aa > _NEGLIGIBLE * jnp.max(s.s_aa)
     inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
     others = jnp.concatenate([weights[:per_point], weights[per_point + 1 :]])
-    return jnp.stack(_albedo_and_residuals(s, inverse, ok, others)[1])
+    return jnp.stack(_residuals(s, _albedo(s, inverse, ok, others), others))
 
 
 def projected_residuals(
@@ -313,8 +345,9 @@ def projected_residuals(
     """`project_weights`, returning the weighted residuals (C, M, P) instead of their cost:
     the residual function of a least-squares solver over the nonlinear parameters alone
     (variable projection; differentiable, the clamped albedos held at 0)."""
-    albedo, weights, residual = _project(columns, values, weight, per_point)
-    return jnp.stack(albedo, axis=-1), weights, jnp.stack(residual)
+    s, albedo, weights = _project(columns, values, weight, per_point)
+    residual = jnp.stack(_residuals(s, albedo, weights))
+    return jnp.stack(albedo, axis=-1), _with_per_point_row(weights, per_point), residual
 
 
 def project_weights(
@@ -333,18 +366,29 @@ def project_weights(
     `weights[per_point]` is 0 (the albedo is per point), the cost is the weighted sum of
     squared residuals (finite or +inf).
     """
-    albedo, weights, residual = _project(columns, values, weight, per_point)
-    cost = sum(jnp.sum(r * r) for r in residual)
-    return jnp.stack(albedo, axis=-1), weights, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+    s, albedo, weights = _project(columns, values, weight, per_point)
+    cost = _cost(s, albedo, weights)
+    full = _with_per_point_row(weights, per_point)
+    return jnp.stack(albedo, axis=-1), full, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
 
-def _columns(family, params, shading: TrackShading):
-    """Each lobe's value for unit weight at every observation (M, P): at the corners,
-    bilinearly combined like the image."""
+def _corner_geometry(family, shading: TrackShading):
+    """What the columns take of the tracks whatever the nonlinear parameters (computed once
+    for the BnB): each lobe's `geometry` at every observation's corners (flattened 4 M P),
+    and the corners' bilinear weights times the irradiance (4, M, P)."""
     corners = shading.corner_weight
+    irradiance = shading.samples.irradiance.reshape(corners.shape)
+    return design_geometry(family, shading.samples), corners * irradiance
+
+
+def _columns(family, params, shading: TrackShading, corners=None):
+    """Each lobe's value for unit weight at every observation (M, P): at the corners,
+    bilinearly combined like the image. `corners`: `_corner_geometry(family, shading)`
+    (computed here otherwise)."""
+    geometry, factor = _corner_geometry(family, shading) if corners is None else corners
     return tuple(
-        _over_views(c.reshape(corners.shape) * corners)  # the four corners: leading axis
-        for c in design_columns(family, params, shading.samples)
+        _over_views(c.reshape(factor.shape) * factor)  # the four corners: leading axis
+        for c in jax.vmap(family.build(params).columns_given)(geometry)
     )
 
 
@@ -459,14 +503,18 @@ def _standard_errors(information, scale, weight_names, per_point: int, channels:
 def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_grid):
     values, weight, observed = _values(shading), shading.weight, shading.observed
 
-    def cost(params, shading=shading):
-        columns = _columns(family, params, shading)
+    # What the columns take of the tracks whatever sigma: computed once, not per evaluation.
+    corners = _corner_geometry(family, shading)
+
+    def cost(params, shading=shading, corners=corners):
+        columns = _columns(family, params, shading, corners)
         return project_weights(columns, shading.values, shading.weight, per_point)[2]
 
     dtype = values.dtype
     # The first level only picks the boxes the later ones narrow (`grid_search`): on every
     # `_COARSE_STEP`-th track it finds the same ones at a fraction of the cost.
     coarse = shading.every(_COARSE_STEP)
+    coarse_corners = _corner_geometry(family, coarse)
     if family.names:
         found = grid_search(
             cost,
@@ -479,14 +527,14 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
             zoom_grid=zoom_grid,
             dtype=dtype,
             batch=_GRID_BATCH,
-            coarse=lambda params: cost(params, coarse),
+            coarse=lambda params: cost(params, coarse, coarse_corners),
             coarse_levels=_COARSE_LEVELS,
         )
         params, half_width = found.params, found.half_width
     else:
         params = jnp.zeros((0,), dtype)
         half_width = params
-    columns = _columns(family, params, shading)
+    columns = _columns(family, params, shading, corners)
     albedo, weights, best = project_weights(columns, values, weight, per_point)
     information = _information(family, params, weights, albedo, shading, per_point, best)
     # The RMSE of every observation, unweighted: what a user compares with the noise.

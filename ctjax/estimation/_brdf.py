@@ -74,16 +74,26 @@ class BRDFFit(eqx.Module):
         return self.family.build(self.params).with_weights(self.weights)
 
 
-def design_columns(family: BRDFFamily, params, samples: ShadingSamples) -> tuple[Array, ...]:
+def design_geometry(family: BRDFFamily, samples: ShadingSamples) -> tuple:
+    """Each lobe's `geometry` at every sample (see `AbstractLobe.geometry`): what the
+    design columns take of the samples whatever the nonlinear parameters, computed once for
+    a search over them."""
+    # A lobe's geometry reads none of its parameters: any value in the box builds the lobes.
+    middle = (np.asarray(family.lo, float) + np.asarray(family.hi, float)) / 2
+    brdf = family.build(jnp.asarray(middle, samples.irradiance.dtype))
+    return jax.vmap(brdf.geometry)(samples.normal, samples.light, samples.view)
+
+
+def design_columns(
+    family: BRDFFamily, params, samples: ShadingSamples, geometry: tuple | None = None
+) -> tuple[Array, ...]:
     """Each lobe's radiance at each sample for unit weight, times the irradiance: K (N,)
-    arrays. Lobes that do not depend on `params` give columns that stay unbatched under a
-    `vmap` over `params` (computed once)."""
-    brdf = family.build(params)
-
-    def one(normal, light, view, irradiance):
-        return tuple(irradiance * lobe.radiance(normal, light, view) for lobe in brdf.lobes)
-
-    return jax.vmap(one)(samples.normal, samples.light, samples.view, samples.irradiance)
+    arrays. `geometry` is `design_geometry(family, samples)` when the same samples are
+    evaluated for many `params` (computed here otherwise). Lobes that do not depend on
+    `params` give columns that stay unbatched under a `vmap` over `params` (computed once)."""
+    geometry = design_geometry(family, samples) if geometry is None else geometry
+    columns = jax.vmap(family.build(params).columns_given)(geometry)
+    return tuple(samples.irradiance * column for column in columns)
 
 
 def design_matrix(family: BRDFFamily, params, samples: ShadingSamples) -> Float[Array, "N K"]:
@@ -130,8 +140,10 @@ def _padded(samples: ShadingSamples) -> ShadingSamples:
 def _fit(samples, count, family, tolerance, grid, candidates, zoom):
     """The BnB on (padded) `samples`, of which `count` values (3 per real sample) count."""
 
+    geometry = design_geometry(family, samples)  # once for every params the search tries
+
     def cost(params):
-        return nnls_columns(design_columns(family, params, samples), samples.values)[1]
+        return nnls_columns(design_columns(family, params, samples, geometry), samples.values)[1]
 
     if family.names:
         search = grid_search(

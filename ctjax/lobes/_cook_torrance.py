@@ -6,7 +6,7 @@ from .._vector import Vec3
 from ._distribution import AbstractDistribution
 from ._factor import AbstractSpecularFactor
 from ._lobe import AbstractLobe
-from ._specular import microfacet_term
+from ._specular import microfacet_geometry, microfacet_given, microfacet_term
 
 
 class CookTorrance(AbstractLobe):
@@ -35,3 +35,10 @@ class CookTorrance(AbstractLobe):
     def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
         term = microfacet_term(self.distribution, self.factors, normal, light, view)
         return term * (normal @ light)
+
+    def geometry(self, normal: Vec3, light: Vec3, view: Vec3):
+        cos_alpha, scale, *directions = microfacet_geometry(self.factors, normal, light, view)
+        return cos_alpha, scale * (normal @ light), *directions  # 0 where N.L <= 0
+
+    def radiance_given(self, geometry) -> Scalar:
+        return microfacet_given(self.distribution, self.factors, geometry)

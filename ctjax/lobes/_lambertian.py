@@ -28,9 +28,19 @@ class Lambertian(AbstractLobe):
         check_positive("Lambertian", "weight", self.weight, allow_zero=True)
 
     def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
-        # Zero on back-facing surfaces (N.V <= 0) as well, like every lobe.
-        visible = jnp.where(normal @ view > 0, 1, 0)
-        return positive_part(normal @ light) * visible / math.pi
+        return _cosine_over_pi(normal, light, view)
+
+    def geometry(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
+        return _cosine_over_pi(normal, light, view)  # no nonlinear parameter: the radiance
+
+    def radiance_given(self, geometry: Scalar) -> Scalar:
+        return geometry
+
+
+def _cosine_over_pi(normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
+    # Zero on back-facing surfaces (N.V <= 0) as well, like every lobe.
+    visible = jnp.where(normal @ view > 0, 1, 0)
+    return positive_part(normal @ light) * visible / math.pi
 
 
 class AlbedoTextureCandidate(AbstractCandidate):

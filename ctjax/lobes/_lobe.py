@@ -6,7 +6,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._typing import RGB, Array, Float, Scalar
+from .._typing import RGB, Array, Float, PyTree, Scalar
 from .._vector import Vec3
 
 
@@ -33,6 +33,23 @@ class AbstractLobe(eqx.Module):
     def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
         """Reflected radiance per unit weight and unit irradiance (cosine included)."""
 
+    def geometry(self, normal: Vec3, light: Vec3, view: Vec3) -> PyTree:
+        """What `radiance` takes of one sample's directions, whatever the lobe's parameters:
+        `radiance_given(geometry(n, l, v)) == radiance(n, l, v)`, and `geometry` reads none
+        of the lobe's fields (weight or nonlinear parameters).
+
+        A search that evaluates the same samples under many parameter values (the sigma
+        branch-and-bound) computes it once and passes it to `radiance_given` at every value.
+        The default is the three directions; a lobe whose parameters meet the directions
+        through a few scalars returns those (`Specular`: N.H and 1 / (pi N.L N.V), 2 numbers
+        per sample instead of 9; `Lambertian`, which has none: its radiance).
+        """
+        return normal, light, view
+
+    def radiance_given(self, geometry: PyTree) -> Scalar:
+        """`radiance` from `geometry(normal, light, view)`."""
+        return self.radiance(*geometry)
+
 
 class BRDF(eqx.Module):
     """A reflectance model as a sum of lobes: `BRDF(Lambertian(rho), Specular(F, Beckmann(s)))`.
@@ -55,6 +72,17 @@ class BRDF(eqx.Module):
     def columns(self, normal: Vec3, light: Vec3, view: Vec3) -> Float[Array, " K"]:
         """Each lobe's radiance for unit weight: one row of the linear design matrix."""
         return jnp.stack([lobe.radiance(normal, light, view) for lobe in self.lobes])
+
+    def geometry(self, normal: Vec3, light: Vec3, view: Vec3) -> tuple[PyTree, ...]:
+        """Each lobe's `geometry`: what `columns_given` needs, whatever the parameters."""
+        return tuple(lobe.geometry(normal, light, view) for lobe in self.lobes)
+
+    def columns_given(self, geometry: tuple[PyTree, ...]) -> tuple[Scalar, ...]:
+        """Each lobe's radiance for unit weight from `geometry(normal, light, view)`: the
+        design row, one scalar per lobe, for searches over the nonlinear parameters."""
+        return tuple(
+            lobe.radiance_given(part) for lobe, part in zip(self.lobes, geometry, strict=True)
+        )
 
     @property
     def weights(self) -> Float[Array, "K 3"]:
