@@ -5,8 +5,9 @@
 
 On per-channel textured synthetic captures with true depth and poses (1 level of noise,
 8 bits), fits `fit_capture(albedo="map")` and `fit_capture(albedo="uniform")` (the first
-call compiles; the median of the next `--repeats` is reported), and prints the time ratio
-(the fit, and the fit with every frame's dense albedo map read, which `fit_capture`
+call compiles; the next `--repeats` alternate map and uniform, and their medians are
+reported), and prints the time ratio (of the medians, and per repeat: its median and
+range; the fit, and the fit with every frame's dense albedo map read, which `fit_capture`
 estimates at the first read), the errors of sigma and F_tilde against the truth, the albedo
 maps' median and 90th percentile relative error and coverage, and the peak resident memory
 of the process. One JSON line per size.
@@ -32,24 +33,37 @@ from ctjax.io import load_capture  # noqa: E402
 from ctjax.synth import SynthOptions, synthesize  # noqa: E402
 
 
-def _timed(capture, albedo, repeats):
-    """The estimate, the median time of `repeats` calls after the first (which compiles)
-    and, with the map, the median time until every frame's albedo map is read too (they are
-    estimated at the first read); the fit's error message instead when it fails (the
-    paper's 3 px ring can be empty at 640x512)."""
+def _first(capture, albedo):
+    """The first call (it compiles), with every frame's map read; the fit's error message
+    instead when it fails (the paper's 3 px ring can be empty at 640x512)."""
     try:
-        first = fit_capture(capture, albedo=albedo)
-        list(first.arrays.values())
-    except CtjaxError as error:
-        return str(error), float("nan"), float("nan")
-    fitted, with_maps = [], []
-    for _ in range(repeats):
-        started = time.perf_counter()
         estimate = fit_capture(capture, albedo=albedo)
-        fitted.append(time.perf_counter() - started)
         list(estimate.arrays.values())
-        with_maps.append(time.perf_counter() - started)
-    return estimate, float(np.median(fitted)), float(np.median(with_maps))
+        return estimate
+    except CtjaxError as error:
+        return str(error)
+
+
+def _timed(capture, repeats):
+    """Both fits timed in alternation, `repeats` times each after a first call: this
+    machine's speed drifts by 10-20% within a minute, and alternating lets each ratio
+    compare neighbouring calls. Returns the estimates and the per-repeat seconds of the map
+    fit, of the map fit with every frame's map read too (they are estimated at the first
+    read) and of the uniform fit (NaN for a fit that fails)."""
+    estimates = {albedo: _first(capture, albedo) for albedo in ("map", "uniform")}
+    times = {"map": [], "with_maps": [], "uniform": []}
+    for _ in range(repeats):
+        for albedo in ("map", "uniform"):
+            if isinstance(estimates[albedo], str):
+                times[albedo].append(float("nan"))
+                continue
+            started = time.perf_counter()
+            estimate = fit_capture(capture, albedo=albedo)
+            times[albedo].append(time.perf_counter() - started)
+            if albedo == "map":
+                list(estimate.arrays.values())
+                times["with_maps"].append(time.perf_counter() - started)
+    return estimates, {name: np.asarray(t) for name, t in times.items()}
 
 
 def _map_errors(root, estimate):
@@ -84,9 +98,12 @@ def main():
             )
             capture = load_capture(root)
             truth = capture.truth
-            mapped, map_s, with_maps_s = _timed(capture, "map", args.repeats)
-            uniform, uniform_s, _ = _timed(capture, "uniform", args.repeats)
+            estimates, times = _timed(capture, args.repeats)
+            mapped, uniform = estimates["map"], estimates["uniform"]
             median, p90, coverage = _map_errors(root, mapped)
+        map_s, uniform_s = float(np.median(times["map"])), float(np.median(times["uniform"]))
+        with_maps_s = float(np.median(times["with_maps"]))
+        ratios = times["map"] / times["uniform"]
         row = {"size": size, "frames": args.frames, "seed": args.seed, "repeats": args.repeats}
         for name, estimate, seconds in (("map", mapped, map_s), ("uniform", uniform, uniform_s)):
             if isinstance(estimate, str):
@@ -100,6 +117,12 @@ def main():
                 round(f / t - 1, 5) for f, t in zip(fit["F_tilde"], truth["F_tilde"], strict=True)
             ]
         row["time_ratio"] = round(map_s / uniform_s, 2)
+        # Each repeat's ratio of neighbouring calls: their median and range.
+        row["time_ratio_paired_median"] = round(float(np.median(ratios)), 2)
+        row["time_ratio_paired_range"] = [
+            round(float(np.min(ratios)), 2),
+            round(float(np.max(ratios)), 2),
+        ]
         row["map_with_maps_s"] = round(with_maps_s, 2)
         row["time_ratio_with_maps"] = round(with_maps_s / uniform_s, 2)
         row["map_median_error"], row["map_p90_error"] = round(median, 5), round(p90, 5)
@@ -107,7 +130,9 @@ def main():
         row["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
         print(
             f"{size} x{args.frames}: map {map_s:.2f} s vs uniform {uniform_s:.2f} s "
-            f"(ratio {row['time_ratio']}; reading every frame's map too: {with_maps_s:.2f} s, "
+            f"(ratio {row['time_ratio']}; per repeat {row['time_ratio_paired_median']}, "
+            f"{row['time_ratio_paired_range'][0]}-{row['time_ratio_paired_range'][1]}; "
+            f"reading every frame's map too: {with_maps_s:.2f} s, "
             f"ratio {row['time_ratio_with_maps']}); sigma {row['map_sigma_error']:+.2%} (uniform "
             f"{row['uniform_sigma_error']:+.1%} {row.get('uniform_error', '')}), "
             f"F_tilde {row['map_F_error']} (uniform "

@@ -419,6 +419,7 @@ def follow(
     count = len(frames) - 1 if neighbours is None else min(neighbours, len(frames) - 1)
     data = {i: FrameData.of(capture.frames[i], saturation_level) for i in frames}
     followed = []  # (anchor frame, rows, cols, the frames it is looked for in, observations)
+    world = []
     for index, (rows, cols) in enumerate(anchors):
         if index not in data:
             continue
@@ -428,18 +429,43 @@ def follow(
         rows, cols = rows[keep], cols[keep]
         if len(rows) == 0:
             continue
-        world = world_points(camera, frame, rows, cols)
         seen_in = partners(capture, index, count, frames)
-        slots = [
-            observe_own(camera, data[index], rows, cols, saturation_level)
-            if other == index
-            else observe(camera, data[other], world, tolerance)
-            for other in seen_in
-        ]
-        followed.append((index, rows, cols, seen_in, slots))
+        followed.append((index, rows, cols, seen_in, [None] * len(seen_in)))
+        world.append(world_points(camera, frame, rows, cols))
     if not followed:
         raise CtjaxError(f"{capture.root}: no anchor pixel with depth and a normal to follow")
+    # Each frame is sighted once for the anchors of every frame that looks in it (sighting
+    # frame by frame, a few thousand anchors each, was mostly NumPy's per-call overhead).
+    bounds = np.cumsum([0, *(len(rows) for _, rows, _, _, _ in followed)])
+    everywhere = np.concatenate(world)
+    for other in frames:
+        away = []  # (anchor, slot) of the anchors looked for in `other`, not their own frame
+        for j, (index, rows, cols, seen_in, slots) in enumerate(followed):
+            if other not in seen_in:
+                continue
+            if index == other:
+                slots[seen_in.index(other)] = observe_own(
+                    camera, data[other], rows, cols, saturation_level
+                )
+            else:
+                away.append((j, seen_in.index(other)))
+        if not away:
+            continue
+        where = np.concatenate([np.arange(bounds[j], bounds[j + 1]) for j, _ in away])
+        seen = observe(camera, data[other], everywhere[where], tolerance)
+        start = 0
+        for j, slot in away:
+            size = bounds[j + 1] - bounds[j]
+            followed[j][4][slot] = _part(seen, start, start + size)
+            start += size
     return _assembled(followed)
+
+
+def _part(obs: Observation, start: int, stop: int) -> Observation:
+    """Observations `start` to `stop` of `obs` (views, not copies)."""
+    return Observation(
+        *(getattr(obs, field.name)[start:stop] for field in dataclasses.fields(Observation))
+    )
 
 
 def _assembled(followed) -> Tracks:

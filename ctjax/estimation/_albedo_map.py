@@ -27,6 +27,7 @@ determined by its one observation (see `albedo_maps`).
 """
 
 import functools
+import itertools
 from typing import NamedTuple
 
 import equinox as eqx
@@ -641,40 +642,62 @@ def _frame_columns(brdf, light, camera, normals, depth):
     return render_columns(brdf, light, camera, normals, depth).astype(jnp.float32)
 
 
-def _albedo_of(
-    capture, data, shading, weights, per_point, index, rows, cols, count, among, tolerance
-):
-    """Albedo (N, 3; NaN where not estimated) and view count (N,) of pixels of frame
-    `index`, from all the frames that see them (see `albedo_maps`), and the own frame's
-    residual (N, 3) under the albedo of the other views alone (NaN where they have none).
+def _albedo_of(capture, data, shading, weights, per_point, pieces, count, among, tolerance):
+    """Albedo (N, 3; NaN where not estimated) and view count (N,) of the pixels of
+    `pieces`, [(frame index, rows, cols)], from all the frames that see them (see
+    `albedo_maps`), and each pixel's residual in its own frame (N, 3) under the albedo of
+    the other views alone (NaN where they have none); N pixels in all, in the pieces' order.
     `shading(f)` is frame f's `_frame_columns`: a point's model in another view is their
-    bilinear sample, as its value is the image's."""
+    bilinear sample, as its value is the image's. Each frame is sighted once for every
+    piece that looks for its points there (a summary's few thousand pixels per frame were
+    mostly NumPy's per-call overhead when sighted frame by frame)."""
     camera = capture.camera
-    world = world_points(camera, capture.frames[index], rows, cols)
-    numerator = np.zeros((len(rows), 3))
-    denominator = np.zeros((len(rows), 3))
-    cosine = np.zeros(len(rows))
-    seen_count = np.zeros(len(rows), int)
-    own = None
+    bounds = np.cumsum([0, *(len(rows) for _, rows, _ in pieces)])
+    n = int(bounds[-1])
+    world = np.concatenate(
+        [world_points(camera, capture.frames[i], rows, cols) for i, rows, cols in pieces]
+    )
+    numerator, denominator = np.zeros((n, 3)), np.zeros((n, 3))
+    cosine, seen_count = np.zeros(n), np.zeros(n, int)
+    own = [np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))]
     global_ = np.arange(len(weights)) != per_point
-    for other in partners(capture, index, count, among):
-        if other == index:
-            obs = sight_own(data[index], rows, cols)
-            columns = shading(other)[rows, cols]
-        else:
-            obs = sight(camera, data[other], world, tolerance)
-            columns = sample_image(shading(other), obs.u, obs.v)
+    looked = [partners(capture, i, count, among) for i, _, _ in pieces]
+
+    def add(where, obs, columns):  # one frame's observations of the pixels `where`
         seen = obs.weight > 0  # some channel counts
-        columns = np.where(seen[:, None], columns.reshape(len(rows), -1), 0.0)  # (N, K)
+        columns = np.where(seen[:, None], columns.reshape(len(seen), -1), 0.0)  # (N, K)
         a, rest = columns[:, per_point], columns[:, global_] @ weights[global_]
         # Per channel: a channel clipped in this view says nothing of that channel's albedo.
         weight = obs.weight[:, None] * obs.channel_seen
-        numerator += a[:, None] * (obs.values - rest) * weight
-        denominator += (a * a)[:, None] * weight
-        if other == index:
-            own = (a, rest, obs.values, weight, a[:, None] * (obs.values - rest) * weight)
-        cosine += a * a * seen
-        seen_count += seen
+        contribution = a[:, None] * (obs.values - rest) * weight
+        numerator[where] += contribution
+        denominator[where] += (a * a)[:, None] * weight
+        cosine[where] += a * a * seen
+        seen_count[where] += seen
+        return a, rest, obs.values, weight, contribution
+
+    for other in dict.fromkeys(f for frames in looked for f in frames):
+        away = []
+        for (index, rows, cols), frames, lo, hi in zip(
+            pieces, looked, bounds[:-1], bounds[1:], strict=True
+        ):
+            if index == other:
+                part = slice(lo, hi)
+                found = add(part, sight_own(data[index], rows, cols), shading(other)[rows, cols])
+                for kept, value in zip(own, found, strict=True):
+                    kept[part] = value
+            elif other in frames:
+                away.append((lo, hi))
+        if away:
+            # A slice where the pieces are contiguous (one frame's pixels: a dense map).
+            contiguous = all(a[1] == b[0] for a, b in itertools.pairwise(away))
+            where = (
+                slice(away[0][0], away[-1][1])
+                if contiguous
+                else np.concatenate([np.arange(lo, hi) for lo, hi in away])
+            )
+            obs = sight(camera, data[other], world[where], tolerance)
+            add(where, obs, sample_image(shading(other), obs.u, obs.v))
     enough = (cosine[:, None] > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         albedo = np.where(enough, np.maximum(numerator / denominator, 0), np.nan)
@@ -754,7 +777,8 @@ def _frames_of(
 ):
     """For each frame of `frames` (all when None): its pixels with geometry (rows, cols;
     on every `stride`-th row and column) and their albedo, view count and own residual
-    (`_albedo_of`), in chunks of at most `_MAP_CHUNK` pixels (bounded memory at 1080p)."""
+    (`_albedo_of`), in batches of at most `_MAP_CHUNK` pixels (bounded memory at 1080p;
+    several frames' at once where they are few, as a summary's)."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     camera = capture.camera
@@ -774,32 +798,45 @@ def _frames_of(
         return np.asarray(columns)
 
     weights = np.stack([np.asarray(lobe.weight, np.float64) for lobe in brdf.lobes])
+    pixels = {}  # every frame's (rows, cols)
     for index in range(len(capture)) if frames is None else frames:
         mask = capture.frames[index].geometry_mask
         if stride > 1:  # (every pixel of a frame whose geometry misses the grid)
             grid = (np.arange(mask.shape[0]) % stride == 0)[:, None]
             grid = grid & (np.arange(mask.shape[1]) % stride == 0)[None, :]
             mask = mask & grid if np.any(mask & grid) else mask
-        rows, cols = np.nonzero(mask)
-        albedo = np.full((len(rows), 3), np.nan)
-        seen_count = np.zeros(len(rows), int)
-        residual = np.full((len(rows), 3), np.nan)
-        for start in range(0, len(rows), chunk):
-            part = slice(start, start + chunk)
-            albedo[part], seen_count[part], residual[part] = _albedo_of(
-                capture,
-                data,
-                shading,
-                weights,
-                per_point,
-                index,
-                rows[part],
-                cols[part],
-                count,
-                among,
-                tolerance,
+        pixels[index] = np.nonzero(mask)
+    # Pieces of at most `chunk` pixels (a frame's, or part of one), batched up to `chunk`.
+    pieces = [
+        (index, rows[start : start + chunk], cols[start : start + chunk])
+        for index, (rows, cols) in pixels.items()
+        for start in range(0, len(rows), chunk)
+    ]
+    batches = []
+    for piece in pieces:
+        if not batches or sum(len(p[1]) for p in batches[-1]) + len(piece[1]) > chunk:
+            batches.append([])
+        batches[-1].append(piece)
+    expected = {index: sum(p[0] == index for p in pieces) for index in pixels}
+    done = {index: [] for index in pixels}
+    waiting = list(pixels)  # frames not yielded yet, in order
+    for batch in [*batches, []]:
+        if batch:
+            out = _albedo_of(
+                capture, data, shading, weights, per_point, batch, count, among, tolerance
             )
-        yield index, rows, cols, albedo, seen_count, residual
+            bounds = np.cumsum([0, *(len(rows) for _, rows, _ in batch)])
+            for (index, _, _), lo, hi in zip(batch, bounds[:-1], bounds[1:], strict=True):
+                done[index].append(tuple(x[lo:hi] for x in out))
+        # Every frame whose pieces are all done, in order.
+        while waiting and len(done[waiting[0]]) == expected[waiting[0]]:
+            index = waiting.pop(0)
+            rows, cols = pixels[index]
+            parts = done.pop(index)
+            albedo = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
+            seen_count = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, int)
+            residual = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 3))
+            yield index, rows, cols, albedo, seen_count, residual
 
 
 def map_residuals(
