@@ -34,6 +34,7 @@ from ctjax.estimation import (  # noqa: E402
     PAPER,
     ShadingSamples,
     design_columns,
+    design_geometry,
     grid_search,
     nnls_columns,
 )
@@ -124,8 +125,11 @@ def numpy_closed_form(a, b, c, values):
 def jax_fit(samples, grid, candidates, zoom):
     @jax.jit
     def run(samples):
+        geometry = design_geometry(PAPER, samples)  # once for every sigma, as `fit_brdf`
+
         def cost(params):
-            return nnls_columns(design_columns(PAPER, params, samples), samples.values)[1]
+            columns = design_columns(PAPER, params, samples, geometry)
+            return nnls_columns(columns, samples.values)[1]
 
         search = grid_search(
             cost,

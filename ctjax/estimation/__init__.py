@@ -9,6 +9,7 @@ from ._brdf import TWO_SCALES as TWO_SCALES
 from ._brdf import BRDFFamily as BRDFFamily
 from ._brdf import BRDFFit as BRDFFit
 from ._brdf import design_columns as design_columns
+from ._brdf import design_geometry as design_geometry
 from ._brdf import design_matrix as design_matrix
 from ._brdf import fit_brdf as fit_brdf
 from ._capture_fit import ALBEDO_CHOICES as ALBEDO_CHOICES
