@@ -384,3 +384,30 @@ def test_a_held_parameter_stays_at_its_start_and_the_rest_fit_as_if_frozen(textu
     sigma = "brdf.lobes[1].distribution.sigma"
     alone = fit_model_map(paper_model(sigma=0.3), tracks, hold=(sigma,), standard_errors=False)
     assert alone.converged and alone.to_json()["sigma"] == pytest.approx(0.3, rel=1e-12)
+
+
+def test_the_maps_do_not_depend_on_how_the_pixels_are_batched(tmp_path, monkeypatch):
+    # Frames are estimated in batches of at most `_MAP_CHUNK` pixels: a frame split into
+    # pieces, and pieces of several frames in one batch, give the same maps and summary.
+    from ctjax import BRDF, Beckmann, Lambertian, Specular
+    from ctjax.estimation import _albedo_map
+
+    root = synthesize(tmp_path / "c", SynthOptions(width=64, height=48, frames=3, seed=4))
+    capture = load_capture(root)
+    brdf = BRDF(Lambertian(1.0), Specular(0.3, Beckmann(0.2)))
+
+    def estimate():
+        maps, views = _albedo_map.albedo_maps(capture, brdf)
+        samples = _albedo_map.albedo_samples(capture, brdf, stride=5)
+        return maps, views, samples
+
+    whole = estimate()  # the maps one frame per batch, the summary (~130 pixels each) in one
+    for chunk in (700, 150):  # the maps in pieces; the summary's frames one per batch
+        monkeypatch.setattr(_albedo_map, "_MAP_CHUNK", chunk)
+        pieces = estimate()
+        for a, b in zip(whole[0] + whole[1], pieces[0] + pieces[1], strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+        for (a, count_a), (b, count_b) in zip(whole[2], pieces[2], strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-10)
+            np.testing.assert_array_equal(count_a, count_b)
+    assert np.mean(np.isfinite(whole[0][0])) > 0.5  # (the maps are not all NaN)

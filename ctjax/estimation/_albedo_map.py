@@ -806,37 +806,43 @@ def _frames_of(
             grid = grid & (np.arange(mask.shape[1]) % stride == 0)[None, :]
             mask = mask & grid if np.any(mask & grid) else mask
         pixels[index] = np.nonzero(mask)
-    # Pieces of at most `chunk` pixels (a frame's, or part of one), batched up to `chunk`.
+    # Pieces of at most `chunk` pixels (a frame's, or part of one), in frame order.
     pieces = [
         (index, rows[start : start + chunk], cols[start : start + chunk])
         for index, (rows, cols) in pixels.items()
         for start in range(0, len(rows), chunk)
     ]
-    batches = []
-    for piece in pieces:
-        if not batches or sum(len(p[1]) for p in batches[-1]) + len(piece[1]) > chunk:
-            batches.append([])
-        batches[-1].append(piece)
-    expected = {index: sum(p[0] == index for p in pieces) for index in pixels}
-    done = {index: [] for index in pixels}
+    parts = {index: [] for index in pixels}
+
+    def finished(index):
+        joined = [np.concatenate(x) for x in zip(*parts.pop(index), strict=True)]
+        empty = [np.zeros((0, 3)), np.zeros(0, int), np.zeros((0, 3))]
+        return index, *pixels[index], *(joined or empty)
+
     waiting = list(pixels)  # frames not yielded yet, in order
-    for batch in [*batches, []]:
-        if batch:
-            out = _albedo_of(
-                capture, data, shading, weights, per_point, batch, count, among, tolerance
-            )
-            bounds = np.cumsum([0, *(len(rows) for _, rows, _ in batch)])
-            for (index, _, _), lo, hi in zip(batch, bounds[:-1], bounds[1:], strict=True):
-                done[index].append(tuple(x[lo:hi] for x in out))
-        # Every frame whose pieces are all done, in order.
-        while waiting and len(done[waiting[0]]) == expected[waiting[0]]:
-            index = waiting.pop(0)
-            rows, cols = pixels[index]
-            parts = done.pop(index)
-            albedo = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
-            seen_count = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, int)
-            residual = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 3))
-            yield index, rows, cols, albedo, seen_count, residual
+    for batch in _batched(pieces, chunk):
+        out = _albedo_of(capture, data, shading, weights, per_point, batch, count, among, tolerance)
+        bounds = np.cumsum([0, *(len(rows) for _, rows, _ in batch)])
+        for (index, _, _), lo, hi in zip(batch, bounds[:-1], bounds[1:], strict=True):
+            parts[index].append(tuple(x[lo:hi] for x in out))
+        # The frames before the batch's last one are complete.
+        while waiting[0] != batch[-1][0]:
+            yield finished(waiting.pop(0))
+    while waiting:
+        yield finished(waiting.pop(0))
+
+
+def _batched(pieces, chunk: int):
+    """Consecutive `pieces` grouped into batches of at most `chunk` pixels in all."""
+    batch, size = [], 0
+    for piece in pieces:
+        if batch and size + len(piece[1]) > chunk:
+            yield batch
+            batch, size = [], 0
+        batch.append(piece)
+        size += len(piece[1])
+    if batch:
+        yield batch
 
 
 def map_residuals(
