@@ -263,7 +263,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
     if args.albedo_maps is not None and args.albedo == "uniform":
         raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")
-    estimate = fit_capture(capture, _mask_options(args), family, albedo=args.albedo)
+    if args.max_tracks is not None and args.albedo == "uniform":
+        raise CtjaxError("--max-tracks is for the albedo map (--albedo map)")
+    estimate = fit_capture(
+        capture, _mask_options(args), family, albedo=args.albedo, max_points=args.max_tracks
+    )
     if args.albedo_maps is not None:
         if "albedo" not in estimate.details or estimate.details["albedo"] != "map":
             raise CtjaxError(
@@ -636,6 +640,8 @@ def _recon_command(commands) -> None:
 
 
 def _fit_command(commands) -> None:
+    from .observations import DEFAULT_MAX_TRACKS
+
     fit = commands.add_parser("fit", help="estimate (rho_tilde, F_tilde, sigma) from a capture")
     fit.add_argument(
         "capture", type=Path, help="capture folder (without depth or normals: reconstructed first)"
@@ -659,6 +665,14 @@ def _fit_command(commands) -> None:
         metavar="DIR",
         help="write DIR/NAME.npy per frame: float32 (H, W, 3) rho_tilde per pixel, NaN where "
         "not estimated",
+    )
+    fit.add_argument(
+        "--max-tracks",
+        type=_positive_int,
+        metavar="N",
+        help="with the albedo map: follow at most N surface points across frames (default "
+        f"{DEFAULT_MAX_TRACKS}; more: steadier sigma and F_tilde on a reconstructed shape, "
+        "about proportionally slower)",
     )
     fit.add_argument(
         "--no-shading",

@@ -190,6 +190,11 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
     argv = ["fit", str(root), "--json", str(out), "--albedo", "uniform", "--albedo-maps", "m"]
     assert main(argv) == 2
     assert "--albedo-maps needs the albedo map" in capsys.readouterr().err
+    assert main([*argv[:6], "--max-tracks", "500"]) == 2
+    assert "--max-tracks is for the albedo map" in capsys.readouterr().err
+    # The tracks' cap: at most that many points followed.
+    assert main(["fit", str(root), "--json", str(out), "--max-tracks", "500"]) == 0
+    assert 400 < json.loads(out.read_text())["n_points"] <= 500
     (root.parent / "nopose").mkdir()
     for item in root.iterdir():
         if item.name != "poses.json":

@@ -323,6 +323,11 @@ OPTION_CASES = [
         ["fit", "{cap}"], "the following arguments are required: --json", id="fit-no-json"
     ),
     pytest.param(
+        ["fit", "{cap}", "--json", "{out}/f.json", "--max-tracks", "0"],
+        "must be a positive integer, got '0'",
+        id="fit-max-tracks-0",
+    ),
+    pytest.param(
         ["diagnose", "{cap}", "--json", "{out}/d.json", "--calib", "0"],
         "--calib (calibration frames) must be between 1 and 1",
         id="diagnose-calib-0",
