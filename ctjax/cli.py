@@ -672,7 +672,7 @@ def _fit_command(commands) -> None:
         metavar="N",
         help="with the albedo map: follow at most N surface points across frames (default "
         f"{DEFAULT_MAX_TRACKS}; more: steadier sigma and F_tilde on a reconstructed shape, "
-        "about proportionally slower)",
+        "slower)",
     )
     fit.add_argument(
         "--no-shading",
