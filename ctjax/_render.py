@@ -2,9 +2,9 @@
 
 Layout, measured on a 2-core CPU: geometry goes in as one array per component (`Vec3` of
 (H, W) arrays, so XLA vectorises along pixels; (H, W, 3) inputs batch into (pixels, 3)
-arrays and ran 6-7x slower in a prototype), and the image comes out interleaved (H, W, 3),
-so the one fused loop computes a pixel's three channels together instead of re-reading the
-geometry once per channel.
+arrays and ran 6-7x slower in a prototype). `render` runs as two programs, each one fused
+loop: the per-pixel lobe columns in one pass over the geometry, then the image (H, W, 3)
+from them (see `render` for why).
 """
 
 import equinox as eqx
@@ -15,7 +15,7 @@ from ._camera import Camera
 from ._convert import cast_floating
 from ._errors import ParameterError
 from ._numerics import safe_normalize
-from ._typing import RGB, Array, Float, Pixel
+from ._typing import RGB, Array, Float, Pixel, Scalar
 from ._vector import Vec3, where
 from .effects import AbstractImageEffect
 from .lights import AbstractLight
@@ -36,9 +36,14 @@ def shade_columns(
 
     `point` is the surface point and `normal` its unit normal, camera frame (mm).
     """
+    return jnp.stack(_lobe_radiances(brdf, light, point, normal, pixel))
+
+
+def _lobe_radiances(brdf: BRDF, light: AbstractLight, point: Vec3, normal: Vec3, pixel: Pixel):
+    """`shade_columns` as a tuple of scalars (stacked, they are one XLA concatenation)."""
     view = safe_normalize(-point)
     direction, irradiance = light.illuminate(point, view, pixel)
-    return irradiance * brdf.columns(normal, direction, view)
+    return tuple(irradiance * lobe.radiance(normal, direction, view) for lobe in brdf.lobes)
 
 
 def shade(
@@ -59,12 +64,12 @@ def shade(
     return apply_effects(effects, irradiance * brdf.radiance(normal, direction, view))
 
 
-def _pixel_grid(camera: Camera, dtype) -> tuple[Float[Array, " P"], Float[Array, " P"]]:
-    """Pixel centres (u, v), row-major; XLA fuses these iotas, nothing is read from memory."""
+def _pixel_grid(camera: Camera, dtype) -> tuple[Float[Array, "H W"], Float[Array, "H W"]]:
+    """Pixel centres (u, v) as (H, W) arrays; XLA fuses these iotas, nothing is read."""
     shape = (camera.height, camera.width)
     u = jnp.broadcast_to(jnp.arange(camera.width, dtype=dtype), shape)
     v = jnp.broadcast_to(jnp.arange(camera.height, dtype=dtype)[:, None], shape)
-    return u.reshape(-1), v.reshape(-1)
+    return u, v
 
 
 def as_planar(field: Vec3 | Float[Array, "H W 3"], name: str, camera: Camera) -> Vec3:
@@ -83,6 +88,44 @@ def as_planar(field: Vec3 | Float[Array, "H W 3"], name: str, camera: Camera) ->
     return field
 
 
+def _surface(camera: Camera, pixel: Pixel, normal: Vec3, position, from_points: bool):
+    """One pixel's surface point, unit normal and validity (1 valid, 0 not).
+
+    A pixel is valid where its depth (or point) and normal are finite and its depth > 0.
+    Invalid inputs are replaced by harmless ones *before* the physics, so neither values nor
+    gradients see a NaN: a point 1 mm ahead, facing us. The point's stand-in depends on the
+    point alone and the normal's on the normal: XLA computes the per-pixel view direction
+    from the depth alone, not from all four inputs (10-20% faster, `benchmarks/render.py`).
+    """
+    if from_points:
+        here = jnp.isfinite(position @ position) & (position.z > 0)
+        point = where(here, position, Vec3(0.0, 0.0, 1.0))
+    else:
+        here = jnp.isfinite(position) & (position > 0)
+        point = camera.backproject(pixel, jnp.where(here, position, 1))
+    facing = jnp.isfinite(normal @ normal)
+    normal = where(facing, normal, Vec3(0.0, 0.0, -1.0))
+    return point, normal, (here & facing).astype(point.z.dtype)
+
+
+def _map_surface(per_pixel, camera: Camera, normals, depth, points):
+    """`per_pixel(point, normal, pixel, valid)` batched over the image: a pytree of
+    (H, W, ...) arrays.
+
+    Batched over rows and columns, not over flattened pixels: XLA's loop then has the
+    pixel's row and column as indices instead of dividing a flat index by the width
+    (stage one of `render` 7-15% faster on one core, in-cache 1024x768 float32).
+    """
+    u, v = _pixel_grid(camera, normals.x.dtype)
+
+    def one(pixel, normal, position):
+        point, normal, valid = _surface(camera, pixel, normal, position, points is not None)
+        return per_pixel(point, normal, pixel, valid)
+
+    position = depth if points is None else points
+    return jax.vmap(jax.vmap(one))((u, v), normals, position)
+
+
 def map_pixels(per_pixel, camera: Camera, normals, depth=None, points=None):
     """Batch `per_pixel(point, normal, pixel) -> (C,)` over the image; result (H, W, C).
 
@@ -92,33 +135,13 @@ def map_pixels(per_pixel, camera: Camera, normals, depth=None, points=None):
     elsewhere the result is 0. Invalid inputs are replaced by harmless ones *before* the
     physics, so neither values nor gradients see a NaN.
     """
-    size = camera.height * camera.width
-    normal = jax.tree_util.tree_map(lambda a: a.reshape(size), normals)
-    pixels = _pixel_grid(camera, normal.x.dtype)
-    flat = lambda a: a.reshape(size)  # noqa: E731
-    position = flat(depth) if points is None else jax.tree_util.tree_map(flat, points)
 
-    def one(pixel, normal, position):
-        # Harmless stand-ins where the geometry is invalid: a point 1 mm ahead, facing us.
-        # The point's stand-in depends on the point alone and the normal's on the normal:
-        # XLA computes the per-pixel view direction (a sqrt and a division, kept in a
-        # temporary) from the depth alone, not from all four inputs (12 of the 80 bytes a
-        # pixel cost at 1080p float32: 10-20% faster, `benchmarks/render.py`).
-        if points is None:
-            here = jnp.isfinite(position) & (position > 0)
-            point = camera.backproject(pixel, jnp.where(here, position, 1))
-        else:
-            here = jnp.isfinite(position @ position) & (position.z > 0)
-            point = where(here, position, Vec3(0.0, 0.0, 1.0))
-        facing = jnp.isfinite(normal @ normal)
-        normal = where(facing, normal, Vec3(0.0, 0.0, -1.0))
-        ok = here & facing
+    def one(point, normal, pixel, valid):
         # Multiply, not `where`: the stand-ins keep the value finite, so x * 0 = 0 with a zero
         # gradient, and a select on the (pixels, C) output measured 2x slower on CPU.
-        return per_pixel(point, normal, pixel) * ok.astype(point.z.dtype)
+        return per_pixel(point, normal, pixel) * valid
 
-    out = jax.vmap(one)(pixels, normal, position)
-    return out.reshape(camera.height, camera.width, -1)
+    return _map_surface(one, camera, normals, depth, points)
 
 
 def _geometry(camera: Camera, normals, depth, points) -> tuple[Vec3, Array | None, Vec3 | None]:
@@ -138,7 +161,53 @@ def _geometry(camera: Camera, normals, depth, points) -> tuple[Vec3, Array | Non
     return normals, depth, None
 
 
+def _pack(values: tuple[Scalar, ...]) -> tuple[Array, ...]:
+    """Per-pixel scalars two to a complex number (the last one alone if K is odd).
+
+    XLA on CPU gives each output of a fused loop a loop of its own (no multi-output fusion):
+    K scalars per pixel as K arrays would repeat the pixel's geometry K times. A complex
+    array holds two in one output, computed in one pass over the geometry.
+    """
+    pairs = [jax.lax.complex(values[k], values[k + 1]) for k in range(0, len(values) - 1, 2)]
+    return (*pairs, values[-1]) if len(values) % 2 else tuple(pairs)
+
+
+def _unpack(packed: tuple[Array, ...]) -> list[Array]:
+    """`_pack`'s scalars, in order."""
+    values = []
+    for part in packed:
+        values += [part.real, part.imag] if jnp.iscomplexobj(part) else [part]
+    return values
+
+
 @eqx.filter_jit
+def _packed_columns(brdf, light, camera, normals, depth, points, with_validity: bool):
+    """The renderer's first program: each pixel's lobe columns (irradiance included, 0 where
+    the geometry is invalid; and the validity itself if asked), packed by `_pack`."""
+    normals, depth, points = _geometry(camera, normals, depth, points)
+    brdf, light, camera = cast_floating((brdf, light, camera), normals.x.dtype)
+
+    def per_pixel(point, normal, pixel, valid):
+        columns = tuple(c * valid for c in _lobe_radiances(brdf, light, point, normal, pixel))
+        return _pack((*columns, valid) if with_validity else columns)
+
+    return _map_surface(per_pixel, camera, normals, depth, points)
+
+
+@eqx.filter_jit
+def _combined(brdf, effects, packed):
+    """The renderer's second program: RGB from the packed columns, effects applied."""
+    columns = [c[..., None] for c in _unpack(packed)]
+    brdf, effects = cast_floating((brdf, effects), columns[0].dtype)
+    weights = brdf.weights
+    # An explicit sum, not a matmul (see `BRDF.radiance`).
+    rgb = sum(weights[k] * columns[k] for k in range(len(weights)))
+    if effects:
+        per_pixel = jax.vmap(jax.vmap(lambda pixel: apply_effects(effects, pixel)))
+        rgb = per_pixel(rgb) * columns[-1]
+    return rgb
+
+
 def render(
     brdf: BRDF,
     light: AbstractLight,
@@ -166,14 +235,16 @@ def render(
     valid geometry (non-finite or non-positive depth, non-finite normal) are 0. Differentiable
     with respect to every parameter of the models, the normals, the depth and the light; the
     dtype follows the inputs (float32 or float64).
+
+    The image is `shade` at every pixel, computed by two compiled programs: the lobes'
+    columns per pixel (one pass over the geometry, two columns per complex number), then
+    their weighted sum per channel. One program writing (H, W, 3) directly made XLA keep
+    the expensive per-pixel terms in temporaries and read the geometry three times: 68
+    bytes of memory traffic per float32 pixel against 44, and 1.3-1.4x the time at 1080p
+    (`benchmarks/render.py`). Inside a caller's `jit` both are traced into its program.
     """
-    normals, depth, points = _geometry(camera, normals, depth, points)
-    brdf, light, camera, effects = cast_floating((brdf, light, camera, effects), normals.x.dtype)
-
-    def per_pixel(point, normal, pixel):
-        return shade(brdf, light, point, normal, pixel, effects)
-
-    return map_pixels(per_pixel, camera, normals, depth, points)
+    packed = _packed_columns(brdf, light, camera, normals, depth, points, bool(effects))
+    return _combined(brdf, effects, packed)
 
 
 @eqx.filter_jit

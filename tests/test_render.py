@@ -134,6 +134,50 @@ def test_vmap_of_shade_equals_render(surface):
     np.testing.assert_allclose(np.asarray(batched), image[rows, cols], rtol=1e-12)
 
 
+@pytest.mark.parametrize(
+    "lobes, with_effects, dtype",
+    [
+        (1, False, jnp.float32),
+        (1, True, jnp.float64),
+        (2, False, jnp.float64),
+        (2, True, jnp.float32),
+        (3, False, jnp.float32),
+        (3, True, jnp.float64),
+    ],
+)
+def test_every_pixel_is_shade_whatever_the_lobes_and_effects(surface, lobes, with_effects, dtype):
+    # The renderer packs the lobes' columns two to a complex number (and the validity with
+    # them when effects follow): odd and even counts, invalid pixels 0 even after an ambient.
+    depth, normals = (np.array(a) for a in surface)
+    depth[3, 4], depth[5, 6], normals[7, 8] = np.nan, -1.0, np.nan
+    parts = [
+        ctjax.Lambertian(RHO),
+        ctjax.Specular(F, ctjax.Beckmann(0.15)),
+        ctjax.Specular([0.1, 0.2, 0.1], ctjax.Beckmann(0.4)),
+    ]
+    brdf = cast(ctjax.BRDF(*parts[:lobes]), dtype)
+    light = cast(PointLight([3.0, 1.0, 0.0], falloff=(ctjax.InverseSquare(),)), dtype)
+    effects = (ctjax.Ambient([0.02, 0.03, 0.04]), ctjax.CameraGamma(2.2)) if with_effects else ()
+    depth, normals = jnp.asarray(depth, dtype), jnp.asarray(normals, dtype)
+    image = np.asarray(ctjax.render(brdf, light, CAMERA, normals, depth, effects=effects))
+    assert image.dtype == dtype
+
+    def one(r, c):
+        pixel = (c.astype(dtype), r.astype(dtype))
+        point = CAMERA.backproject(pixel, depth[r, c])
+        normal = vec3(normals[r, c])
+        return ctjax.shade(brdf, light, point, normal, pixel, cast(effects, dtype))
+
+    rows, cols = np.meshgrid(np.arange(CAMERA.height), np.arange(CAMERA.width), indexing="ij")
+    expected = np.array(jax.vmap(one)(jnp.asarray(rows.ravel()), jnp.asarray(cols.ravel())))
+    expected = expected.reshape(image.shape)
+    for r, c in [(3, 4), (5, 6), (7, 8)]:
+        assert np.all(image[r, c] == 0)
+        expected[r, c] = 0
+    tol = 1e-4 if dtype == jnp.float32 else 1e-12  # float32: rounding on sharp highlights
+    np.testing.assert_allclose(image, expected, rtol=tol, atol=tol * 1e-2)
+
+
 def test_jit_equals_no_jit(surface):
     depth, normals = surface
     brdf = cook_torrance_brdf(RHO, F, SIGMA)
