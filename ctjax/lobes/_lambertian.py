@@ -6,7 +6,6 @@ import jax.numpy as jnp
 
 from .._candidate import AbstractCandidate
 from .._convert import POSITIVE, as_rgb, check_positive, check_shape, named
-from .._numerics import positive_part
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
 from ._lobe import AbstractLobe
@@ -38,9 +37,10 @@ class Lambertian(AbstractLobe):
 
 
 def _cosine_over_pi(normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
-    # Zero on back-facing surfaces (N.V <= 0) as well, like every lobe.
-    visible = jnp.where(normal @ view > 0, 1, 0)
-    return positive_part(normal @ light) * visible / math.pi
+    # Zero on back-facing surfaces (N.V <= 0) as well, like every lobe; one select, so the
+    # gradient is exactly 0 there too.
+    n_dot_l = normal @ light
+    return jnp.where((n_dot_l > 0) & (normal @ view > 0), n_dot_l, 0) / math.pi
 
 
 class AlbedoTextureCandidate(AbstractCandidate):
