@@ -114,7 +114,7 @@ def _map_surface(per_pixel, camera: Camera, normals, depth, points):
 
     Batched over rows and columns, not over flattened pixels: XLA's loop then has the
     pixel's row and column as indices instead of dividing a flat index by the width
-    (stage one of `render` 7-15% faster on one core, in-cache 1024x768 float32).
+    (the first program of `render` 7-15% faster on one core, in-cache 1024x768 float32).
     """
     u, v = _pixel_grid(camera, normals.x.dtype)
 
@@ -129,11 +129,10 @@ def _map_surface(per_pixel, camera: Camera, normals, depth, points):
 def map_pixels(per_pixel, camera: Camera, normals, depth=None, points=None):
     """Batch `per_pixel(point, normal, pixel) -> (C,)` over the image; result (H, W, C).
 
-    The inputs are `Vec3`s of (H, W) arrays (one array per component) and the output is
-    interleaved: XLA then computes all C channels of a pixel from data already in cache.
-    A pixel is valid where its depth (or point) and normal are finite and its depth > 0;
-    elsewhere the result is 0. Invalid inputs are replaced by harmless ones *before* the
-    physics, so neither values nor gradients see a NaN.
+    The inputs are `Vec3`s of (H, W) arrays (one array per component). A pixel is valid
+    where its depth (or point) and normal are finite and its depth > 0; elsewhere the result
+    is 0. Invalid inputs are replaced by harmless ones *before* the physics, so neither
+    values nor gradients see a NaN.
     """
 
     def one(point, normal, pixel, valid):
@@ -202,7 +201,7 @@ def _combined(brdf, effects, packed):
     weights = brdf.weights
     # An explicit sum, not a matmul (see `BRDF.radiance`).
     rgb = sum(weights[k] * columns[k] for k in range(len(weights)))
-    if effects:
+    if effects:  # `_packed_columns` then appended each pixel's validity
         per_pixel = jax.vmap(jax.vmap(lambda pixel: apply_effects(effects, pixel)))
         rgb = per_pixel(rgb) * columns[-1]
     return rgb
