@@ -136,12 +136,11 @@ def test_vmap_of_shade_equals_render(surface):
 
 @pytest.mark.parametrize(
     "lobes, with_effects, dtype",
+    # Packed as: one real array; one complex; a complex and a real (validity third); two complex.
     [
         (1, False, jnp.float32),
-        (1, True, jnp.float64),
         (2, False, jnp.float64),
         (2, True, jnp.float32),
-        (3, False, jnp.float32),
         (3, True, jnp.float64),
     ],
 )
