@@ -32,28 +32,38 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# The slowest files first (worker-seconds per file, cold cache, 2 workers: diagnostics 60,
-# sfm 56, estimation 50, cli 48, calibration 47, albedo_map 46, light_field 37, evaluation
-# 32, lobes 16, synth 12, notebooks 12, video 8; the rest under 7). CI runs `--dist
-# loadfile`, one file per worker at a time in collection order: a long file collected last
-# keeps one worker busy while the other waits.
+# The slowest files first (worker-seconds per file, cold cache, 2 workers: diagnostics 72,
+# sfm 61, calibration 53, estimation 51, albedo_map 44, cli 43, light_field 40, evaluation
+# 30, lobes 20, notebooks 15, synth 14, video 9, render 9, batch 8; the rest under 7). CI
+# runs `--dist loadfile`, one file per worker at a time in collection order: a long file
+# collected last keeps one worker busy while the other waits.
 _SLOWEST_FIRST = [
     f"test_{name}.py"
     for name in (
         "diagnostics",
         "sfm",
-        "estimation",
-        "cli",
         "calibration",
+        "estimation",
         "albedo_map",
+        "cli",
         "light_field",
         "evaluation",
         "lobes",
-        "synth",
         "notebooks",
+        "synth",
         "video",
+        "render",
+        "batch",
     )
 ]
+
+
+def pytest_configure(config):
+    # pytest-xdist >= 3.6 hands out files by their number of tests, most first, unless told
+    # not to: it ran lobes (many small tests) first and calibration last (269.6 s, one
+    # worker idle for the last 19 s).
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(items):
