@@ -66,9 +66,9 @@ def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
 def noise_floor_map_levels(capture, frames: Sequence[int], model) -> float:
     """The noise floor (8-bit levels) on textured tissue: `noise_floor_levels` on residual
     images under the albedo map (each pixel against the albedo the other frames that see it
-    give, `ctjax.estimation._albedo_map.map_residuals`), so that the texture is not counted
+    give, `ctjax.estimation._dense_maps.map_residuals`), so that the texture is not counted
     as noise."""
-    from .estimation._albedo_map import map_residuals
+    from .estimation._dense_maps import map_residuals
     from .fitting._albedo_map import diffuse_lobe
 
     obs = Observations.of(capture)

@@ -12,8 +12,8 @@ from scipy.optimize import nnls as scipy_nnls
 from ctjax._tracks import views_first
 from ctjax.cli import main
 from ctjax.estimation import PAPER, fit_capture
-from ctjax.estimation._albedo_map import project_weights
 from ctjax.estimation._map_fit import summary_stride
+from ctjax.estimation._projection import project_weights
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
 
@@ -232,10 +232,10 @@ def test_standard_errors_are_the_global_block_of_the_joint_covariance(textured):
         _columns,
         _information,
         _standard_errors,
-        _sums,
         fit_brdf_map,
         track_shading,
     )
+    from ctjax.estimation._projection import weighted_sums
     from ctjax.observations import Observations
 
     tracks = Observations.of(load_capture(textured[(1, 1.0)])).tracks(max_points=150)
@@ -248,7 +248,9 @@ def test_standard_errors_are_the_global_block_of_the_joint_covariance(textured):
     def joint_residuals(theta):
         rho = jnp.zeros(free.shape, theta.dtype).at[free].set(theta[:n_free])
         w = theta[n_free : n_free + 3].reshape(1, 3)  # F_tilde
-        s = _sums(_columns(PAPER, theta[n_free + 3 :], shading), shading.values, shading.weight, 0)
+        s = weighted_sums(
+            _columns(PAPER, theta[n_free + 3 :], shading), shading.values, shading.weight, 0
+        )
         return jnp.concatenate(
             [(v - s.a * rho[c] - s.others[0] * w[0, c]).reshape(-1) for c, v in enumerate(s.values)]
         )
@@ -395,20 +397,20 @@ def test_the_maps_do_not_depend_on_how_the_pixels_are_batched(tmp_path, monkeypa
     # Frames are estimated in batches of at most `_MAP_CHUNK` pixels: a frame split into
     # pieces, and pieces of several frames in one batch, give the same maps and summary.
     from ctjax import BRDF, Beckmann, Lambertian, Specular
-    from ctjax.estimation import _albedo_map
+    from ctjax.estimation import _dense_maps
 
     root = synthesize(tmp_path / "c", SynthOptions(width=64, height=48, frames=3, seed=4))
     capture = load_capture(root)
     brdf = BRDF(Lambertian(1.0), Specular(0.3, Beckmann(0.2)))
 
     def estimate():
-        maps, views = _albedo_map.albedo_maps(capture, brdf)
-        samples = _albedo_map.albedo_samples(capture, brdf, stride=5)
+        maps, views = _dense_maps.albedo_maps(capture, brdf)
+        samples = _dense_maps.albedo_samples(capture, brdf, stride=5)
         return maps, views, samples
 
     whole = estimate()  # the maps one frame per batch, the summary (~130 pixels each) in one
     for chunk in (700, 150):  # the maps in pieces; the summary's frames one per batch
-        monkeypatch.setattr(_albedo_map, "_MAP_CHUNK", chunk)
+        monkeypatch.setattr(_dense_maps, "_MAP_CHUNK", chunk)
         pieces = estimate()
         for a, b in zip(whole[0] + whole[1], pieces[0] + pieces[1], strict=True):
             np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)

@@ -9,7 +9,7 @@ import ctjax
 from ctjax import _programs
 from ctjax._camera import Camera
 from ctjax.estimation import PAPER
-from ctjax.estimation._albedo_map import _frame_columns
+from ctjax.estimation._dense_maps import _frame_columns
 from ctjax.lights import ColocatedLight
 from ctjax.lobes import Lambertian
 

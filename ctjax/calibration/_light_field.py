@@ -55,8 +55,8 @@ from .._model import ShadingModel
 from .._result import Estimate
 from .._status import Status
 from ..estimation import ALBEDO_CHOICES, default_albedo
-from ..estimation._albedo_map import albedo_maps
 from ..estimation._capture_fit import MaskOptions
+from ..estimation._dense_maps import albedo_maps
 from ..fitting import (
     TrackSamples,
     fit_model,

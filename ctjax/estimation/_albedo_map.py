@@ -10,25 +10,15 @@ point p is
     I_pmc = rho_pc a_pm + sum_g w_gc b_gpm(sigma)                   a: the diffuse column
 
 For fixed sigma it is linear in (rho, w) >= 0, and each point's albedo appears only in its
-own observations, so it is eliminated in closed form (variable projection, Golub & Pereyra):
-
-    rho_pc(w) = max(0, (S_aI - sum_g w_gc S_ag) / S_aa)       S_xy = sum_m x_pm y_pm
-
-which leaves a nonnegative least squares in the few global weights with the reduced normal
-equations sum_p (S_gh - S_ag S_ah / S_aa) (and sum_p S_gh for points whose albedo is clamped
-at 0). That is solved exactly (`nnls_normal_equations`); the clamped set is updated a few
-times (`_ACTIVE_SET_ROUNDS`: the cost is convex in w, and a clamped albedo is rare on
-tissue). The sigma branch-and-bound is then the same batched grid of closed-form solves as the
-paper's, with 10^5 albedos eliminated instead of searched.
+own observations, so it is eliminated in closed form (variable projection:
+`ctjax.estimation._projection`), which leaves a nonnegative least squares in the few
+global weights. The sigma branch-and-bound is then the same batched grid of closed-form
+solves as the paper's, with 10^5 albedos eliminated instead of searched.
 
 A point observed once has its albedo fitted exactly (no residual): it tells nothing about
 sigma and w, and counts for nothing in their fit. Given the fit, its albedo is still
-determined by its one observation (see `albedo_maps`).
+determined by its one observation (every pixel's albedo: `ctjax.estimation._dense_maps`).
 """
-
-import functools
-import itertools
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -39,36 +29,15 @@ from .._buckets import bucket
 from .._errors import CtjaxError
 from .._numerics import safe_normalize
 from .._programs import persistent_jit
-from .._render import render_columns
-from .._tracks import (
-    DEFAULT_NEIGHBOURS,
-    DEFAULT_TOLERANCE,
-    FrameData,
-    Tracks,
-    partners,
-    sample_image,
-    sight,
-    sight_own,
-    world_points,
-)
+from .._tracks import Tracks
 from .._typing import Array, Bool, Float, Scalar
 from .._vector import Vec3
 from ..lights import AbstractLight, ColocatedLight
 from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
 from ._brdf import PAPER, BRDFFamily, design_geometry
-from ._closed_form import nnls_normal_equations
+from ._projection import over_views, project_weights, weighted_sums
 
-# Rounds of the clamped-albedo update (see the module doc).
-_ACTIVE_SET_ROUNDS = 3
-# A point whose diffuse column's squared norm is below this fraction of the largest carries
-# no information on its albedo (grazing in every view).
-_NEGLIGIBLE = 1e-12
-# Albedo maps are left NaN where the diffuse column is below this (N.L / pi in every view
-# below ~0.05 / pi): the albedo would be noise divided by nearly 0.
-MIN_COSINE = 0.05
-# Pixels whose albedo is estimated at once (bounds memory at 1080p).
-_MAP_CHUNK = 1 << 17
 # Grid points evaluated at once by the BnB (each a pass over every observation's corners):
 # one, measured: 80 evaluations on 16k tracks x 8 views took 0.11 s one at a time, 0.22 s
 # two at a time and 0.29 s eight at a time (XLA's CPU code reduces the leading axes of the
@@ -172,207 +141,6 @@ def _per_point_index(family: BRDFFamily) -> int:
     return family.weight_names.index("rho_tilde")
 
 
-class _Sums(NamedTuple):
-    """The weighted columns and values, and the per-point sums over views the projection
-    needs, one array per channel (XLA's CPU code ran the projection 1.7x slower on
-    (C, M, P) arrays): `a` the per-point lobe's column (M, P), `others` the global lobes'
-    (G of them), `values` C arrays (M, P), all times the root of each observation's
-    weight; `s_aa` (P,), `s_ai` C arrays (P,) and `s_ag` G arrays (P,): the sums over views
-    of a a, a I and a g; `t_gg` (G, G) and `t_gi` (G, C): the sums over every observation
-    of g h and g I, `t_ii` (scalar) of I I over every channel too."""
-
-    a: Array
-    others: list
-    values: list
-    s_aa: Array
-    s_ai: list
-    s_ag: list
-    t_gg: Array
-    t_gi: Array
-    t_ii: Array
-
-
-def _over_views(x: Float[Array, "M ..."]) -> Float[Array, "..."]:
-    """The sum over the leading axis (views, or corners) as adds of contiguous slices: XLA's
-    CPU code reduces a leading axis element by element (a batch of 8 sigmas x 8 views x 16k
-    points: 3.4 ms as `jnp.sum(axis=0)`, 0.11 ms as adds)."""
-    return functools.reduce(jnp.add, [x[m] for m in range(x.shape[0])])
-
-
-def _sums(columns, values, weight, per_point) -> _Sums:
-    # Double where: weights may depend on fitted parameters (undone image effects), and the
-    # slope of sqrt at an unobserved slot's 0 would make their gradient NaN.
-    positive = weight > 0
-    w = jnp.where(positive, jnp.sqrt(jnp.where(positive, weight, 1)), 0)
-    a = columns[per_point] * w
-    others = [c * w for k, c in enumerate(columns) if k != per_point]
-    values = [values[c] * w for c in range(values.shape[0])]
-    total = lambda x, y: _over_views(x * y)  # noqa: E731
-
-    def every(x, y):  # (len(x), len(y)): the sums over every observation
-        sums = [jnp.sum(p * q) for p in x for q in y]
-        if not sums:
-            return jnp.zeros((len(x), len(y)), a.dtype)
-        return jnp.stack(sums).reshape(len(x), len(y))
-
-    return _Sums(
-        a,
-        others,
-        values,
-        total(a, a),
-        [total(a, v) for v in values],
-        [total(a, g) for g in others],
-        every(others, others),
-        every(others, values),
-        sum(jnp.sum(v * v) for v in values),
-    )
-
-
-def _global_weights(s: _Sums, inverse, ok):
-    """The global weights (G, C) by the reduced NNLS, the set of albedos they clamp at 0
-    updated `_ACTIVE_SET_ROUNDS` times (one round traced and looped, the channels' solves
-    batched: less to trace and compile)."""
-    lobes = range(len(s.others))
-    solve = jax.vmap(lambda g, r: nnls_normal_equations(g, r[:, None])[:, 0], (2, 1), 1)
-
-    def albedo_given(weights):  # (C, P)
-        return jnp.stack(
-            [
-                (s_ai - sum(s.s_ag[g] * weights[g, c] for g in lobes)) * inverse
-                for c, s_ai in enumerate(s.s_ai)
-            ]
-        )
-
-    def round_(_, carry):
-        free = carry[1]  # (C, P): the albedos not clamped at 0
-        projected = inverse * free
-        gram = jnp.stack(
-            [
-                jnp.stack([jnp.sum(s.s_ag[g] * s.s_ag[h] * projected, axis=-1) for h in lobes])
-                for g in lobes
-            ]
-        )  # (G, G, C)
-        s_ai = jnp.stack(s.s_ai)
-        rhs = jnp.stack([jnp.sum(s.s_ag[g] * projected * s_ai, axis=-1) for g in lobes])
-        weights = solve(s.t_gg[..., None] - gram, s.t_gi - rhs)
-        return weights, ok & (albedo_given(weights) > 0)
-
-    start = (
-        jnp.zeros((len(s.others), len(s.values)), inverse.dtype),
-        jnp.stack([ok] * len(s.values)),
-    )
-    return jax.lax.fori_loop(0, _ACTIVE_SET_ROUNDS, round_, start)[0]
-
-
-def _project(columns, values, weight, per_point):
-    """The sums (`_Sums`), the albedos (C arrays (P,), clamped at 0) and the global weights
-    (G, C): see `project_weights`."""
-    s = _sums(columns, values, weight, per_point)
-    ok = s.s_aa > _NEGLIGIBLE * jnp.max(s.s_aa)
-    inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
-    if s.others:
-        weights = _global_weights(s, inverse, ok)
-    else:
-        weights = jnp.zeros((0, values.shape[0]), values.dtype)
-    return s, _albedo(s, inverse, ok, weights), weights
-
-
-def _albedo(s: _Sums, inverse, ok, weights):
-    """Each point's albedo given the global weights (G, C), clamped at 0 (C arrays (P,))."""
-    return [
-        jnp.where(
-            ok,
-            jnp.maximum((s_ai - sum(g * weights[i, c] for i, g in enumerate(s.s_ag))) * inverse, 0),
-            0,
-        )
-        for c, s_ai in enumerate(s.s_ai)
-    ]
-
-
-def _residuals(s: _Sums, albedo, weights):
-    """The weighted residuals the albedos and global weights leave (C arrays (M, P))."""
-    return [
-        v - s.a * rho - sum(g * weights[i, c] for i, g in enumerate(s.others))
-        for c, (v, rho) in enumerate(zip(s.values, albedo, strict=True))
-    ]
-
-
-def _cost(s: _Sums, albedo, weights):
-    """The sum of the squared weighted residuals. In float64 from the sums, without a
-    second pass over the observations: with the albedos eliminated, a point's residuals
-    are those of the global lobes alone less what its albedo explains, s_aa rho^2 (0 where
-    it is clamped), so the cost is t_II - 2 w.t_gI + w^T t_gg w - sum_p s_aa rho_p^2 per
-    channel (the cancellation leaves about 1e-16 of t_II: far below the differences the
-    search compares). In float32 that cancellation would not be, from the residuals."""
-    if s.a.dtype != jnp.float64:
-        return sum(jnp.sum(r * r) for r in _residuals(s, albedo, weights))
-    cost = s.t_ii
-    for c, rho in enumerate(albedo):
-        w = weights[:, c]
-        cost = cost - 2 * (w @ s.t_gi[:, c]) + w @ s.t_gg @ w - jnp.sum(s.s_aa * rho * rho)
-    return cost
-
-
-def _with_per_point_row(weights, per_point: int):
-    """The global weights (G, C) with the per-point lobe's row (0) inserted: (K, C)."""
-    return jnp.insert(weights, per_point, jnp.zeros(weights.shape[1], weights.dtype), axis=0)
-
-
-def residuals_given_weights(
-    columns: tuple[Float[Array, "M P"], ...],
-    values: Float[Array, "C M P"],
-    weight: Float[Array, "M P"],
-    weights: Float[Array, "K C"],
-    per_point: int = 0,
-) -> Float[Array, "C M P"]:
-    """The weighted residuals with the global `weights` (K, C; row `per_point` ignored)
-    given and each point's albedo eliminated: the same as `projected_residuals` at the
-    weights it returns, but every point's residuals now depend on its own columns alone.
-    The Jacobian of the projected residuals is this function's (local to each point) plus
-    its derivative along the weights times theirs (rank (K - 1) C): see `ctjax.sfm._shading`."""
-    s = _sums(columns, values, weight, per_point)
-    ok = s.s_aa > _NEGLIGIBLE * jnp.max(s.s_aa)
-    inverse = jnp.where(ok, 1 / jnp.where(ok, s.s_aa, 1), 0)
-    others = jnp.concatenate([weights[:per_point], weights[per_point + 1 :]])
-    return jnp.stack(_residuals(s, _albedo(s, inverse, ok, others), others))
-
-
-def projected_residuals(
-    columns: tuple[Float[Array, "M P"], ...],
-    values: Float[Array, "C M P"],
-    weight: Float[Array, "M P"],
-    per_point: int = 0,
-):
-    """`project_weights`, returning the weighted residuals (C, M, P) instead of their cost:
-    the residual function of a least-squares solver over the nonlinear parameters alone
-    (variable projection; differentiable, the clamped albedos held at 0)."""
-    s, albedo, weights = _project(columns, values, weight, per_point)
-    residual = jnp.stack(_residuals(s, albedo, weights))
-    return jnp.stack(albedo, axis=-1), _with_per_point_row(weights, per_point), residual
-
-
-def project_weights(
-    columns: tuple[Float[Array, "M P"], ...],
-    values: Float[Array, "C M P"],
-    weight: Float[Array, "M P"],
-    per_point: int = 0,
-):
-    """The albedo of every point and the global weights, eliminated in closed form.
-
-    P points seen in up to M views each, laid out views first and points last
-    (`ctjax._tracks.views_first`): `columns[k]` (M, P) is lobe k's value for unit weight at
-    each observation, `values` (C, M, P) the measurements, `weight` (M, P) each
-    observation's least-squares weight (0: not observed); `per_point` the lobe whose weight
-    is per point (the diffuse one). Returns `(albedo (P, C), weights (K, C), cost)`:
-    `weights[per_point]` is 0 (the albedo is per point), the cost is the weighted sum of
-    squared residuals (finite or +inf).
-    """
-    s, albedo, weights = _project(columns, values, weight, per_point)
-    cost = _cost(s, albedo, weights)
-    full = _with_per_point_row(weights, per_point)
-    return jnp.stack(albedo, axis=-1), full, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
-
-
 def _corner_geometry(family, shading: TrackShading):
     """What the columns take of the tracks whatever the nonlinear parameters (computed once
     for the BnB): each lobe's `geometry` at every observation's corners (flattened 4 M P),
@@ -388,7 +156,7 @@ def _columns(family, params, shading: TrackShading, corners=None):
     (computed here otherwise)."""
     geometry, factor = _corner_geometry(family, shading) if corners is None else corners
     return tuple(
-        _over_views(c.reshape(factor.shape) * factor)  # the four corners: leading axis
+        over_views(c.reshape(factor.shape) * factor)  # the four corners: leading axis
         for c in jax.vmap(family.build(params).columns_given)(geometry)
     )
 
@@ -444,7 +212,7 @@ def _information(family, params, weights, albedo, shading, per_point, cost):
     w = weights[jnp.array(globals_, int)]  # (G, C)
 
     def sums(p):
-        s = _sums(_columns(family, p, shading), shading.values, shading.weight, per_point)
+        s = weighted_sums(_columns(family, p, shading), shading.values, shading.weight, per_point)
         inverse = jnp.where(s.s_aa > 0, 1 / jnp.where(s.s_aa > 0, s.s_aa, 1), 0)
         return s, [jnp.where(f, inverse, 0) for f in free]
 
@@ -633,239 +401,3 @@ def fit_brdf_map(
     return AlbedoMapFit(
         params, weights, albedo, cost, rmse, p_err, w_err, half, int(observed.sum()), family
     )
-
-
-@persistent_jit
-def _frame_columns(brdf, light, camera, normals, depth):
-    """One frame's lobes for unit weights at its pixel centres, (H, W, K) float32 (0 where
-    it has no geometry): K planes per pixel, the least a frame's model can be kept in."""
-    return render_columns(brdf, light, camera, normals, depth).astype(jnp.float32)
-
-
-def _albedo_of(capture, data, shading, weights, per_point, pieces, count, among, tolerance):
-    """Albedo (N, 3; NaN where not estimated) and view count (N,) of the pixels of
-    `pieces`, [(frame index, rows, cols)], from all the frames that see them (see
-    `albedo_maps`), and each pixel's residual in its own frame (N, 3) under the albedo of
-    the other views alone (NaN where they have none); N pixels in all, in the pieces' order.
-    `shading(f)` is frame f's `_frame_columns`: a point's model in another view is their
-    bilinear sample, as its value is the image's. Each frame is sighted once for every
-    piece that looks for its points there (a summary's few thousand pixels per frame were
-    mostly NumPy's per-call overhead when sighted frame by frame)."""
-    camera = capture.camera
-    bounds = np.cumsum([0, *(len(rows) for _, rows, _ in pieces)])
-    n = int(bounds[-1])
-    world = np.concatenate(
-        [world_points(camera, capture.frames[i], rows, cols) for i, rows, cols in pieces]
-    )
-    numerator, denominator = np.zeros((n, 3)), np.zeros((n, 3))
-    cosine, seen_count = np.zeros(n), np.zeros(n, int)
-    own = [np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))]
-    global_ = np.arange(len(weights)) != per_point
-    looked = [partners(capture, i, count, among) for i, _, _ in pieces]
-
-    def add(where, obs, columns):  # one frame's observations of the pixels `where`
-        seen = obs.weight > 0  # some channel counts
-        columns = np.where(seen[:, None], columns.reshape(len(seen), -1), 0.0)  # (N, K)
-        a, rest = columns[:, per_point], columns[:, global_] @ weights[global_]
-        # Per channel: a channel clipped in this view says nothing of that channel's albedo.
-        weight = obs.weight[:, None] * obs.channel_seen
-        contribution = a[:, None] * (obs.values - rest) * weight
-        numerator[where] += contribution
-        denominator[where] += (a * a)[:, None] * weight
-        cosine[where] += a * a * seen
-        seen_count[where] += seen
-        return a, rest, obs.values, weight, contribution
-
-    for other in dict.fromkeys(f for frames in looked for f in frames):
-        away = []
-        for (index, rows, cols), frames, lo, hi in zip(
-            pieces, looked, bounds[:-1], bounds[1:], strict=True
-        ):
-            if index == other:
-                part = slice(lo, hi)
-                found = add(part, sight_own(data[index], rows, cols), shading(other)[rows, cols])
-                for kept, value in zip(own, found, strict=True):
-                    kept[part] = value
-            elif other in frames:
-                away.append((lo, hi))
-        if away:
-            # A slice where the pieces are contiguous (one frame's pixels: a dense map).
-            contiguous = all(a[1] == b[0] for a, b in itertools.pairwise(away))
-            where = (
-                slice(away[0][0], away[-1][1])
-                if contiguous
-                else np.concatenate([np.arange(lo, hi) for lo, hi in away])
-            )
-            obs = sight(camera, data[other], world[where], tolerance)
-            add(where, obs, sample_image(shading(other), obs.u, obs.v))
-    enough = (cosine[:, None] > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        albedo = np.where(enough, np.maximum(numerator / denominator, 0), np.nan)
-        # The own observation against the albedo of the other views alone.
-        a, rest, values, weight, own_numerator = own
-        others = denominator - (a * a)[:, None] * weight
-        enough_others = enough & (others > 1e-3 * denominator)
-        albedo_others = np.maximum((numerator - own_numerator) / others, 0)
-        residual = values - rest - a[:, None] * albedo_others
-        residual = np.where(enough_others & (weight > 0), residual, np.nan)
-    return albedo, seen_count, residual
-
-
-def albedo_maps(
-    capture,
-    brdf,
-    light: AbstractLight = _PAPER_LIGHT,
-    *,
-    per_point: int = 0,
-    neighbours: int | None = DEFAULT_NEIGHBOURS,
-    tolerance: float | None = None,
-    frames=None,
-    among=None,
-    dtype=None,
-):
-    """The albedo map of every frame (of `frames`, all by default) given the fitted BRDF's
-    global lobes and the light: a list of (H, W, 3) float32 maps (rho_tilde per pixel, in
-    the units of `rho_tilde`, NaN where not estimated), and of (H, W) view counts.
-
-    Every pixel with depth and a normal is followed into the frames that see it (its
-    `neighbours` nearest, all when None; see `ctjax._tracks`); its albedo is the weighted
-    least-squares one over those observations with the global lobes subtracted, clamped at
-    0, per channel: an observation counts for the channels it has not clipped. NaN in a
-    channel where no observation counts for it (clipped there in its own frame and in every
-    other that sees it), and in all three where the point is grazing in every view (N.L
-    below `MIN_COSINE`). A point seen in one frame only gets the albedo of that one
-    observation, given the fitted BRDF. `among`: the frames a point is looked for in (all
-    by default; e.g. the calibration frames alone, so that held-out frames stay unseen).
-    """
-    camera = capture.camera
-    maps, views = [], []
-    for _, rows, cols, albedo, seen_count, _ in _frames_of(
-        capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among
-    ):
-        full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
-        full[rows, cols] = albedo
-        count_map = np.zeros((camera.height, camera.width), np.uint16)
-        count_map[rows, cols] = np.where(np.any(np.isfinite(albedo), -1), seen_count, 0)
-        maps.append(full)
-        views.append(count_map)
-    return maps, views
-
-
-def albedo_samples(
-    capture,
-    brdf,
-    light: AbstractLight = _PAPER_LIGHT,
-    *,
-    stride: int,
-    per_point: int = 0,
-    neighbours: int | None = DEFAULT_NEIGHBOURS,
-    dtype=None,
-):
-    """`albedo_maps` at every frame's pixels with geometry on every `stride`-th row and
-    column: per frame, their albedo (N, 3; NaN where not estimated) and view count (N,).
-    A summary of the maps (median, coverage) at 1 / stride^2 of their cost."""
-    return [
-        (albedo, seen_count)
-        for _, _, _, albedo, seen_count, _ in _frames_of(
-            capture, brdf, light, None, per_point, neighbours, None, dtype, stride=stride
-        )
-    ]
-
-
-def _frames_of(
-    capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among=None, stride=1
-):
-    """For each frame of `frames` (all when None): its pixels with geometry (rows, cols;
-    on every `stride`-th row and column) and their albedo, view count and own residual
-    (`_albedo_of`), in batches of at most `_MAP_CHUNK` pixels (bounded memory at 1080p;
-    several frames' at once where they are few, as a summary's)."""
-    dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
-    tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
-    camera = capture.camera
-    data = [FrameData.of(f) for f in capture.frames]
-    available = len(capture) if among is None else len(among)
-    count = available - 1 if neighbours is None else min(neighbours, available - 1)
-    chunk = min(_MAP_CHUNK, camera.width * camera.height)
-
-    # Each frame's lobes are rendered once and kept while its neighbours need them (frames
-    # in video order share most of their neighbours): K float32 planes, 33 MB per 1080p
-    # frame for the paper's model.
-    @functools.lru_cache(maxsize=count + 2)
-    def shading(other):
-        frame = capture.frames[other]
-        as_host = lambda a: np.asarray(a, dtype)  # noqa: E731
-        columns = _frame_columns(brdf, light, camera, as_host(frame.normals), as_host(frame.depth))
-        return np.asarray(columns)
-
-    weights = np.stack([np.asarray(lobe.weight, np.float64) for lobe in brdf.lobes])
-    pixels = {}  # every frame's (rows, cols)
-    for index in range(len(capture)) if frames is None else frames:
-        mask = capture.frames[index].geometry_mask
-        if stride > 1:  # (every pixel of a frame whose geometry misses the grid)
-            grid = (np.arange(mask.shape[0]) % stride == 0)[:, None]
-            grid = grid & (np.arange(mask.shape[1]) % stride == 0)[None, :]
-            mask = mask & grid if np.any(mask & grid) else mask
-        pixels[index] = np.nonzero(mask)
-    # Pieces of at most `chunk` pixels (a frame's, or part of one), in frame order.
-    pieces = [
-        (index, rows[start : start + chunk], cols[start : start + chunk])
-        for index, (rows, cols) in pixels.items()
-        for start in range(0, len(rows), chunk)
-    ]
-    parts = {index: [] for index in pixels}
-
-    def finished(index):
-        joined = [np.concatenate(x) for x in zip(*parts.pop(index), strict=True)]
-        empty = [np.zeros((0, 3)), np.zeros(0, int), np.zeros((0, 3))]
-        return index, *pixels[index], *(joined or empty)
-
-    waiting = list(pixels)  # frames not yielded yet, in order
-    for batch in _batched(pieces, chunk):
-        out = _albedo_of(capture, data, shading, weights, per_point, batch, count, among, tolerance)
-        bounds = np.cumsum([0, *(len(rows) for _, rows, _ in batch)])
-        for (index, _, _), lo, hi in zip(batch, bounds[:-1], bounds[1:], strict=True):
-            parts[index].append(tuple(x[lo:hi] for x in out))
-        # The frames before the batch's last one are complete.
-        while waiting[0] != batch[-1][0]:
-            yield finished(waiting.pop(0))
-    while waiting:
-        yield finished(waiting.pop(0))
-
-
-def _batched(pieces, chunk: int):
-    """Consecutive `pieces` grouped into batches of at most `chunk` pixels in all."""
-    batch, size = [], 0
-    for piece in pieces:
-        if batch and size + len(piece[1]) > chunk:
-            yield batch
-            batch, size = [], 0
-        batch.append(piece)
-        size += len(piece[1])
-    if batch:
-        yield batch
-
-
-def map_residuals(
-    capture,
-    brdf,
-    light: AbstractLight = _PAPER_LIGHT,
-    frames=None,
-    *,
-    per_point: int = 0,
-    neighbours: int | None = DEFAULT_NEIGHBOURS,
-    dtype=None,
-):
-    """Residual images (H, W, 3; linear units, NaN where not usable) of `frames` (all by
-    default) under the albedo map, each pixel against the albedo fitted to the OTHER frames
-    that see it (`albedo_maps` without its own view): its own noise is then not partly
-    fitted away (which made the noise floor 14% low), and the other views' noise, averaged
-    and interpolated, adds little. NaN where no other view counts."""
-    camera = capture.camera
-    out = []
-    for _, rows, cols, _, _, residual in _frames_of(
-        capture, brdf, light, frames, per_point, neighbours, None, dtype
-    ):
-        image = np.full((camera.height, camera.width, 3), np.nan)
-        image[rows, cols] = residual
-        out.append(image)
-    return out

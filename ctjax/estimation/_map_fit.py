@@ -22,7 +22,7 @@ from .._result import Estimate
 from .._tracks import DEFAULT_NEIGHBOURS, require_poses
 from ..lights import ColocatedLight
 from ..observations import Observations
-from ._albedo_map import albedo_maps, albedo_samples, fit_brdf_map, track_shading
+from ._albedo_map import fit_brdf_map, track_shading
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
 from ._capture_fit import (
     _WELL_DETERMINED,
@@ -31,6 +31,7 @@ from ._capture_fit import (
     require_specular,
     thin_frames,
 )
+from ._dense_maps import albedo_maps, albedo_samples
 from ._sensitivity import specular_change
 
 

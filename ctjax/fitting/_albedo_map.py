@@ -23,7 +23,7 @@ from .._status import Status
 from .._tracks import Tracks, views_first
 from .._vector import Vec3
 from ..effects import AbstractImageEffect
-from ..estimation._albedo_map import projected_residuals
+from ..estimation._projection import projected_residuals
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
 from ._fit import LEVENBERG_MARQUARDT

@@ -284,7 +284,7 @@ class _Problem(eqx.Module):
     def residuals(self, theta, smoothing):
         """The observations' weighted residuals, each point's albedo and F_tilde eliminated
         (paper's model, L = V), then the penalty; and F_tilde (3,)."""
-        from ..estimation._albedo_map import projected_residuals
+        from ..estimation._projection import projected_residuals
 
         c, sigma = theta[:-1], theta[-1]
         columns = self.columns(*self.slopes_of(c), sigma)
@@ -303,7 +303,7 @@ class _Problem(eqx.Module):
         its rows of A's products (A^T A's blocks, A^T U, A^T r), and U^T U, U^T r, W, and
         the cost: everything J^T J and J^T r need, in one pass of 6 tangents and 3
         cotangents instead of a dense (R, n) Jacobian."""
-        from ..estimation._albedo_map import projected_residuals, residuals_given_weights
+        from ..estimation._projection import projected_residuals, residuals_given_weights
 
         c, sigma = theta[:-1], theta[-1]
         hx, hy = self.slopes_of(c)
