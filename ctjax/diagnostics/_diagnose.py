@@ -33,9 +33,14 @@ from ..observations import Observations
 from ._candidates import CANDIDATES, AbstractCandidate, candidate
 
 # A candidate "explains the data" when it lowers the held-out RMSE by at least this
-# fraction, and the base model is measurably above the noise floor.
+# fraction. The held-out frames are the guard against fitting noise: on captures with
+# nothing hidden the best candidate improved by 0.0% (six `ctjax synth` captures, textured
+# and not, 160x128 and 320x256). The noise floor does not veto a verdict: under the albedo
+# map on strongly textured images it also counts the texture's interpolation across views
+# and reads high (1.57 levels for 1 level of noise at 320x256), and a hidden ambient term
+# then brought the held-out RMSE from 1.53 to 1.47 levels, below that floor, while the
+# earlier rule (base at least 5% above the floor) said "none".
 MATERIAL_IMPROVEMENT = 0.03
-ABOVE_NOISE = 1.05
 
 
 @dataclasses.dataclass
@@ -278,10 +283,6 @@ def diagnose(
         else:
             noise = min(noise, heldout.noise_floor(best.model))
     verdict = "none"
-    if (
-        results
-        and base.heldout_rmse > ABOVE_NOISE * noise
-        and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT
-    ):
+    if results and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT:
         verdict = results[0].details["effect"]
     return Diagnosis(base, noise, results, verdict, time.perf_counter() - started)
