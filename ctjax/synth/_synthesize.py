@@ -169,9 +169,12 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     rng = np.random.default_rng(options.seed)
     surface_rng, texture_rng, path_rng, noise_rng = rng.spawn(4)
     surface = OrganSurface.random(surface_rng, WORKING_DISTANCE_MM)
-    texture = seeded_texture(texture_rng.bit_generator.seed_seq) if options.texture else None
-    poses = exploration(options.frames, path_rng, WORKING_DISTANCE_MM)
     camera = synthetic_camera(options)
+    # The tissue a pixel covers at the working distance (the prefilter's scale).
+    pixel_mm = WORKING_DISTANCE_MM / float(camera.fx)
+    seed = texture_rng.bit_generator.seed_seq
+    texture = seeded_texture(seed, pixel_mm) if options.texture else None
+    poses = exploration(options.frames, path_rng, WORKING_DISTANCE_MM)
     frames = []
     saturated = []
     true_albedo = {}
@@ -217,7 +220,9 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         "bits": options.bits,
         "texture": options.texture,
         "texture_contrast": options.texture_contrast,
-        "texture_note": "textured captures multiply rho_tilde per pixel by a map of mean 1",
+        "texture_note": "textured captures multiply rho_tilde per pixel by a map of mean 1, "
+        "prefiltered for the pixel footprint at the working distance (what a pixel "
+        "integrates: a Gaussian of the box's spread, 0.29 pixel)",
         "albedo_maps": "albedo/NAME.npy: the true rho_tilde of every pixel, float32 (H, W, 3), "
         "NaN off the surface (the diffuse lobe's weight; effects such as a light's "
         "intensity or falloff are not folded in)",
