@@ -32,40 +32,10 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# The slowest files first (worker-seconds per file, cold cache, 2 workers: diagnostics 72,
-# sfm 61, calibration 53, estimation 51, albedo_map 44, cli 43, light_field 40, evaluation
-# 30, lobes 20, notebooks 15, synth 14, video 9, render 9, batch 8; the rest under 7). CI
-# runs `--dist loadfile`, one file per worker at a time in collection order: a long file
-# collected last keeps one worker busy while the other waits.
-_SLOWEST_FIRST = [
-    f"test_{name}.py"
-    for name in (
-        "diagnostics",
-        "sfm",
-        "calibration",
-        "estimation",
-        "albedo_map",
-        "cli",
-        "light_field",
-        "evaluation",
-        "lobes",
-        "notebooks",
-        "synth",
-        "video",
-        "render",
-        "batch",
-    )
-]
-
-
-def pytest_configure(config):
-    # pytest-xdist >= 3.6 hands out files by their number of tests, most first, unless told
-    # not to: it ran lobes (many small tests) first and calibration last (269.6 s, one
-    # worker idle for the last 19 s).
-    if hasattr(config.option, "loadscopereorder"):
-        config.option.loadscopereorder = False
-
-
-def pytest_collection_modifyitems(items):
-    rank = {name: i for i, name in enumerate(_SLOWEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: files stay whole
+# File order: CI runs `--dist loadfile`, one file per worker at a time, and pytest-xdist
+# (>= 3.6) hands out the files with the most tests first. Measured against the slowest
+# files first (worker-seconds: diagnostics, sfm, calibration, estimation, ...), alternating,
+# cold caches, 2 workers: xdist's order 291 and 306 s, slowest first 326 and 341 s, although
+# slowest first ended the two workers within 1.3 s of each other where xdist's left one idle
+# for 19 s (likely: the files share compiled programs through the persistent cache above,
+# and heavy files started together each compile the same fitters). xdist's order is kept.
