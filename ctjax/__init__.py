@@ -34,6 +34,7 @@ from ._status import Status as Status
 from ._vector import Vec3 as Vec3
 from .effects import Ambient as Ambient
 from .effects import CameraGamma as CameraGamma
+from .effects import SRGBResponse as SRGBResponse
 from .lights import ColocatedLight as ColocatedLight
 from .lights import InverseSquare as InverseSquare
 from .lights import LightField as LightField

@@ -51,30 +51,40 @@ def to_json(module) -> JSON:
     return _value(module)
 
 
-def _walk_named(node, out: dict) -> None:
+def _walk_named(node, out: dict, paths: dict, path: str = "") -> None:
     if isinstance(node, eqx.Module):
         for field in dataclasses.fields(node):
             value = getattr(node, field.name)
             name = field.metadata.get("name")
+            child = f"{path}.{field.name}" if path else field.name
             if name is not None and eqx.is_array(value):
                 key, index = name, 1
                 while key in out:
                     index += 1
                     key = f"{name}_{index}"
                 out[key] = _value(value)
+                paths[child] = key
             else:
-                _walk_named(value, out)
+                _walk_named(value, out, paths, child)
     elif isinstance(node, tuple | list):
-        for value in node:
-            _walk_named(value, out)
+        for index, value in enumerate(node):
+            _walk_named(value, out, paths, f"{path}[{index}]")
 
 
 def named_parameters(module) -> dict[str, JSON]:
     """The named parameters of a model (`rho_tilde`, `F_tilde`, `sigma`, ...), in the order
     of the tree: the paper's view of any model."""
     out: dict[str, JSON] = {}
-    _walk_named(module, out)
+    _walk_named(module, out, {})
     return out
+
+
+def paper_names(module) -> dict[str, str]:
+    """The named parameters' names by their dotted field names (`array_fields`' keys):
+    `{"brdf.lobes[1].weight": "F_tilde", "light.position_mm": "offset_mm", ...}`."""
+    paths: dict[str, str] = {}
+    _walk_named(module, {}, paths)
+    return paths
 
 
 def _walk_arrays(node, name: str, out: dict) -> None:

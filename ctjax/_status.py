@@ -26,6 +26,11 @@ class Status(enum.IntEnum):
     diverged = 4
     failed = 5
     given = 6
+    # The solve converged, but the data do not determine a parameter (`ctjax._determined`).
+    at_bound = 7
+    no_lobe = 8
+    no_standard_error = 9
+    unstable = 10
 
     @property
     def message(self) -> str:
@@ -33,6 +38,13 @@ class Status(enum.IntEnum):
 
     @property
     def converged(self) -> bool:
+        """The solver converged (or the value was given): the flags of what the data do
+        not determine (`at_bound`, `no_lobe`, `no_standard_error`) count as converged."""
+        return self in (Status.successful, Status.given, *_UNDETERMINED)
+
+    @property
+    def determined(self) -> bool:
+        """Converged, and every parameter determined by the data: a measurement."""
         return self in (Status.successful, Status.given)
 
     @staticmethod
@@ -72,6 +84,8 @@ class Status(enum.IntEnum):
         }
 
 
+_UNDETERMINED = (Status.at_bound, Status.no_lobe, Status.no_standard_error, Status.unstable)
+
 _MESSAGES = {
     Status.not_solved: "not solved (no data at this pixel, or not in the solved set)",
     Status.successful: "converged",
@@ -81,6 +95,14 @@ _MESSAGES = {
     Status.diverged: "the iteration diverged",
     Status.failed: "the solver failed",
     Status.given: "given, not estimated",
+    Status.at_bound: "converged with a parameter at the end of its search range: no "
+    "measurement of it",
+    Status.no_lobe: "converged, but no specular lobe is found (its weight cannot be told from "
+    "0): its roughness is not determined",
+    Status.no_standard_error: "converged, but a standard error could not be computed (the "
+    "data do not constrain a parameter)",
+    Status.unstable: "converged, but two halves of the frames disagree on a parameter: no "
+    "measurement of it",
 }
 
 _FROM_OPTIMISTIX = (

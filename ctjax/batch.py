@@ -42,6 +42,8 @@ COLUMNS = (
     "F_tilde",
     "rho_tilde",
     "albedo",
+    "fit_status",
+    "light_status",
     "light_heldout_rmse",
     "light_noise_floor",
     "offset",
@@ -119,6 +121,9 @@ def figures(folder: Path) -> dict:
         "F_tilde": _triple(fit.get("F_tilde")),
         "rho_tilde": _triple(fit.get("rho_tilde")),
         "albedo": fit.get("albedo", ""),
+        # Not "successful" where the data do not determine the lobe (`ctjax._determined`).
+        "fit_status": fit.get("status", ""),
+        "light_status": light.get("status", ""),
         "light_heldout_rmse": light.get("rgb_rmse_heldout", ""),
         "light_noise_floor": light.get("noise_floor", ""),
         "offset": _triple(offset),
@@ -130,14 +135,20 @@ def _triple(values) -> str:
     return "" if values is None else " ".join(f"{v:.4g}" for v in values)
 
 
-def _client(workers: int, scheduler: str | None):
+def _require_dask() -> None:
+    """One `CtjaxError` naming the install when dask.distributed is missing."""
     try:
-        from dask.distributed import Client, LocalCluster
+        import dask.distributed  # noqa: F401
     except ImportError:
         raise CtjaxError(
             "ctjax batch needs dask.distributed: pip install 'ctjax[batch]' (or --workers 0 "
             "to run the captures one after the other, without Dask)"
         ) from None
+
+
+def _client(workers: int, scheduler: str | None):
+    from dask.distributed import Client, LocalCluster
+
     if scheduler is not None:
         try:
             return Client(scheduler, timeout=30)
@@ -161,6 +172,8 @@ def run_batch(
     """Run `steps` on every capture (see the module doc); returns the summary rows, in the
     order of `captures`, and writes `out/summary.csv` and `out/summary.html`."""
     jobs, rows = _jobs(captures, Path(out), tuple(steps)), {}
+    if workers != 0 or scheduler is not None:
+        _require_dask()  # before any work, not when the first capture is submitted
     todo = [job for job in jobs if not (job.folder / "done.json").is_file()]
     for job in jobs:
         if job not in todo:

@@ -167,14 +167,23 @@ def _mask_options(args: argparse.Namespace):
     return MaskOptions(rule, args.ring_px, args.min_speck)
 
 
+def _load_capture(args: argparse.Namespace):
+    """`args.capture` loaded, with its notes (how its images were decoded) on stderr."""
+    from .io import load_capture
+
+    capture = load_capture(args.capture)
+    for note in capture.notes:
+        print(f"ctjax {args.command}: note: {note}", file=sys.stderr)
+    return capture
+
+
 def _cmd_masks(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .estimation._capture_fit import capture_sets
-    from .io import load_capture
     from .io._images import write_mask
 
-    capture = load_capture(args.capture)
+    capture = _load_capture(args)
     sets = capture_sets(capture, _mask_options(args))
     for frame, s in zip(capture.frames, sets, strict=True):
         for kind in ("specular", "ring"):
@@ -209,6 +218,8 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
         verbose=args.verbose,
     )
+    for note in report["notes"]:
+        print(f"ctjax reconstruct: note: {note}", file=sys.stderr)
     if args.json is not None:
         atomic_write_json(args.json, report)
     scale = report["scale"]
@@ -243,10 +254,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
     from .estimation import PAPER, TWO_SCALES
     from .estimation._capture_fit import fit_capture
-    from .io import load_capture
     from .io._atomic import atomic_write_json, atomic_write_npy
 
-    capture = load_capture(args.capture)
+    capture = _load_capture(args)
     shape = None
     if not any(frame.has_geometry for frame in capture.frames):
         from .sfm import with_reconstructed_shape
@@ -282,7 +292,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
-    keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo")
+    keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status")
     print(json.dumps({k: result[k] for k in result if k in keys}))
     samples = (
         f"{result['n_points']} tracked points"
@@ -293,29 +303,58 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; {samples}; "
         f"wrote {args.json}" + (f" and {args.albedo_maps}/" if args.albedo_maps else "")
     )
+    halves = result.get("halves", {})
+    if halves:
+        names = [n for n in ("sigma", "sigma_1", "sigma_2") if n in halves["even_frames"]]
+        print(
+            "stability: "
+            + "; ".join(
+                f"{n} {halves['even_frames'][n]:.4g} (even frames) / "
+                f"{halves['odd_frames'][n]:.4g} (odd)"
+                for n in names
+            )
+        )
     for warning in result["warnings"]:
         print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     return 0
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from .diagnostics import diagnose, diagnosis_plots
-    from .io import load_capture
+    from .diagnostics import diagnose, diagnose_loop, diagnosis_plots, plot_loop
     from .io._atomic import atomic_write_json
 
-    capture = load_capture(args.capture)
-    diagnosis = diagnose(
-        capture,
+    capture = _load_capture(args)
+    options = dict(
         calibration=args.calib,
         add=tuple(args.add),
         albedo=args.albedo,
         max_samples=args.max_samples,
         progress=lambda m: print(f"[ctjax diagnose] {m}", flush=True),
     )
-    atomic_write_json(args.json, in_length_unit(diagnosis.to_json(), capture.length_unit))
+    loop = None
+    if args.loop:
+        loop = diagnose_loop(capture, max_rounds=args.max_rounds, **options)
+        diagnosis = loop.final
+    else:
+        diagnosis = diagnose(capture, **options)
+    summary = diagnosis.to_json()
+    if loop is not None:
+        summary["loop"] = loop.to_json()
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.plots:
         for path in diagnosis_plots(capture, diagnosis, args.plots):
             print(f"wrote {path}")
+        if loop is not None:
+            print(f"wrote {plot_loop(loop, Path(args.plots) / 'loop.png')}")
+    if loop is not None:
+        for k, step in enumerate(loop.steps):
+            print(
+                f"step {k + 1} ({' + '.join(['paper', *loop.added[:k]])}): held-out RMSE "
+                f"{step.base_rmse:.2f} levels, {step.base_rmse / step.noise_floor:.2f}x the "
+                f"noise floor {step.noise_floor:.2f}; verdict {step.verdict} "
+                f"({step.seconds:.0f} s)"
+            )
+        print(f"loop stopped: {loop.stopped}; {loop.seconds:.0f} s in all")
     print(
         f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
         f"noise floor {diagnosis.noise_floor:.2f}); wrote {args.json} "
@@ -326,12 +365,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     from .calibration import calibrate_near_light, named_falloff
-    from .io import load_capture
     from .io._atomic import atomic_write_json
 
     if args.model == "field":
         return _calibrate_light_field(args)
-    capture = load_capture(args.capture)
+    capture = _load_capture(args)
     falloff = named_falloff(args.falloff, capture)
     result = calibrate_near_light(
         capture,
@@ -349,7 +387,7 @@ def _cmd_calibrate_light(args: argparse.Namespace) -> int:
     print(
         f"light offset ({offset}) {label(capture.length_unit)}, "
         f"falloff {'+'.join(summary['falloff']) or 'none'}, "
-        f"albedo {summary['albedo']}; "
+        f"albedo {summary['albedo']}, status {summary['status']}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
@@ -364,10 +402,9 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .calibration import calibrate_light_field
-    from .io import load_capture
     from .io._atomic import atomic_write_bytes, atomic_write_json
 
-    capture = load_capture(args.capture)
+    capture = _load_capture(args)
     result = calibrate_light_field(
         capture,
         calibration=args.calib,
@@ -386,7 +423,7 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
         f"light field over {summary['solved_pixels']} pixels (converged {counts['converged']}, "
         f"max steps {counts['max_steps']}, failed {counts['failed']}), median "
         f"{summary['median_angle_from_view_deg']:.2f} deg from the view direction, "
-        f"albedo {summary['albedo']}; "
+        f"albedo {summary['albedo']}, status {summary['status']}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
         + (f" and {args.npz}" if args.npz is not None else "")
@@ -398,10 +435,9 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluation import evaluate, evaluation_plots
-    from .io import load_capture
     from .io._atomic import atomic_write_json
 
-    capture = load_capture(args.capture)
+    capture = _load_capture(args)
     evaluation = evaluate(
         capture,
         calibration=args.calib,
@@ -423,6 +459,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         f"{summary['cook_torrance_rgb_rmse_calibration']:.2f} / "
         f"{summary['cook_torrance_rgb_rmse_test']:.2f} (albedo {summary['albedo']})"
     )
+    gain = summary["gain"]
+    if "lobe_levels" in gain:
+        same = summary["lambertian_same_light_rgb_rmse_test"]
+        print(
+            "Cook-Torrance's gain on the test frames: "
+            f"{gain['total_levels']:.2f} levels = {gain['light_levels']:.2f} from its light "
+            f"(Lambertian under the same light: {same:.2f}) + {gain['lobe_levels']:.2f} from "
+            "the lobe"
+        )
+    for note in summary["notes"]:
+        print(f"ctjax evaluate: note: {note}", file=sys.stderr)
     if summary["lambertian_sfs_error_mm"] is not None:
         models = [("Lambertian", "lambertian"), ("Cook-Torrance", "cook_torrance")]
         if args.per_pixel_sfs:
@@ -549,6 +596,12 @@ def _import_command(commands) -> None:
         help="a new view differs from the last by this much, relative to the mean "
         f"brightness (default {default.distinct})",
     )
+    video.add_argument(
+        "--width",
+        type=int,
+        help="write the frames this many pixels wide (area-averaged; camera.json scaled to "
+        "match; default: the video's size)",
+    )
     video.add_argument("--force", action="store_true", help="replace OUT/images")
     video.add_argument("--json", type=Path, help="write the report to this JSON file")
     video.set_defaults(run=_cmd_import)
@@ -568,6 +621,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
         end=args.end,
         max_frames=args.max_frames,
         distinct=args.distinct,
+        width=args.width,
     )
     report = import_video(
         args.video,
@@ -713,6 +767,19 @@ def _diag_command(commands) -> None:
         help="one albedo per surface point (map; the default when every frame has depth and a "
         "pose) or one for the capture (uniform, the paper's; then the albedo_texture "
         "candidate tries the map)",
+    )
+    diag.add_argument(
+        "--loop",
+        action="store_true",
+        help="add the verdict to the base model and diagnose again, until the verdict is "
+        "none (or --max-rounds steps); prints the held-out RMSE step by step",
+    )
+    diag.add_argument(
+        "--max-rounds",
+        type=_positive_int,
+        default=5,
+        metavar="N",
+        help="--loop: at most this many diagnoses (default %(default)s)",
     )
     diag.set_defaults(run=_cmd_diagnose)
 

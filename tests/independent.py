@@ -183,7 +183,10 @@ def render_capture(
     fx = fy = 0.85 * width
     cx, cy = (width - 1) / 2, (height - 1) / 2
     (root / "camera.json").write_text(
-        json.dumps({"width": width, "height": height, "fx": fx, "fy": fy, "cx": cx, "cy": cy})
+        json.dumps(
+            {"width": width, "height": height, "fx": fx, "fy": fy, "cx": cx, "cy": cy}
+            | {"encoding": "linear"}
+        )
     )
     surface, texture = _surface(seed, scene.distance_mm), _texture(seed, scene.texture_strength)
     rng = np.random.default_rng(4000 + seed)

@@ -61,3 +61,15 @@ def test_bad_batch_options_are_one_line(captures, tmp_path, capsys, extra, messa
     assert main(["batch", str(good), "--out", str(tmp_path / "o"), *extra]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0]
+
+
+def test_without_dask_one_line_names_the_extra_and_exit_2(captures, tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as if not installed
+    good, _ = captures
+    status = main(["batch", str(good), "--out", str(tmp_path / "out"), "--workers", "2"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("ctjax batch: error: ") and "pip install 'ctjax[batch]'" in lines[0]
+    assert "--workers 0" in lines[0] and not (tmp_path / "out" / good.name).exists()

@@ -168,3 +168,69 @@ def test_textured_tissue_is_diagnosed_with_the_albedo_map(tmp_path):
     # At 128x96 the texture is finer than a pixel: interpolation across frames leaves more
     # than the noise (1.15 levels at 160x128, README), but not 10%-more than the floor.
     assert diagnosis.base_rmse < 1.1 * diagnosis.noise_floor
+
+
+def _fake_diagnose(verdicts, rmse):
+    """A stand-in for `diagnose` whose k-th call returns verdict `verdicts[k]`."""
+    from ctjax._result import Estimate
+    from ctjax.diagnostics import Diagnosis
+    from ctjax.fitting import paper_model
+
+    calls = []
+
+    def fake(capture, *, add=(), albedo=None, **options):
+        k = len(calls)
+        calls.append({"add": add, "albedo": albedo})
+        base = Estimate(paper_model(), {"heldout": rmse[k]}, details={"albedo": albedo or "map"})
+        return Diagnosis(base, 2.0, [], verdicts[k], 1.0)
+
+    return fake, calls
+
+
+def test_the_loop_adds_each_verdict_until_none(monkeypatch, tmp_path):
+    from ctjax.diagnostics import _loop, diagnose_loop, plot_loop
+
+    fake, calls = _fake_diagnose(["srgb_response", "spot_falloff", "none"], [9.0, 4.0, 2.5])
+    monkeypatch.setattr(_loop, "diagnose", fake)
+    loop = diagnose_loop(None, max_rounds=5)
+    assert [c["add"] for c in calls] == [(), ("srgb_response",), ("srgb_response", "spot_falloff")]
+    assert loop.added == ["srgb_response", "spot_falloff"] and loop.stopped.startswith(
+        "verdict none"
+    )
+    out = loop.to_json()
+    assert [s["base_rmse"] for s in out["steps"]] == [9.0, 4.0, 2.5]
+    assert out["steps"][2]["over_noise_floor"] == 1.25 and out["final_verdict"] == "none"
+    assert plot_loop(loop, tmp_path / "loop.png").is_file()
+
+
+def test_the_loop_stops_at_its_budget_and_at_a_repeated_verdict(monkeypatch):
+    from ctjax.diagnostics import _loop, diagnose_loop
+
+    fake, calls = _fake_diagnose(["ambient", "spot_falloff", "ggx"], [9.0, 8.0, 7.0])
+    monkeypatch.setattr(_loop, "diagnose", fake)
+    loop = diagnose_loop(None, max_rounds=2)
+    assert len(calls) == 2 and "budget" in loop.stopped and loop.final.verdict == "spot_falloff"
+    fake, calls = _fake_diagnose(["ambient", "ambient"], [9.0, 8.0])
+    monkeypatch.setattr(_loop, "diagnose", fake)
+    loop = diagnose_loop(None, max_rounds=5)
+    assert len(calls) == 2 and "again" in loop.stopped and loop.added == ["ambient"]
+    # albedo_texture switches to the map rather than being added as an effect.
+    fake, calls = _fake_diagnose(["albedo_texture", "none"], [9.0, 3.0])
+    monkeypatch.setattr(_loop, "diagnose", fake)
+    loop = diagnose_loop(None, albedo="uniform")
+    assert calls[1] == {"add": (), "albedo": "map"} and loop.added == ["albedo_texture"]
+
+
+def test_the_loop_command_prints_each_step_and_writes_it(captures, monkeypatch, tmp_path, capsys):
+    from ctjax.diagnostics import _loop
+
+    fake, _ = _fake_diagnose(["spot_falloff", "none"], [6.0, 2.2])
+    monkeypatch.setattr(_loop, "diagnose", fake)
+    out = tmp_path / "loop.json"
+    root = str(captures["none"].root)
+    assert main(["diagnose", root, "--json", str(out), "--loop", "--max-rounds", "3"]) == 0
+    printed = capsys.readouterr().out
+    assert "step 1 (paper): held-out RMSE 6.00 levels, 3.00x the noise floor 2.00" in printed
+    assert "step 2 (paper + spot_falloff): held-out RMSE 2.20 levels" in printed
+    loop = json.loads(out.read_text())["loop"]
+    assert loop["added"] == ["spot_falloff"] and loop["final_verdict"] == "none"

@@ -327,3 +327,35 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path):
     uniform = uniform.to_json()
     assert uniform["albedo"] == "uniform"
     assert uniform["cook_torrance_rgb_rmse_test"] >= 3 * mapped["cook_torrance_rgb_rmse_test"]
+
+
+def test_lambertian_gets_cook_torrances_light_and_the_gain_is_split(tmp_path):
+    """A capture lit by an offset light with inverse-square falloff: given that light,
+    Cook-Torrance's gain over the paper's Lambertian splits into what the light brings to
+    the Lambertian model alone and what the lobe brings under the same light."""
+    import ctjax
+
+    options = SynthOptions(
+        width=96,
+        height=80,
+        frames=3,
+        texture=False,
+        seed=2,
+        effects={"light_offset": (5.0, 0.0, 0.0), "inverse_square": True},
+    )
+    capture = load_capture(synthesize(tmp_path / "near", options))
+    light = ctjax.PointLight([5.0, 0.0, 0.0], falloff=(ctjax.InverseSquare(70.0),))
+    truth = capture.truth
+    model = ctjax.ShadingModel(
+        ctjax.cook_torrance_brdf(truth["rho_tilde"], truth["F_tilde"], truth["sigma"]), light
+    )
+    evaluation = evaluate(capture, calibration=2, cook_torrance=model, albedo="uniform", sfs=False)
+    summary = evaluation.to_json()
+    same = summary["lambertian_same_light_rgb_rmse_test"]
+    assert summary["cook_torrance_rgb_rmse_test"] < same < summary["lambertian_rgb_rmse_test"]
+    gain = summary["gain"]
+    assert gain["light_levels"] > 0 and gain["lobe_levels"] > 0
+    assert gain["light_levels"] + gain["lobe_levels"] == pytest.approx(gain["total_levels"])
+    held = evaluation.lambertian_same_light.model.light
+    assert np.allclose(np.asarray(held.position_mm), [5.0, 0.0, 0.0])  # held, not refitted
+    assert "median depths" not in summary["units"] and ", mm, test frames" in summary["units"]

@@ -1,16 +1,20 @@
 """Specular highlights on real-like endoscopic frames (`tests/reallike.py`): a bright liver
 frame with tinted clipped highlights, a dim one where nothing clips, a colonoscopy frame
-whose red clips over the tissue, with a black octagonal border and a white UI icon."""
+whose red clips over the tissue, with a black octagonal border and a white UI icon; on the
+pale walls, white patches and bright rim of real frames (in miniature, and on the shared
+real frames at a quarter of their size when `../shared/real` is there)."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from ctjax import ParameterError
 from ctjax.cli import main
-from ctjax.estimation import HLSThresholds, WhiterThanTissue, specular_sets
-from ctjax.io import load_capture, white_overlays
+from ctjax.estimation import HLSThresholds, WhiterThanTissue, specular_mask, specular_sets
+from ctjax.io import load_capture, visible_masks, white_overlays
 from ctjax.io._images import write_rgb
 from ctjax.synth import real_like_frame
 
@@ -20,7 +24,8 @@ KINDS = ("liver", "dim", "colon")
 def _capture(root, frame) -> None:
     height, width = frame.image.shape[:2]
     camera = {"width": width, "height": height, "fx": 0.9 * width, "fy": 0.9 * width}
-    camera |= {"cx": width / 2, "cy": height / 2}
+    # The synthetic frame is linear: say so (an undeclared 8-bit capture is decoded as sRGB).
+    camera |= {"cx": width / 2, "cy": height / 2, "encoding": "linear"}
     root.mkdir(parents=True)
     (root / "camera.json").write_text(json.dumps(camera))
     write_rgb(root / "images" / "frame.png", frame.image)
@@ -106,3 +111,143 @@ def test_the_paper_rule_and_its_thresholds_are_options(tmp_path, capsys):
     assert main(["masks", str(tmp_path / "c"), "--out", out, "--highlights", "hls"]) == 0
     assert main(["masks", str(tmp_path / "c"), "--out", out, "--lightness", "0.9"]) == 2
     assert "--highlights hls" in capsys.readouterr().err
+
+
+def _sinus_like(height=160, width=240, seed=0):
+    """Linear values read off the sinus frames: red mucosa on the left, a pale wall close to
+    the scope on the right (its red no brighter than the mucosa's, its green and blue far
+    above), a little sensor noise."""
+    rng = np.random.default_rng(seed)
+    image = np.empty((height, width, 3), np.float32)
+    image[:, : width // 2] = (0.72, 0.17, 0.14)  # mucosa
+    image[:, width // 2 :] = (0.72, 0.53, 0.56)  # pale wall
+    image *= (1 + 0.03 * rng.normal(size=(height, width, 1))).astype(np.float32)
+    return image
+
+
+def test_a_pale_wall_is_not_a_highlight_but_the_highlights_on_it_and_beside_it_are():
+    """The pale wall is whiter than the mucosa beside it, but it is its own surroundings: only
+    the two highlights are S (the rule before left the wall out of its own median, and
+    took all of it)."""
+    image = _sinus_like()
+    image[40:46, 50:56] = 0.86  # on the mucosa
+    image[110:116, 180:186] = 0.86  # on the wall
+    visible = np.ones(image.shape[:2], bool)
+    mask = WhiterThanTissue()(np.clip(image, 0, 1), visible)
+    expected = np.zeros_like(visible)
+    expected[40:46, 50:56] = expected[110:116, 180:186] = True
+    np.testing.assert_array_equal(mask, expected)
+
+
+def test_a_white_patch_larger_than_the_window_is_found_whole():
+    """White is not a tissue colour: a white patch wider than the median's window does not
+    become its own surroundings (it is judged against the wall around it)."""
+    image = _sinus_like()
+    image[50:110, 150:210] = 0.8  # 60 px across, the window 20 px
+    mask = WhiterThanTissue()(np.clip(image, 0, 1), np.ones(image.shape[:2], bool))
+    assert mask[50:110, 150:210].all() and mask.sum() == 60 * 60
+
+
+def test_the_bright_rim_of_the_field_of_view_is_not_s():
+    """A bright ring just inside the image circle (light reflected inside the scope) is left
+    out; a highlight inside the field of view is not, nor one cut by a cropped frame's
+    edge (the image's edge is no rim)."""
+    image = _sinus_like(240, 320)
+    inside = np.zeros((240, 320), np.uint8)
+    cv2.circle(inside, (160, 120), 110, 1, -1)
+    visible = inside.astype(bool)
+    ring = visible & ~cv2.erode(inside, np.ones((3, 3), np.uint8)).astype(bool)
+    image[ring] = 0.9
+    image[~visible] = 0.01
+    image[100:106, 200:206] = 0.86
+    mask = WhiterThanTissue()(np.clip(image, 0, 1), visible)
+    assert not (mask & ring).any() and mask[100:106, 200:206].all()
+    crop = _sinus_like()
+    crop[0:4, 200:206] = 0.86  # cut by the top edge of the image
+    mask = WhiterThanTissue()(np.clip(crop, 0, 1), np.ones(crop.shape[:2], bool))
+    assert mask[0:4, 200:206].all() and mask.sum() == 24
+
+
+def test_the_rules_parameters_are_checked():
+    for field, value in (
+        ("white", 1.5),
+        ("grow", -0.1),
+        ("outshine", 0.0),
+        ("wide_window", 0.0),
+        ("rim", float("nan")),
+        ("contrast", -1.0),
+    ):
+        with pytest.raises(ParameterError, match=field):
+            WhiterThanTissue(**{field: value})
+
+
+# The shared real frames (../shared/real, beside the repository), at a quarter of their size.
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
+SCALE = 4
+CORE_LEVEL = 230  # every channel of a near-white core, in the recorded 8-bit image
+RIM_PX = 15  # the field of view's bright rim at full resolution
+
+
+def _srgb_decode(recorded: np.ndarray) -> np.ndarray:
+    e = recorded.astype(np.float32) / 255
+    return np.where(e <= 0.04045, e / 12.92, ((e + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def _quarter(image: np.ndarray) -> np.ndarray:
+    height, width = image.shape[:2]
+    size = (round(width / SCALE), round(height / SCALE))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
+def _real_frames(sequence: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Recorded 8-bit RGB frames at a quarter size, and their fields of view."""
+    if not REAL.is_dir():
+        pytest.skip(f"../shared/real not found: {REAL}")
+    if sequence == "jhu-sinus-a":
+        # A small highlight on the mucosa beside a pale wall (0), tiny cores beside the
+        # wall at its palest (12), a soft white patch on the wall just short of the cores'
+        # level (15), and the same patch reaching it (24).
+        folder = REAL / sequence
+        files = sorted((folder / "images").glob("*.jpg"))
+        if len(files) < 25:
+            pytest.skip(f"../shared/real not found: {folder}/images is incomplete")
+        frames = [_quarter(cv2.imread(str(files[i]))[..., ::-1]) for i in (0, 12, 15, 24)]
+        mask = cv2.imread(str(folder / "undistorted_mask.bmp"), cv2.IMREAD_GRAYSCALE)
+        fov = _quarter((mask > 127).astype(np.float32)) >= 0.5
+        return frames, [fov] * len(frames)
+    video = REAL / "lap-video" / "cholecystectomy.mp4"
+    if not video.is_file():
+        pytest.skip(f"../shared/real not found: {video}")
+    capture = cv2.VideoCapture(str(video))
+    frames = []
+    for index in (0, 83, 166, 249):  # spread over the 250 frames
+        capture.set(cv2.CAP_PROP_POS_FRAMES, index)
+        ok, frame = capture.read()
+        assert ok, f"frame {index} of {video}"
+        frames.append(_quarter(frame[..., ::-1]))
+    capture.release()
+    # As `ctjax.io.load_capture` does: the field of view of the recorded values.
+    return frames, visible_masks([frame.astype(np.float32) / 255 for frame in frames])
+
+
+@pytest.mark.parametrize("sequence", ("jhu-sinus-a", "lap-video"))
+def test_s_covers_the_near_white_cores_of_real_frames_and_little_else(sequence):
+    """On real video, decoded to linear as ctjax decodes it: S holds at least 95% of the
+    near-white cores (every channel >= 230 recorded, away from the field of view's rim)
+    and at most 3 times the area of those cores dilated by 7x7 pixels."""
+    frames, fields = _real_frames(sequence)
+    radius = round(RIM_PX / SCALE)
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    cores_px = found_px = s_px = dilated_px = 0
+    for recorded, visible in zip(frames, fields, strict=True):
+        specular = specular_mask(_srgb_decode(recorded), visible=visible)
+        inner = cv2.erode(visible.astype(np.uint8), disk).astype(bool)
+        cores = np.all(recorded >= CORE_LEVEL, axis=-1) & inner
+        dilated = cv2.dilate(cores.astype(np.uint8), np.ones((7, 7), np.uint8))
+        cores_px += cores.sum()
+        found_px += (cores & specular).sum()
+        s_px += specular.sum()
+        dilated_px += dilated.sum()
+    assert cores_px > 100
+    assert found_px >= 0.95 * cores_px, (found_px, cores_px)
+    assert s_px <= 3 * dilated_px, (s_px, dilated_px)

@@ -50,6 +50,7 @@ import jax
 import numpy as np
 import optimistix as optx
 
+from .._determined import flag_model
 from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
@@ -214,7 +215,7 @@ def _result(heldout, final, field, pixel_directions, todo, status, boundary, vie
         "boundary": boundary,
         "view": view.astype(np.float32),
     }
-    return fit
+    return flag_model(fit)  # the field's BRDF: a lobe the data show, a roughness in range
 
 
 def _warn_unless_better(result: Estimate, albedo: str) -> None:

@@ -15,6 +15,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._determined import flag_model
 from .._errors import CtjaxError
 from .._json import falloff_json
 from .._result import Estimate
@@ -172,7 +173,7 @@ def calibrate_near_light(
     fit.seconds = {"total": time.perf_counter() - started}
     if not fit.converged:
         fit.warnings.append(f"the solver did not converge: {fit.status.message}")
-    return fit
+    return flag_model(fit)
 
 
 def _at_the_lens(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
@@ -310,17 +311,24 @@ def near_light_map(
     result.seconds = {"total": time.perf_counter() - started}
     if not result.converged:
         result.warnings.append(f"the solver did not converge: {result.status.message}")
-    return result
+    # Without an offset the estimate is the light at the lens with a bound, which an
+    # offset's standard error that could not be computed leaves infinite.
+    return flag_model(result, None if detected else {"offset_mm": reported})
 
 
 def _no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
     """The light at the lens as the estimate: the bound on an offset, and the warning."""
     bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
     result.details["offset_bound_mm"] = bound
+    errors = f"{lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} levels held-out"
+    if offset_fit.heldout_rmse >= (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse:
+        why = f"the light at the lens explains the held-out frames about as well ({errors})"
+    elif not np.all(np.isfinite(stderr)):
+        why = f"the offset's standard errors could not be computed (at the lens {errors})"
+    else:
+        why = f"the fitted offset is within 2 standard errors of 0 (at the lens {errors})"
     result.warnings.append(
-        f"no light offset detected: the light at the lens explains the held-out frames "
-        f"at least as well ({lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} "
-        "levels); "
+        f"no light offset detected: {why}; "
         f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
         f"{unit}: an offset below {bound:.2g} {unit} cannot be told from none"
     )

@@ -8,6 +8,9 @@ from ._candidates import candidate as candidate
 from ._candidates import discover_candidates as discover_candidates
 from ._diagnose import Diagnosis as Diagnosis
 from ._diagnose import diagnose as diagnose
+from ._loop import DiagnosisLoop as DiagnosisLoop
+from ._loop import diagnose_loop as diagnose_loop
+from ._loop import plot_loop as plot_loop
 from ._plots import diagnosis_plots as diagnosis_plots
 from ._variables import VARIABLES as VARIABLES
 from ._variables import binned as binned

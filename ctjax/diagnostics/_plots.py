@@ -56,7 +56,13 @@ def diagnosis_plots(capture: Capture, diagnosis, out: Path) -> list[Path]:
         models[f"+ {diagnosis.verdict}"] = diagnosis.best_model
     index = diagnosis.heldout_frames[0]
     return [
-        plot_residual_maps(capture, index, models, out / "residual_maps.png"),
+        plot_residual_maps(
+            capture,
+            index,
+            models,
+            out / "residual_maps.png",
+            albedo=diagnosis.base.details.get("albedo", "uniform"),
+        ),
         plot_binned_residuals(
             capture, diagnosis.heldout_frames, models, out / "binned_residuals.png"
         ),

@@ -3,3 +3,4 @@
 from ._ambient import Ambient as Ambient
 from ._effect import AbstractImageEffect as AbstractImageEffect
 from ._gamma import CameraGamma as CameraGamma
+from ._srgb import SRGBResponse as SRGBResponse

@@ -5,6 +5,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from .._determined import flag
 from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
@@ -298,10 +299,46 @@ def fit_uniform(
             f"the ring ({ring_count} pixels) is too thin to determine: {'; '.join(poorly)} "
             "(relative standard error above 5%); widen it with --ring-px"
         )
-    return Estimate(
+    estimate = Estimate(
         ShadingModel(fit.brdf, ColocatedLight()),
         {"calibration": float(fit.rgb_rmse)},
         warnings=warnings,
         details=details,
         cost=float(fit.cost),
     )
+    return flag_brdf_fit(estimate, fit, lambertian=lambertian)
+
+
+def flag_brdf_fit(
+    estimate: Estimate,
+    fit: BRDFFit,
+    per_point: int | None = None,
+    lambertian: BRDFFit | None = None,
+    halves: dict[str, BRDFFit] | None = None,
+) -> Estimate:
+    """`estimate` flagged with what `fit` (the BnB's) does not determine
+    (`ctjax._determined`): a lobe weight that cannot be told from 0, a roughness at the end
+    of the family's box, a standard error that could not be computed. `per_point`: the
+    weight estimated per surface point (the albedo map's), whose errors are not checked;
+    `lambertian`: the same data's fit without the lobes, against which their gain counts;
+    `halves`: the same fit on two halves of the frames ({"even_frames": fit, ...}), which a
+    determined lobe's roughness must agree between."""
+    family = fit.family
+    weights, weights_stderr = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
+    params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
+    values = {name: weights[k] for k, name in enumerate(family.weight_names)}
+    values |= {name: float(params[d]) for d, name in enumerate(family.names)}
+    stderrs = {
+        name: weights_stderr[k] for k, name in enumerate(family.weight_names) if k != per_point
+    }
+    stderrs |= {name: float(params_stderr[d]) for d, name in enumerate(family.names)}
+    ranges = {name: (family.lo[d], family.hi[d]) for d, name in enumerate(family.names)}
+    gain = None
+    if lambertian is not None and float(lambertian.rgb_rmse) > 0:
+        gain = 1 - float(fit.rgb_rmse) / float(lambertian.rgb_rmse)
+    split = {
+        name: tuple(float(np.asarray(h.params)[d]) for h in (halves or {}).values())
+        for d, name in enumerate(family.names)
+        if halves
+    }
+    return flag(estimate, stderrs, ranges, values, gain, split)

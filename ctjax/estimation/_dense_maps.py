@@ -45,7 +45,9 @@ def _frame_columns(brdf, light, camera, normals, depth):
     return render_columns(brdf, light, camera, normals, depth).astype(jnp.float32)
 
 
-def _albedo_of(capture, data, shading, weights, per_point, pieces, count, among, tolerance):
+def _albedo_of(
+    capture, data, shading, weights, per_point, pieces, count, among, tolerance, effects=()
+):
     """Albedo (N, 3; NaN where not estimated) and view count (N,) of the pixels of
     `pieces`, [(frame index, rows, cols)], from all the frames that see them (see
     `albedo_maps`), and each pixel's residual in its own frame (N, 3) under the albedo of
@@ -53,7 +55,9 @@ def _albedo_of(capture, data, shading, weights, per_point, pieces, count, among,
     `shading(f)` is frame f's `_frame_columns`: a point's model in another view is their
     bilinear sample, as its value is the image's. Each frame is sighted once for every
     piece that looks for its points there (a summary's few thousand pixels per frame were
-    mostly NumPy's per-call overhead when sighted frame by frame)."""
+    mostly NumPy's per-call overhead when sighted frame by frame). `effects`: image effects
+    after the lobes (a camera response...): undone on the measured values (their `inverse`),
+    and the own residual is the image's (the effects applied to the prediction)."""
     camera = capture.camera
     bounds = np.cumsum([0, *(len(rows) for _, rows, _ in pieces)])
     n = int(bounds[-1])
@@ -72,7 +76,7 @@ def _albedo_of(capture, data, shading, weights, per_point, pieces, count, among,
         a, rest = columns[:, per_point], columns[:, global_] @ weights[global_]
         # Per channel: a channel clipped in this view says nothing of that channel's albedo.
         weight = obs.weight[:, None] * obs.channel_seen
-        contribution = a[:, None] * (obs.values - rest) * weight
+        contribution = a[:, None] * (_undone(effects, obs.values) - rest) * weight
         numerator[where] += contribution
         denominator[where] += (a * a)[:, None] * weight
         cosine[where] += a * a * seen
@@ -109,7 +113,8 @@ def _albedo_of(capture, data, shading, weights, per_point, pieces, count, among,
         others = denominator - (a * a)[:, None] * weight
         enough_others = enough & (others > 1e-3 * denominator)
         albedo_others = np.maximum((numerator - own_numerator) / others, 0)
-        residual = values - rest - a[:, None] * albedo_others
+        predicted = rest + a[:, None] * albedo_others
+        residual = values - _applied(effects, np.nan_to_num(predicted))
         residual = np.where(enough_others & (weight > 0), residual, np.nan)
     return albedo, seen_count, residual
 
@@ -175,8 +180,32 @@ def albedo_samples(
     ]
 
 
+def _undone(effects, values: np.ndarray) -> np.ndarray:
+    """Measured values (N, 3) with the image effects undone, last first."""
+    for effect in reversed(tuple(effects)):
+        values = np.asarray(effect.inverse(jnp.asarray(values)))
+    return values
+
+
+def _applied(effects, values: np.ndarray) -> np.ndarray:
+    """Linear values (N, 3) with the image effects applied, in order."""
+    for effect in effects:
+        values = np.asarray(effect(jnp.asarray(values)))
+    return values
+
+
 def _frames_of(
-    capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among=None, stride=1
+    capture,
+    brdf,
+    light,
+    frames,
+    per_point,
+    neighbours,
+    tolerance,
+    dtype,
+    among=None,
+    stride=1,
+    effects=(),
 ):
     """For each frame of `frames` (all when None): its pixels with geometry (rows, cols;
     on every `stride`-th row and column) and their albedo, view count and own residual
@@ -224,7 +253,9 @@ def _frames_of(
 
     waiting = list(pixels)  # frames not yielded yet, in order
     for batch in _batched(pieces, chunk):
-        out = _albedo_of(capture, data, shading, weights, per_point, batch, count, among, tolerance)
+        out = _albedo_of(
+            capture, data, shading, weights, per_point, batch, count, among, tolerance, effects
+        )
         bounds = np.cumsum([0, *(len(rows) for _, rows, _ in batch)])
         for (index, _, _), lo, hi in zip(batch, bounds[:-1], bounds[1:], strict=True):
             parts[index].append(tuple(x[lo:hi] for x in out))
@@ -257,16 +288,19 @@ def map_residuals(
     per_point: int = 0,
     neighbours: int | None = DEFAULT_NEIGHBOURS,
     dtype=None,
+    effects=(),
 ):
-    """Residual images (H, W, 3; linear units, NaN where not usable) of `frames` (all by
-    default) under the albedo map, each pixel against the albedo fitted to the OTHER frames
-    that see it (`albedo_maps` without its own view): its own noise is then not partly
-    fitted away (which made the noise floor 14% low), and the other views' noise, averaged
-    and interpolated, adds little. NaN where no other view counts."""
+    """Residual images (measured - model; H, W, 3; linear units, NaN where not usable) of
+    `frames` (all by default) under the albedo map, each pixel against the albedo fitted to
+    the OTHER frames that see it (`albedo_maps` without its own view): its own noise is then
+    not partly fitted away (which made the noise floor 14% low), and the other views' noise,
+    averaged and interpolated, adds little. NaN where no other view counts. `effects`: the
+    model's image effects (undone on the measurements for the albedo, applied to the
+    prediction)."""
     camera = capture.camera
     out = []
     for _, rows, cols, _, _, residual in _frames_of(
-        capture, brdf, light, frames, per_point, neighbours, None, dtype
+        capture, brdf, light, frames, per_point, neighbours, None, dtype, effects=effects
     ):
         image = np.full((camera.height, camera.width, 3), np.nan)
         image[rows, cols] = residual

@@ -28,6 +28,7 @@ from ._capture_fit import (
     _WELL_DETERMINED,
     MaskOptions,
     _require_geometry,
+    flag_brdf_fit,
     require_specular,
     thin_frames,
 )
@@ -196,6 +197,30 @@ def _warnings(capture, fit, per_point: int, points: int, coverage, sensitivity) 
     return warnings
 
 
+# The frames are split in two (even and odd) to check the lobe's stability when there are
+# at least this many: two per half.
+MIN_FRAMES_FOR_HALVES = 4
+
+
+def _halves(tracks, family: BRDFFamily, tolerance: float, frames: int) -> dict:
+    """The same fit on the observations of the even and of the odd frames alone (the same
+    tracks, the other half's observations weighted 0: the same compiled program). A lobe
+    the data determine comes out of both alike; on real video the two halves of one
+    segment gave sigma 0.28 and 0.82 while each fit's own standard error was small."""
+    if frames < MIN_FRAMES_FOR_HALVES or not family.names:
+        return {}
+    out = {}
+    for parity, part in ((0, "even_frames"), (1, "odd_frames")):
+        keep = (tracks.frame >= 0) & (tracks.frame % 2 == parity)
+        half = dataclasses.replace(
+            tracks, weight=np.where(keep, tracks.weight, 0.0), observed=tracks.observed & keep
+        )
+        out[part] = fit_brdf_map(
+            track_shading(half.padded(bucket(len(half)))), family, tolerance=tolerance
+        )
+    return out
+
+
 def fit_albedo_map(
     capture,
     masks: MaskOptions | None = None,
@@ -235,6 +260,7 @@ def fit_albedo_map(
     # SfM's (the demo's capture) sigma went from +4.1% to +5.8% without them.
     fit = fit_brdf_map(shading, family, tolerance=tolerance)
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
+    halves = _halves(tracks, family, tolerance, len(capture))
     for result in (fit, lambertian):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
@@ -277,7 +303,7 @@ def fit_albedo_map(
     }
     warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
     arrays = _AlbedoMaps(capture, fit.brdf, per_point, neighbours)
-    return Estimate(
+    estimate = Estimate(
         ShadingModel(brdf, ColocatedLight()),
         {"calibration": float(fit.rgb_rmse)},
         warnings=warnings,
@@ -285,3 +311,8 @@ def fit_albedo_map(
         arrays=arrays,
         cost=float(fit.cost),
     )
+    if halves:
+        estimate.details["halves"] = {
+            part: _map_fit_json(half, per_point) for part, half in halves.items()
+        }
+    return flag_brdf_fit(estimate, fit, per_point, lambertian, halves)

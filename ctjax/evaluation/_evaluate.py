@@ -19,6 +19,7 @@ from .._errors import CtjaxError
 from .._json import named_parameters
 from .._result import Estimate
 from .._status import Status
+from .._units import METRIC, label, length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
     ShadingModel,
@@ -28,9 +29,10 @@ from ..fitting import (
     pixel_predict,
     rmse_levels,
 )
+from ..fitting._parameters import free_parameters
 from ..heldout import HeldOutTracks, split_frames
 from ..io import Capture
-from ..lights import ColocatedLight
+from ..lights import AbstractLight, ColocatedLight
 from ..lobes import BRDF, Lambertian
 from ..observations import Observations
 from ._pyramid import block_reduce, reduced
@@ -93,6 +95,9 @@ class Evaluation:
     timings: dict
     notes: list[str]
     albedo: str = "uniform"
+    # Lambertian under Cook-Torrance's fitted light (held): the two differ by the lobe alone.
+    lambertian_same_light: Estimate | None = None
+    length_unit: str = METRIC
 
     @property
     def light(self) -> str:
@@ -112,6 +117,26 @@ class Evaluation:
                 errors.append(np.abs(estimate.depth - shape.reference)[selected])
         return np.concatenate(errors) if errors else np.zeros(0)
 
+    def gain(self) -> dict:
+        """Cook-Torrance's gain over the paper's Lambertian on the test frames, split into its
+        light's (Lambertian at the camera -> Lambertian under Cook-Torrance's light) and its
+        lobe's (-> Cook-Torrance), in levels."""
+        test = {
+            name: getattr(self, name).rmse["test"]
+            for name in ("lambertian", "lambertian_same_light", "cook_torrance")
+            if getattr(self, name) is not None
+        }
+        out = {"total_levels": test["lambertian"] - test["cook_torrance"]}
+        if "lambertian_same_light" in test:
+            out["light_levels"] = test["lambertian"] - test["lambertian_same_light"]
+            out["lobe_levels"] = test["lambertian_same_light"] - test["cook_torrance"]
+        out["note"] = (
+            "test-frame RGB RMSE: Lambertian (light at the camera) minus Cook-Torrance; "
+            "light_levels: what Cook-Torrance's light (offset, falloff) brings to the Lambertian "
+            "model alone; lobe_levels: what the specular lobe brings under that same light"
+        )
+        return out
+
     def to_json(self) -> dict:
         out = {
             "light": self.light,
@@ -119,10 +144,13 @@ class Evaluation:
             "calibration_frames": self.calibration_frames,
             "test_frames": self.test_frames,
         }
-        for model in ("lambertian", "cook_torrance"):
+        for model in ("lambertian", "lambertian_same_light", "cook_torrance"):
+            if getattr(self, model) is None:
+                continue
             rmse = getattr(self, model).rmse
             out[f"{model}_rgb_rmse_calibration"] = rmse["calibration"]
             out[f"{model}_rgb_rmse_test"] = rmse["test"]
+        out["gain"] = self.gain()
         for model in ("lambertian", "cook_torrance", "per_pixel"):
             if model == "per_pixel" and not any(s.per_pixel for s in self.shapes):
                 continue
@@ -141,7 +169,8 @@ class Evaluation:
         )
         out["units"] = (
             f"rgb_rmse: {rgb}; sfs_error: mean "
-            "(or median) |depth - reference depth|, mm, test frames, after scaling each SfS "
+            f"(or median) |depth - reference depth|, {label(self.length_unit)}, test frames, "
+            "after scaling each SfS "
             "surface to the reference's bounding-box volume. SfS: lambertian = Tsai-Shah; "
             "cook_torrance = Tsai-Shah's formulation with the Cook-Torrance reflectance map "
             "(joint, coarse to fine); cook_torrance_per_pixel = the paper's refinement of "
@@ -149,6 +178,11 @@ class Evaluation:
         )
         out["models"] = {
             "lambertian": named_parameters(self.lambertian.model.brdf),
+            **(
+                {}
+                if self.lambertian_same_light is None
+                else {"lambertian_same_light": named_parameters(self.lambertian_same_light.model)}
+            ),
             "cook_torrance": {
                 **named_parameters(self.cook_torrance.model.brdf),
                 "light": type(self.cook_torrance.model.light).__name__,
@@ -174,16 +208,22 @@ def fit_lambertian(
     max_samples: int = 40_000,
     *,
     tracks: HeldOutTracks | None = None,
+    light: AbstractLight | None = None,
 ) -> Estimate:
     """The Lambertian model (rho_tilde, light at the camera) fitted to every usable pixel of
     `frames`: linear, so the closed form is the least-squares solution. With `tracks` (an
     albedo map), one albedo per tracked surface point of `tracks.train`, eliminated in
-    closed form as for Cook-Torrance: the model's `rho_tilde` is their median."""
-    start = ShadingModel(BRDF(Lambertian(1.0)), ColocatedLight())
+    closed form as for Cook-Torrance: the model's `rho_tilde` is their median. `light`:
+    another light, held as it is (e.g. Cook-Torrance's fitted one: its offset and
+    falloff), so that the two models differ by the lobe alone."""
+    start = ShadingModel(BRDF(Lambertian(1.0)), ColocatedLight() if light is None else light)
+    held = [p.name for p in free_parameters(start) if p.name.startswith("light")]
     if tracks is not None:
-        return fit_model_map(start, tracks.train)
+        return fit_model_map(start, tracks.train, freeze=held)
     samples = Observations.of(capture).pixels(frames, max_samples=max_samples)
-    return fit_model(start, samples, pixel_predict, columns=pixel_columns, max_steps=20)
+    return fit_model(
+        start, samples, pixel_predict, columns=pixel_columns, max_steps=20, freeze=held
+    )
 
 
 def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None) -> Estimate:
@@ -331,7 +371,15 @@ def evaluate(
     fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo)
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
+    same_light = None
+    if not isinstance(fitted.model.light, ColocatedLight) or fitted.model.light.falloff:
+        progress("fitting the Lambertian model under Cook-Torrance's light (held)...")
+        same_light = fit_lambertian(capture, calib, tracks=tracks, light=fitted.model.light)
+    timings["lambertian_same_light_fit"] = time.perf_counter() - tic
+    tic = time.perf_counter()
     lambertian, fitted = (_judged(capture, e, calib, test, tracks) for e in (lambertian, fitted))
+    if same_light is not None:
+        same_light = _judged(capture, same_light, calib, test, tracks)
     timings["rgb_error"] = time.perf_counter() - tic
     shapes = []
     if sfs:
@@ -359,7 +407,10 @@ def evaluate(
             "shape from shading uses one albedo per model (the median of the surface "
             "points' albedos): one image cannot tell texture from shading"
         )
-    return Evaluation(calib, test, lambertian, fitted, shapes, timings, notes, albedo)
+    unit = length_unit_of(capture)
+    return Evaluation(
+        calib, test, lambertian, fitted, shapes, timings, notes, albedo, same_light, unit
+    )
 
 
 def _judged(capture: Observations, fit: Estimate, calib, test, tracks) -> Estimate:

@@ -94,9 +94,18 @@ def plot_shapes(shape, path: Path) -> Path:
 
 
 def plot_rgb_residuals(capture: Capture, evaluation, path: Path) -> Path:
-    """RGB residual maps of both models on the first test frame (diagnostics' figure)."""
+    """RGB residual maps of both models on the first test frame (diagnostics' figure), and
+    of the Lambertian model under Cook-Torrance's light where it was fitted; under the
+    albedo map when the errors beside them are the map's."""
     models = {_LABELS[m]: getattr(evaluation, m).model for m in ("lambertian", "cook_torrance")}
-    return plot_residual_maps(capture, evaluation.test_frames[0], models, path)
+    if evaluation.lambertian_same_light is not None:
+        models = {
+            _LABELS["lambertian"]: evaluation.lambertian.model,
+            "Lambertian, same light": evaluation.lambertian_same_light.model,
+            _LABELS["cook_torrance"]: evaluation.cook_torrance.model,
+        }
+    index = evaluation.test_frames[0]
+    return plot_residual_maps(capture, index, models, path, albedo=evaluation.albedo)
 
 
 def evaluation_plots(capture: Capture, evaluation, out: Path) -> dict[str, Path]:

@@ -1,14 +1,18 @@
 """The capture format: the one input of every ctjax command.
 
     CAPTURE/
-      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1 p2 k3)
-      images/NAME.png      8- or 16-bit RGB, read as linear intensity in [0, 1]
+      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1 p2 k3,
+                           "encoding": "srgb" or "linear")
+      images/NAME.png      8- or 16-bit RGB, decoded to linear intensity in [0, 1]
       depth/NAME.npy       optional, float32 (H, W) camera-frame z in mm, NaN where unknown
       normals/NAME.npy     optional, float32 (H, W, 3) unit normals, camera frame, facing the camera
       poses.json           optional, {"NAME": 4x4 camera-to-world}
       truth.json           optional, ground truth of synthetic captures
 
 Frames are the images, sorted by name; depth, normals and poses are matched by NAME.
+Images are decoded with their encoding (`ctjax.io._encoding`): camera.json's `"encoding"`,
+or, where it does not say, sRGB for 8-bit images (with a note in `Capture.notes`) and linear
+for 16-bit ones.
 """
 
 import dataclasses
@@ -25,8 +29,9 @@ from .._errors import CaptureError
 from .._geometry import normals_from_depth
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
+from ._encoding import LINEAR, SRGB, declared_encoding, decode, default_encoding, encode
 from ._field_of_view import visible_masks
-from ._images import IMAGE_SUFFIXES, read_rgb, write_rgb
+from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
 
 # Normals further than this from unit length are rejected (float32 files are ~1e-7 off).
 _UNIT_TOLERANCE = 1e-3
@@ -37,7 +42,7 @@ class Frame:
     """One image of a capture and its optional geometry (NumPy arrays, camera frame)."""
 
     name: str
-    image: np.ndarray  # float32 (H, W, 3), linear, [0, 1]
+    image: np.ndarray  # float32 (H, W, 3), linear (decoded), [0, 1]
     depth: np.ndarray | None = None  # float32 (H, W), mm, NaN where unknown
     normals: np.ndarray | None = None  # float32 (H, W, 3), unit, facing the camera
     pose: np.ndarray | None = None  # float64 (4, 4), camera-to-world
@@ -88,6 +93,10 @@ class Capture:
     # Of depth, poses and every length derived from them: "mm", or "median_depth" where the
     # shape was reconstructed without a known size (`ctjax._units`).
     length_unit: str = METRIC
+    # How the image files encode light ("srgb" or "linear"); `Frame.image` is decoded.
+    encoding: str = LINEAR
+    # What the user should know about how the capture was read (one sentence each).
+    notes: tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -141,6 +150,16 @@ def read_camera(path: Path) -> Camera:
         values["cy"],
         distortion=None if distortion is None else np.asarray(distortion, np.float64),
     )
+
+
+def read_encoding(path: Path) -> str | None:
+    """`camera.json`'s `"encoding"` ("srgb" or "linear"), or None where it does not say."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return None  # `read_camera` names the problem
+    return declared_encoding(data, str(path)) if isinstance(data, dict) else None
 
 
 def _load_npy(path: Path, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -243,10 +262,18 @@ def load_capture(
         raise CaptureError(f"{image_dir}: no images ({', '.join(IMAGE_SUFFIXES)}) in the capture")
     poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
     size = (camera.height, camera.width)
-    frames = []
+    declared = read_encoding(root / "camera.json")
+    encodings, frames = set(), []
     for image_path in image_paths:
         name = image_path.stem
-        image = read_rgb(image_path)
+        raw = read_recorded(image_path)
+        encodings.add(declared or default_encoding(8 if raw.dtype == np.uint8 else 16))
+        if len(encodings) > 1:
+            raise CaptureError(
+                f"{image_dir}: 8- and 16-bit images mixed and camera.json does not say how they "
+                'are encoded: add "encoding": "srgb" or "linear" to it'
+            )
+        image = decode(raw, next(iter(encodings)))
         if image.shape[:2] != size:
             raise CaptureError(
                 f"{image_path}: image is {image.shape[1]}x{image.shape[0]}, camera.json says "
@@ -288,12 +315,20 @@ def load_capture(
             raise CaptureError(
                 f"{root / 'reconstruction.json'}: not a reconstruction report"
             ) from None
+    encoding = encodings.pop()
+    notes = ()
+    if declared is None and encoding == SRGB:
+        notes = (
+            f"{root / 'camera.json'} does not say how its images are encoded: 8-bit frames are "
+            'decoded as sRGB (as video and JPEG frames are); add "encoding": "linear" to it if '
+            'they are linear, or "encoding": "srgb" to silence this note',
+        )
     if undistort and camera.distortion is not None:
         frames = [_undistort(camera, frame) for frame in frames]
         camera = camera.without_distortion()
     if field_of_view:
-        frames = _with_field_of_view(frames)
-    return Capture(root, camera, tuple(frames), truth, unit)
+        frames = _with_field_of_view(frames, encoding)
+    return Capture(root, camera, tuple(frames), truth, unit, encoding, notes)
 
 
 # Frames whose images differ by at most this much (recorded units) everywhere are the same
@@ -322,9 +357,10 @@ def _refuse_duplicates(root: Path, frames: list[Frame]) -> None:
         )
 
 
-def _with_field_of_view(frames: list[Frame]) -> list[Frame]:
-    """`frames` with their `field_of_view` (None where every pixel is of the scene)."""
-    masks = visible_masks([frame.image for frame in frames])
+def _with_field_of_view(frames: list[Frame], encoding: str) -> list[Frame]:
+    """`frames` with their `field_of_view` (None where every pixel is of the scene), found
+    on the recorded values (the border's and overlays' levels are of the video's)."""
+    masks = visible_masks([encode(frame.image, encoding) for frame in frames])
     return [
         frame if mask.all() else dataclasses.replace(frame, field_of_view=mask)
         for frame, mask in zip(frames, masks, strict=True)
@@ -338,17 +374,20 @@ def write_capture(
     truth: dict | None = None,
     *,
     bits: int = 8,
+    encoding: str = LINEAR,
 ) -> Path:
     """Write frames in the capture format (atomically, file by file). Returns the folder.
 
-    Images are float RGB in [0, 1], clipped and quantised to `bits` (8 or 16).
+    Images are linear float RGB in [0, 1], clipped, encoded with `encoding` ("linear" or
+    "srgb", recorded in camera.json) and quantised to `bits` (8 or 16).
     """
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(root / "camera.json", camera.to_json())
+    atomic_write_json(root / "camera.json", {**camera.to_json(), "encoding": encoding})
     poses = {}
     for frame in frames:
-        write_rgb(root / "images" / f"{frame.name}.png", frame.image, bits=bits)
+        path = root / "images" / f"{frame.name}.png"
+        write_rgb(path, frame.image, bits=bits, encoding=encoding)
         if frame.depth is not None:
             atomic_write_npy(root / "depth" / f"{frame.name}.npy", frame.depth.astype(np.float32))
         if frame.normals is not None:

@@ -17,7 +17,8 @@ Frames are chosen in two passes over the video, so that only small thumbnails ar
 
 The second pass decodes the video again and writes the kept frames as
 `CAPTURE/images/frame_NNNNNN.png` (the video's frame number, zero-padded: names sort in
-time) with `camera.json` copied beside them.
+time) with `camera.json` copied beside them, marked `"encoding": "srgb"` (unless the
+endoscope's camera.json says otherwise: video frames are encoded).
 """
 
 import dataclasses
@@ -30,7 +31,8 @@ import numpy as np
 
 from .._errors import CaptureError, ParameterError
 from ._atomic import atomic_write_json
-from ._capture import read_camera
+from ._capture import read_camera, read_encoding
+from ._encoding import SRGB
 from ._field_of_view import field_of_view
 from ._images import write_quantised_rgb
 
@@ -48,6 +50,7 @@ class ImportOptions:
     max_frames: int | None = None
     distinct: float = 0.03  # a new view: thumbnails differ by this, relative
     blur_ratio: float = 0.5  # blurred: sharpness below this times its neighbours' median
+    width: int | None = None  # write the frames this wide (area-averaged), K scaled
 
     def __post_init__(self):
         if int(self.every) != self.every or self.every < 1:
@@ -64,6 +67,8 @@ class ImportOptions:
             raise ParameterError(f"--max-frames must be an integer >= 2, got {self.max_frames}")
         if not 0 < self.distinct < 1 or not 0 <= self.blur_ratio < 1:
             raise ParameterError("distinct must be in (0, 1) and blur_ratio in [0, 1)")
+        if self.width is not None and (int(self.width) != self.width or self.width < 16):
+            raise ParameterError(f"--width must be an integer >= 16, got {self.width}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,6 +181,25 @@ def select_frames(scan: _Scan, options: ImportOptions) -> tuple[list[int], dict]
     return kept, counts
 
 
+def _scaled(camera, width: int | None):
+    """`camera` for frames `width` px wide (pixel centres kept: c' = (c + 0.5) s - 0.5),
+    and the new (width, height); None where the frames keep their size."""
+    if width is None or width == camera.width:
+        return camera, None
+    scale = width / camera.width
+    height = max(1, round(camera.height * scale))
+    scaled = type(camera)(
+        width,
+        height,
+        float(camera.fx) * scale,
+        float(camera.fy) * scale,
+        (float(camera.cx) + 0.5) * scale - 0.5,
+        (float(camera.cy) + 0.5) * scale - 0.5,
+        distortion=camera.distortion,  # radial and tangential terms are in normalised units
+    )
+    return scaled, (width, height)
+
+
 def import_video(
     video: str | Path,
     camera: str | Path,
@@ -212,16 +236,24 @@ def import_video(
     wanted = {int(scan.indices[i]) for i in kept}
     digits = max(6, len(str(max(wanted))))
     names = []
+    intrinsics, size = _scaled(intrinsics, options.width)
     for index, image in _frames(video, options, scan.fps):
         if index not in wanted:
             continue
         name = f"frame_{index:0{digits}d}"
+        if size is not None:
+            # Averaging the recorded (encoded) values over each new pixel's area: the
+            # error against averaging light is a fraction of a level on tissue.
+            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
         write_quantised_rgb(images / f"{name}.png", image[..., ::-1])
         names.append(name)
         progress(f"wrote {len(names)}/{len(wanted)} frames")
         if len(names) == len(wanted):
             break
-    atomic_write_json(out / "camera.json", intrinsics.to_json())
+    # Video frames are sRGB-encoded (every camera pipeline encodes before compression),
+    # unless the endoscope's camera.json says otherwise.
+    encoding = read_encoding(camera_path) or SRGB
+    atomic_write_json(out / "camera.json", {**intrinsics.to_json(), "encoding": encoding})
     return {
         "video": str(video),
         "out": str(out),

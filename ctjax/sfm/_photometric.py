@@ -99,13 +99,16 @@ class Refinement:
     """A refined surface and what the refinement did: the texture residuals' mean Cauchy
     loss before and after (its scale: 3 robust standard deviations of the residuals of
     the surface fitted to the points, in which 1.0 is 1.7 such scales), the median
-    |depth change| over the refined pixels (the surface's length unit) and the pixels used."""
+    |depth change| over the refined pixels (the surface's length unit) and the pixels used.
+    `kept`: the refined surface lowered the loss and replaces the SfM one; else `surface`
+    is the unrefined one (`residual_after` is then the lowest loss an iterate reached)."""
 
     surface: DepthSurface
     residual_before: float
     residual_after: float
     depth_change: float
     pixels: int
+    kept: bool = True
 
 
 def _rays(camera: Camera, u, v) -> np.ndarray:
@@ -185,6 +188,9 @@ def refine_surface(
     anchors = _point_equations(surface)
     start = surface.coefficients.ravel()
     coefficients, scale, before, after = start.copy(), None, math.nan, math.nan
+    # The iterate of lowest loss is kept (Gauss-Newton on a robust loss may overshoot):
+    # the start, unless a step lowered the loss.
+    best, best_cost = start, math.inf
     for iteration in range(iterations + 1):
         depth = design @ coefficients
         points = depth[:, None] * rays
@@ -197,6 +203,8 @@ def refine_surface(
             break
         cost = _cauchy_cost(residual, counts, scale)
         before = cost if iteration == 0 else before
+        if cost < best_cost:
+            best, best_cost = coefficients, cost
         after = cost
         if iteration == iterations:
             break
@@ -204,12 +212,15 @@ def refine_surface(
         hessian = np.sum(weight * slope * slope, axis=(0, 2))
         gradient = np.sum(weight * slope * residual, axis=(0, 2))
         coefficients = _gauss_newton_step(design, penalty, hessian, gradient, coefficients, anchors)
+    kept = math.isfinite(best_cost) and best_cost < before
+    coefficients = best if kept else start
+    after = best_cost if math.isfinite(best_cost) else after
     refined = dataclasses.replace(
         surface, coefficients=coefficients.reshape(surface.coefficients.shape)
     )
     change = np.abs(design @ coefficients - design @ start)
     return Refinement(
-        refined, before, after, float(np.median(change)) if change.size else 0.0, u.size
+        refined, before, after, float(np.median(change)) if change.size else 0.0, u.size, kept
     )
 
 
@@ -259,9 +270,12 @@ def refine_views(camera: Camera, views: dict, frames, say=lambda message: None) 
         result = refine_surface(
             view.surface, view.hull, camera, (np.eye(4), textures[name]), partners
         )
+        losses = f"texture loss {result.residual_before:.4f} -> {result.residual_after:.4f}"
         say(
-            f"surface of {name} refined by its texture in {len(others)} other frame(s): "
-            f"texture loss {result.residual_before:.4f} -> {result.residual_after:.4f}"
+            f"surface of {name} refined by its texture in {len(others)} other frame(s): {losses}"
+            if result.kept
+            else f"surface of {name} kept as SfM gave it: its texture in {len(others)} other "
+            f"frame(s) did not lower the loss ({result.residual_before:.4f} at the start)"
         )
         refined[name] = dataclasses.replace(view, surface=result.surface)
         details[name] = result

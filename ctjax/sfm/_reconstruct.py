@@ -189,6 +189,9 @@ def _photometric_report(refinements) -> dict:
             n: {"before": number(r.residual_before), "after": number(r.residual_after)}
             for n, r in refinements.items()
         },
+        # A frame's surface is replaced only where the refinement lowered its loss.
+        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
+        "kept_frames": sum(r.kept for r in refinements.values()),
         "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
         "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
     }
@@ -296,6 +299,7 @@ def reconstruct(
     poses = {name: view.pose.tolist() for name, view in result.views.items()}
     atomic_write_json(out / "poses.json", poses)
     report = {**result.report, "capture": str(root), "out": str(out)}
+    report |= {"encoding": capture.encoding, "notes": list(capture.notes)}
     if shading:
         report["surface"]["shading"] = _refine_by_shading(out, distorted is not None, progress)
     atomic_write_json(out / "reconstruction.json", report)

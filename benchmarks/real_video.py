@@ -1,0 +1,325 @@
+"""The whole chain on real endoscopic video, one table per sequence.
+
+    .venv/bin/python benchmarks/real_video.py [SOURCE ...] [--frames 12] [--width 640]
+        [--work DIR] [--skip-diagnose] [--skip-evaluate] [--max-rounds 4]
+
+Each SOURCE is a capture folder (images/ and camera.json) or a video (imported with
+`ctjax import`, a guessed pinhole camera: fx = fy = 0.8 width, the principal point at the
+centre, unless a camera.json lies beside it). Without SOURCE: every sequence of
+`../shared/real` (the sinus frames and the cholecystectomy video). Each is reduced to
+`--frames` frames `--width` pixels wide, then run through the README's commands, as a user
+would: `reconstruct` -> `masks` -> `fit` (and `fit` on the even and the odd frames apart:
+is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate` ->
+`diagnose --loop`. It prints, per sequence:
+
+- masks: S's share of the field of view, and the recall of the near-white cores (every
+  channel >= 230 recorded, away from the rim of the field of view) with S's area over
+  those cores dilated by 7x7 pixels (the goal: recall >= 95%, area <= 3x);
+- SfM: registered frames, points, reprojection error, coverage, frames whose texture
+  refinement was kept;
+- fit: sigma, F_tilde, their standard errors and the status, on all, even and odd frames;
+- the near light: falloff, offset (with its unit), status;
+- evaluate: Cook-Torrance against Lambertian on the held-out frames, the gain split into
+  the light's and the lobe's;
+- diagnose --loop: the held-out RMSE step by step against the noise floor.
+
+Slow (minutes per sequence on 2 cores): a benchmark, not a test.
+"""
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from _results import emit
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "real"
+CTJAX = [sys.executable, "-m", "ctjax.cli"]
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".m4v")
+
+
+def _run(argv, log: Path) -> tuple[int, float]:
+    started = time.perf_counter()
+    with open(log, "w") as out:
+        status = subprocess.run(
+            [*CTJAX, *map(str, argv)], stdout=out, stderr=subprocess.STDOUT, cwd=ROOT
+        ).returncode
+    return status, time.perf_counter() - started
+
+
+def _json(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def prepare(source: Path, out: Path, frames: int, width: int) -> Path:
+    """A capture of `frames` frames, `width` px wide, from a capture folder or a video."""
+    capture = out / "capture"
+    if capture.is_dir():
+        shutil.rmtree(capture)
+    if source.suffix.lower() in VIDEO_SUFFIXES:
+        camera = source.with_name("camera.json")
+        if not camera.is_file():
+            video = cv2.VideoCapture(str(source))
+            w, h = video.get(cv2.CAP_PROP_FRAME_WIDTH), video.get(cv2.CAP_PROP_FRAME_HEIGHT)
+            video.release()
+            camera = out / "guessed_camera.json"
+            guess = {"width": int(w), "height": int(h), "fx": 0.8 * w, "fy": 0.8 * w}
+            camera.write_text(json.dumps(guess | {"cx": (w - 1) / 2, "cy": (h - 1) / 2}))
+        argv = ["import", source, "--camera", camera, "--out", capture]
+        status, _ = _run([*argv, "--max-frames", frames, "--width", width], out / "import.log")
+        if status:
+            raise SystemExit(f"{source}: ctjax import failed (see {out / 'import.log'})")
+        return capture
+    names = sorted(
+        p for p in (source / "images").iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")
+    )
+    step = max(1, len(names) // frames)
+    camera = json.loads((source / "camera.json").read_text())
+    scale = width / camera["width"]
+    (capture / "images").mkdir(parents=True)
+    for path in names[::step][:frames]:
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(capture / "images" / f"{path.stem}.png"), image)
+    camera |= {
+        "width": image.shape[1],
+        "height": image.shape[0],
+        "fx": camera["fx"] * scale,
+        "fy": camera["fy"] * scale,
+        "cx": (camera["cx"] + 0.5) * scale - 0.5,
+        "cy": (camera["cy"] + 0.5) * scale - 0.5,
+    }
+    (capture / "camera.json").write_text(json.dumps(camera))
+    return capture
+
+
+def subset(capture: Path, out: Path, parity: int) -> Path:
+    """The even (0) or odd (1) frames of a reconstructed capture, as a capture."""
+    if out.is_dir():
+        shutil.rmtree(out)
+    names = sorted(p.stem for p in (capture / "images").iterdir())[parity::2]
+    for folder in ("images", "depth", "normals"):
+        (out / folder).mkdir(parents=True)
+        for path in (capture / folder).iterdir():
+            if path.stem in names:
+                shutil.copy(path, out / folder / path.name)
+    for name in ("camera.json", "reconstruction.json"):
+        shutil.copy(capture / name, out / name)
+    poses = _json(capture / "poses.json")
+    (out / "poses.json").write_text(json.dumps({k: v for k, v in poses.items() if k in names}))
+    return out
+
+
+def highlight_figures(capture: Path, masks: Path) -> dict:
+    """S's share of the field of view; recall of the near-white cores (every channel >= 230
+    recorded, inside the field of view eroded by 2% of the width) and S's area over the
+    cores dilated by 7x7."""
+    cores = dilated = found = s_area = fov_area = 0
+    erode = np.ones((2 * max(1, round(0.01 * _width(capture))) + 1,) * 2, np.uint8)
+    for path in sorted((masks / "specular").iterdir()):
+        image = cv2.imread(str(next((capture / "images").glob(f"{path.stem}.*"))))
+        specular = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 127
+        fov = cv2.imread(str(masks / "fov" / path.name), cv2.IMREAD_GRAYSCALE) > 127
+        inner = cv2.erode(fov.astype(np.uint8), erode) > 0
+        core = np.all(image >= 230, axis=-1) & inner
+        cores += int(core.sum())
+        found += int((core & specular).sum())
+        dilated += int((cv2.dilate(core.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0).sum())
+        s_area += int(specular.sum())
+        fov_area += int(fov.sum())
+    return {
+        "S_share_of_fov": s_area / max(fov_area, 1),
+        "core_pixels": cores,
+        "core_recall": found / cores if cores else None,
+        "S_over_dilated_cores": s_area / dilated if dilated else None,
+    }
+
+
+def _width(capture: Path) -> int:
+    return json.loads((capture / "camera.json").read_text())["width"]
+
+
+def _lobe(fit: dict) -> dict:
+    keys = ("sigma", "sigma_stderr", "F_tilde", "F_tilde_stderr", "status", "rgb_rmse")
+    out = {k: fit.get(k) for k in keys}
+    out["undetermined"] = [u["parameter"] for u in fit.get("undetermined", [])]
+    out["lambertian_rmse"] = fit.get("lambertian", {}).get("rgb_rmse")
+    return out
+
+
+def run_sequence(source: Path, work: Path, args) -> dict:
+    out = work / source.stem
+    out.mkdir(parents=True, exist_ok=True)
+    seconds = {}
+    capture = prepare(source, out, args.frames, args.width)
+    recon = out / "reconstructed"
+    if recon.is_dir():
+        shutil.rmtree(recon)
+    steps = [
+        ("reconstruct", ["reconstruct", capture, "--out", recon, "--json", out / "recon.json"]),
+        ("masks", ["masks", recon, "--out", out / "masks"]),
+        ("fit", ["fit", recon, "--json", out / "fit.json"]),
+        ("light", ["calibrate-light", recon, "--model", "near", "--json", out / "light.json"]),
+    ]
+    if not args.skip_evaluate:
+        steps.append(("evaluate", ["evaluate", recon, "--json", out / "evaluate.json", "--no-sfs"]))
+    if not args.skip_diagnose:
+        loop = ["--loop", "--max-rounds", args.max_rounds, "--plots", out / "diagnose"]
+        steps.append(("diagnose", ["diagnose", recon, "--json", out / "diagnose.json", *loop]))
+    failed = {}
+    for name, argv in steps:
+        print(f"  {source.stem}: {name}...", flush=True)
+        status, seconds[name] = _run(argv, out / f"{name}.log")
+        if status:
+            failed[name] = f"exit {status} (see {out / f'{name}.log'})"
+            if name == "reconstruct":
+                break
+    for parity, label in ((0, "even"), (1, "odd")):
+        if "reconstruct" in failed:
+            break
+        half = subset(recon, out / f"{label}_frames", parity)
+        status, seconds[f"fit_{label}"] = _run(
+            ["fit", half, "--json", out / f"fit_{label}.json"], out / f"fit_{label}.log"
+        )
+    return _table(source, out, capture, seconds, failed)
+
+
+def _table(source, out, capture, seconds, failed) -> dict:
+    recon = _json(out / "recon.json")
+    photometric = recon.get("surface", {}).get("photometric", {})
+    light, evaluation = _json(out / "light.json"), _json(out / "evaluate.json")
+    diagnosis = _json(out / "diagnose.json")
+    row = {
+        "sequence": str(source),
+        "frames": recon.get("frames"),
+        "size": f"{_width(capture)} px wide",
+        "masks": highlight_figures(capture, out / "masks") if (out / "masks").is_dir() else None,
+        "sfm": {
+            "registered": len(recon.get("registered", [])),
+            "points": recon.get("points"),
+            "reprojection_px": recon.get("mean_reprojection_error_px"),
+            "coverage": recon.get("coverage"),
+            "texture_refinement_kept": photometric.get("kept_frames"),
+            "length_unit": recon.get("length_unit"),
+        },
+        "fit": _lobe(_json(out / "fit.json")),
+        "fit_even": _lobe(_json(out / "fit_even.json")),
+        "fit_odd": _lobe(_json(out / "fit_odd.json")),
+        "near_light": {
+            "falloff": "+".join(light.get("falloff", {})) or "none",
+            "offset": light.get("offset_mm", light.get("offset")),
+            "offset_unit": light.get("length_unit"),
+            "status": light.get("status"),
+            "F_tilde": light.get("F_tilde"),
+            "sigma": light.get("sigma"),
+            "heldout_rmse": light.get("rgb_rmse_heldout"),
+            "noise_floor": light.get("noise_floor"),
+        },
+        "evaluate": {
+            k: evaluation.get(k)
+            for k in (
+                "lambertian_rgb_rmse_test",
+                "lambertian_same_light_rgb_rmse_test",
+                "cook_torrance_rgb_rmse_test",
+                "gain",
+            )
+        },
+        "diagnose": [
+            {k: s[k] for k in ("added_before", "base_rmse", "noise_floor", "verdict", "seconds")}
+            for s in diagnosis.get("loop", {}).get("steps", [])
+        ],
+        "diagnose_stopped": diagnosis.get("loop", {}).get("stopped"),
+        "failed": failed,
+        "seconds": {k: round(v, 1) for k, v in seconds.items()},
+    }
+    _print(row)
+    return row
+
+
+def _fmt(value, digits=3) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, list):
+        return "[" + ", ".join(_fmt(v, digits) for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def _print(row: dict) -> None:
+    print(f"\n== {row['sequence']} ({row['frames']} frames, {row['size']})")
+    m = row["masks"] or {}
+    print(
+        f"masks      S {_fmt(m.get('S_share_of_fov'))} of the field of view; near-white cores "
+        f"{m.get('core_pixels')} px, recall {_fmt(m.get('core_recall'))}, S / dilated cores "
+        f"{_fmt(m.get('S_over_dilated_cores'))} (goal: recall >= 0.95, <= 3)"
+    )
+    s = row["sfm"]
+    print(
+        f"SfM        {s['registered']}/{row['frames']} registered, {s['points']} points, "
+        f"reprojection {_fmt(s['reprojection_px'])} px, coverage {_fmt(s['coverage'])}, "
+        f"texture refinement kept in {s['texture_refinement_kept']} frames, unit "
+        f"{s['length_unit']}"
+    )
+    for key in ("fit", "fit_even", "fit_odd"):
+        f = row[key]
+        print(
+            f"{key:<10} sigma {_fmt(f['sigma'], 4)} +- {_fmt(f['sigma_stderr'], 2)}, F_tilde "
+            f"{_fmt(f['F_tilde'])} +- {_fmt(f['F_tilde_stderr'], 2)}, status {f['status']}; "
+            f"RMSE {_fmt(f['rgb_rmse'])} vs Lambertian {_fmt(f['lambertian_rmse'])} levels"
+        )
+    n = row["near_light"]
+    print(
+        f"near light falloff {n['falloff']}, offset {_fmt(n['offset'])} {n['offset_unit']}, "
+        f"F_tilde {_fmt(n['F_tilde'])}, sigma {_fmt(n['sigma'])}, status {n['status']}; "
+        f"held-out {_fmt(n['heldout_rmse'])} levels, noise floor {_fmt(n['noise_floor'])}"
+    )
+    e = row["evaluate"]
+    gain = e.get("gain") or {}
+    print(
+        f"evaluate   test RMSE Lambertian {_fmt(e['lambertian_rgb_rmse_test'])}, under the same "
+        f"light {_fmt(e['lambertian_same_light_rgb_rmse_test'])}, Cook-Torrance "
+        f"{_fmt(e['cook_torrance_rgb_rmse_test'])} levels (light {_fmt(gain.get('light_levels'))}"
+        f", lobe {_fmt(gain.get('lobe_levels'))})"
+    )
+    for k, step in enumerate(row["diagnose"]):
+        added = " + ".join(["paper", *step["added_before"]])
+        print(
+            f"diagnose {k + 1} {added}: held-out {_fmt(step['base_rmse'])} levels, floor "
+            f"{_fmt(step['noise_floor'])} ({_fmt(step['base_rmse'] / step['noise_floor'])}x), "
+            f"verdict {step['verdict']} ({_fmt(step['seconds'])} s)"
+        )
+    if row["diagnose_stopped"]:
+        print(f"diagnose   stopped: {row['diagnose_stopped']}")
+    for name, why in row["failed"].items():
+        print(f"FAILED     {name}: {why}")
+    print(f"seconds    {row['seconds']}")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("sources", nargs="*", type=Path)
+    parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--work", type=Path, default=Path("/tmp/ctjax-real-video"))
+    parser.add_argument("--max-rounds", type=int, default=4)
+    parser.add_argument("--skip-diagnose", action="store_true")
+    parser.add_argument("--skip-evaluate", action="store_true")
+    args = parser.parse_args(argv)
+    sources = args.sources
+    if not sources:
+        if not SHARED.is_dir():
+            raise SystemExit(f"{SHARED} not found: give capture folders or videos")
+        sources = [SHARED / "jhu-sinus-a", *sorted(SHARED.glob("*/*.mp4"))]
+    for source in sources:
+        emit(run_sequence(source, args.work, args))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,266 @@
+"""Whether the data determine an estimate: the statuses a converged fit can still deserve.
+
+A solver that converged has found the best parameters of its model for the data; that is
+not a measurement of each parameter. On real frames three things happen that a reader of
+`"status": "successful"` would not guess, and each gets its own `Status`:
+
+- `no_lobe`: a specular lobe whose weight F_tilde cannot be told from 0 (its chi-square
+  over the channels within the 95% quantile, or at the nonnegativity bound), or that lowers
+  the RMSE by under 0.5% against the model without it. The data are explained without it,
+  and its roughness sigma, whatever its value, is not determined.
+- `at_bound`: a roughness at the end of its search range: within 2% of either end of the
+  paper's (0, 1], or near or above 1 where a range is opened. At the top, the lobe
+  explains a broad angular trend (a falloff, vignetting, the camera's response, a
+  non-Lambertian diffuse term), not a highlight; at the bottom, a lobe sharper than the
+  data resolve. Its standard error, computed at the bound, means nothing.
+- `unstable`: a roughness that two halves of the frames (even and odd) put more than 20%
+  apart: the fit's own standard error, small as it may be, does not measure that (on real
+  video one segment's halves gave sigma 0.28 and 0.82).
+- `no_standard_error`: a parameter whose standard error could not be computed (the
+  Jacobian is rank-deficient there): the data do not constrain it.
+
+`undetermined(values, stderrs)` lists them from an estimate's named parameters (the
+paper's words: `F_tilde`, `sigma`, `F_tilde_2`...) and their standard errors; `flag`
+writes them into an `Estimate`: its status (when the solve itself succeeded), a warning
+per parameter, and `details["undetermined"]`.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ._status import Status
+
+# The paper's search range of the roughness, (0, 1]; a roughness within EDGE of the range's
+# width from either end is at its bound, and one at or above TREND is no highlight lobe.
+PAPER_ROUGHNESS_RANGE = (0.0, 1.0)
+EDGE = 0.02
+TREND = 1.0 - EDGE
+# A lobe's weights cannot be told from 0 when their joint chi-square, sum (F_c / se_c)^2
+# over the channels, is at most this: the 95% quantile of chi-square with 3 degrees of
+# freedom (each channel within 2 standard errors would pass one channel in 7 by chance).
+CHI2_3_95 = 7.815
+# ... nor when it lowers the RMSE by less than this share against the model without it.
+MIN_LOBE_GAIN = 0.005
+# Roughness parameters by the prefix of their paper name, and the lobe weights beside them.
+ROUGHNESS = ("sigma", "alpha")
+LOBE_WEIGHT = "F_tilde"
+# Two halves of the frames agree on a roughness within this share of their mean.
+HALVES_AGREE = 0.2
+# Where several apply, the status reported is the first of these.
+PRIORITY = (Status.no_lobe, Status.at_bound, Status.unstable, Status.no_standard_error)
+
+
+@dataclasses.dataclass(frozen=True)
+class Undetermined:
+    """One parameter the data do not determine: its name, the status, why (a sentence)."""
+
+    parameter: str
+    status: Status
+    reason: str
+
+    def to_json(self) -> dict:
+        return {"parameter": self.parameter, "status": self.status.name, "reason": self.reason}
+
+
+def _suffix(name: str, prefix: str) -> str | None:
+    """`"_2"` for `F_tilde_2` and prefix `F_tilde`; `""` for the name itself; None else."""
+    if name == prefix:
+        return ""
+    rest = name.removeprefix(prefix)
+    return rest if rest != name and rest.startswith("_") and rest[1:].isdigit() else None
+
+
+def _array(value) -> np.ndarray | None:
+    if value is None:
+        return None
+    array = np.asarray(value, dtype=object)
+    return np.asarray([np.nan if v is None else float(v) for v in array.reshape(-1)], float)
+
+
+def _roughness_name(values: dict, suffix: str) -> str | None:
+    for prefix in ROUGHNESS:
+        if prefix + suffix in values:
+            return prefix + suffix
+    return None
+
+
+def _absent_lobes(
+    values: dict, stderrs: dict, lobe_gain: float | None
+) -> tuple[list[Undetermined], set[str]]:
+    out, absent = [], set()
+    scale = max(1.0, float(np.nanmax(_array(values.get("rho_tilde", [1.0])))))
+    for name, value in values.items():
+        suffix = _suffix(name, LOBE_WEIGHT)
+        if suffix is None:
+            continue
+        weight = np.maximum(_array(value), 0)
+        error = _array(stderrs.get(name))
+        if error is not None and np.all(np.isfinite(error) & (error > 0)):
+            chi2 = float(np.sum((weight / error) ** 2))
+            why = f"within its standard errors of 0 (chi-square {chi2:.3g} over the channels)"
+            zero = chi2 <= CHI2_3_95
+        else:
+            why, zero = "at the nonnegativity bound", bool(np.all(weight <= 1e-6 * scale))
+        small = lobe_gain is not None and lobe_gain < MIN_LOBE_GAIN
+        if not (zero or small):
+            continue
+        if small and not zero:
+            why = (
+                f"nearly 0: the lobe lowers the RMSE by {100 * lobe_gain:.2f}% against the "
+                f"model without it (under {100 * MIN_LOBE_GAIN:g}%)"
+            )
+        rough = _roughness_name(values, suffix)
+        absent.add(suffix)
+        shown = ", ".join(f"{w:.3g}" for w in weight)
+        out.append(
+            Undetermined(
+                name,
+                Status.no_lobe,
+                f"{name} = [{shown}] is {why}: no specular lobe is found"
+                + (
+                    f", and {rough} = {float(values[rough]):.4g} is not determined by the data"
+                    if rough
+                    else ""
+                ),
+            )
+        )
+    return out, absent
+
+
+def _at_bounds(values: dict, ranges: dict, absent: set[str]) -> list[Undetermined]:
+    out = []
+    for name, value in values.items():
+        suffix = next((s for p in ROUGHNESS if (s := _suffix(name, p)) is not None), None)
+        if suffix is None or suffix in absent:
+            continue
+        lo, hi = ranges.get(name, PAPER_ROUGHNESS_RANGE)
+        v, edge = float(value), EDGE * (hi - lo)
+        if v >= min(hi - edge, TREND):
+            where = (
+                f"at the top of its search range ({lo:g}, {hi:g}]"
+                if v >= hi - edge
+                else ("near or above 1")
+            )
+            out.append(
+                Undetermined(
+                    name,
+                    Status.at_bound,
+                    f"{name} = {v:.4g} is {where}: a lobe this broad explains an angular "
+                    "trend (a falloff, vignetting, the camera's response, a non-Lambertian "
+                    "diffuse term), not a highlight; it is no measurement of roughness",
+                )
+            )
+        elif v <= lo + edge:
+            out.append(
+                Undetermined(
+                    name,
+                    Status.at_bound,
+                    f"{name} = {v:.4g} is at the bottom of its search range ({lo:g}, {hi:g}]: "
+                    "a lobe sharper than the data resolve (look at the highlights' size and "
+                    "the normals there); it is no measurement of roughness",
+                )
+            )
+    return out
+
+
+def _unstable(values: dict, halves: dict, flagged: set[str]) -> list[Undetermined]:
+    out = []
+    for name, parts in halves.items():
+        if name in flagged or name not in values or len(parts) != 2:
+            continue
+        a, b = parts
+        spread = abs(a - b) / max(abs(a + b) / 2, 1e-12)
+        if spread <= HALVES_AGREE:
+            continue
+        out.append(
+            Undetermined(
+                name,
+                Status.unstable,
+                f"{name} = {float(values[name]):.4g} on all frames, but {a:.4g} on the even "
+                f"frames and {b:.4g} on the odd ({spread:.0%} apart, over "
+                f"{HALVES_AGREE:.0%}): the lobe is not stable across frame subsets, whatever "
+                "its standard error",
+            )
+        )
+    return out
+
+
+def _without_errors(values: dict, stderrs: dict, flagged: set[str]) -> list[Undetermined]:
+    out = []
+    for name, error in stderrs.items():
+        if name in flagged or name not in values:
+            continue
+        errors = _array(error)
+        if errors is not None and np.all(np.isfinite(errors)):
+            continue
+        out.append(
+            Undetermined(
+                name,
+                Status.no_standard_error,
+                f"the standard error of {name.removesuffix('_mm')} could not be computed: "
+                "the data do not "
+                "constrain it (a rank-deficient Jacobian at the solution)",
+            )
+        )
+    return out
+
+
+def undetermined(
+    values: dict,
+    stderrs: dict,
+    ranges: dict[str, tuple[float, float]] | None = None,
+    lobe_gain: float | None = None,
+    halves: dict[str, tuple[float, float]] | None = None,
+) -> list[Undetermined]:
+    """The parameters the data do not determine (see the module doc).
+
+    `values`: named parameters (`named_parameters(model)`); `stderrs`: their standard errors
+    by the same names (None or non-finite where they could not be computed; a name missing
+    is not checked); `ranges`: each roughness's search range (default: the paper's (0, 1]);
+    `lobe_gain`: the relative RMSE decrease the specular lobes bring against the same fit
+    without them (None: not known); `halves`: {roughness name: (value on the even frames,
+    on the odd)}."""
+    lobes, absent = _absent_lobes(values, stderrs, lobe_gain)
+    bounds = _at_bounds(values, ranges or {}, absent)
+    flagged = {u.parameter for u in lobes + bounds}
+    # A roughness whose lobe is absent: its standard error is not the news.
+    flagged |= {_roughness_name(values, s) for s in absent}
+    unstable = _unstable(values, halves or {}, flagged)
+    flagged |= {u.parameter for u in unstable}
+    return lobes + bounds + unstable + _without_errors(values, stderrs, flagged)
+
+
+def flag(
+    estimate,
+    stderrs: dict,
+    ranges: dict[str, tuple[float, float]] | None = None,
+    values: dict | None = None,
+    lobe_gain: float | None = None,
+    halves: dict[str, tuple[float, float]] | None = None,
+):
+    """`estimate` (an `Estimate`) with what its data do not determine: a warning each, the
+    list in `details["undetermined"]` and, where the solve succeeded, the status of the
+    first by `PRIORITY`. `values`: the parameters by name (default: the model's
+    `named_parameters`); `lobe_gain`, `halves` as in `undetermined`. Returns the same
+    estimate."""
+    from ._json import named_parameters
+
+    values = named_parameters(estimate.model) if values is None else values
+    found = undetermined(values, stderrs, ranges, lobe_gain, halves)
+    estimate.details["undetermined"] = [u.to_json() for u in found]
+    estimate.warnings[:] = [w for w in estimate.warnings if not w.startswith("undetermined: ")]
+    estimate.warnings.extend(f"undetermined: {u.reason}" for u in found)
+    if found and Status(estimate.status) == Status.successful:
+        estimate.status = min((u.status for u in found), key=PRIORITY.index)
+    return estimate
+
+
+def flag_model(estimate, stderrs: dict | None = None, ranges=None):
+    """`flag` for an estimate whose standard errors are in `details["stderr"]` by dotted
+    field name (the LM fitters'), plus `stderrs` by paper name."""
+    from ._json import paper_names
+
+    names = paper_names(estimate.model)
+    by_name = {names[k]: v for k, v in estimate.details.get("stderr", {}).items() if k in names}
+    return flag(estimate, by_name | (stderrs or {}), ranges)

@@ -1,0 +1,133 @@
+"""Honest estimates: a converged fit whose data do not determine a parameter says so, with a
+named status, a warning naming the parameter, and the list in its JSON."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctjax
+from ctjax._determined import flag, undetermined
+from ctjax._model import paper_model
+from ctjax._result import Estimate
+from ctjax._status import Status
+from ctjax.estimation import PAPER, BRDFFamily, fit_brdf
+from ctjax.estimation._capture_fit import flag_brdf_fit
+from ctjax.estimation._samples import ShadingSamples
+
+RHO = [2.4, 1.1, 0.85]
+
+
+def _statuses(values, stderrs, ranges=None):
+    return {u.parameter: u.status for u in undetermined(values, stderrs, ranges)}
+
+
+def test_a_measured_lobe_is_not_flagged():
+    values = {"rho_tilde": RHO, "F_tilde": [0.3, 0.3, 0.3], "sigma": 0.2}
+    assert _statuses(values, {"F_tilde": [0.01] * 3, "sigma": 0.002}) == {}
+
+
+@pytest.mark.parametrize("sigma", [0.99976, 0.985, 1.0, 1e-5, 0.015])
+def test_a_roughness_within_2_percent_of_either_end_is_at_its_bound(sigma):
+    values = {"rho_tilde": RHO, "F_tilde": [0.3, 0.3, 0.3], "sigma": sigma}
+    # A tiny standard error at the bound changes nothing: it is computed at the bound.
+    assert _statuses(values, {"F_tilde": [0.01] * 3, "sigma": 1e-4}) == {"sigma": Status.at_bound}
+
+
+def test_a_roughness_near_or_above_1_in_an_opened_range_is_a_trend_not_a_lobe():
+    values = {"rho_tilde": RHO, "F_tilde": [0.03, 0.03, 0.03], "sigma": 1.45}
+    found = undetermined(values, {"F_tilde": [1e-3] * 3, "sigma": 0.01}, {"sigma": (1e-5, 3.0)})
+    assert [u.status for u in found] == [Status.at_bound]
+    assert "near or above 1" in found[0].reason and "angular trend" in found[0].reason
+    inside = {"rho_tilde": RHO, "F_tilde": [0.03] * 3, "sigma": 0.5}
+    assert _statuses(inside, {"F_tilde": [1e-3] * 3}, {"sigma": (1e-5, 3.0)}) == {}
+
+
+@pytest.mark.parametrize(
+    ("F", "error"),
+    [([0.0, 0.0, 0.0], None), ([0.0, 0.0, 0.0], [0.01] * 3), ([0.01, 0.0, 0.021], [0.01] * 3)],
+)
+def test_a_lobe_whose_weight_cannot_be_told_from_0_leaves_sigma_undetermined(F, error):
+    values = {"rho_tilde": RHO, "F_tilde": F, "sigma": 0.149}
+    found = undetermined(values, {"F_tilde": error, "sigma": None})
+    # One entry: the absent lobe; its sigma's missing standard error is not news.
+    assert [(u.parameter, u.status) for u in found] == [("F_tilde", Status.no_lobe)]
+    assert "sigma = 0.149 is not determined" in found[0].reason
+
+
+def test_a_lobe_that_barely_lowers_the_rmse_is_no_lobe():
+    values = {"rho_tilde": RHO, "F_tilde": [0.035, 0.0009, 0.0], "sigma": 0.99976}
+    stderrs = {"F_tilde": [0.002, 0.001, 0.001], "sigma": 0.009}
+    found = undetermined(values, stderrs, lobe_gain=1 - 12.62 / 12.64)
+    assert [(u.parameter, u.status) for u in found] == [("F_tilde", Status.no_lobe)]
+    assert "lowers the RMSE by 0.16%" in found[0].reason
+    assert _statuses(values | {"sigma": 0.3}, stderrs) == {}
+
+
+def test_a_second_lobe_is_checked_by_its_own_name():
+    values = {"rho_tilde": RHO, "F_tilde_1": [0.3] * 3, "sigma_1": 0.2}
+    values |= {"F_tilde_2": [0.0] * 3, "sigma_2": 0.999}
+    stderrs = {"F_tilde_1": [0.01] * 3, "sigma_1": 0.01, "F_tilde_2": [0.01] * 3}
+    assert _statuses(values, stderrs) == {"F_tilde_2": Status.no_lobe}
+
+
+def test_a_standard_error_that_could_not_be_computed_is_flagged():
+    values = {"rho_tilde": RHO, "F_tilde": [0.3] * 3, "sigma": 0.2, "offset_mm": [1.0, 0, 0]}
+    stderrs = {"F_tilde": [0.01] * 3, "sigma": 0.01, "offset_mm": [None, None, None]}
+    found = undetermined(values, stderrs)
+    assert [(u.parameter, u.status) for u in found] == [("offset_mm", Status.no_standard_error)]
+    assert "standard error of offset could not be computed" in found[0].reason
+
+
+def test_flag_sets_the_status_warning_and_json_and_keeps_a_failure():
+    model = paper_model(RHO, 0.0, 0.149)
+    estimate = flag(Estimate(model), {"F_tilde": None})
+    out = estimate.to_json()
+    assert out["status"] == "no_lobe" and not Status.no_lobe.determined
+    assert estimate.converged  # the solver converged; the data did not determine the lobe
+    assert out["undetermined"][0]["parameter"] == "F_tilde"
+    assert any(w.startswith("undetermined: F_tilde = [0, 0, 0] is") for w in out["warnings"])
+    # Flagging twice does not repeat the warning; a failed solve keeps its own status.
+    assert len(flag(estimate, {"F_tilde": None}).warnings) == 1
+    failed = flag(Estimate(model, status=Status.max_steps_reached), {})
+    assert failed.status == Status.max_steps_reached and failed.details["undetermined"]
+
+
+def _lambertian_samples(n=400, seed=0):
+    """Shading samples of a matte surface under the paper's light: no lobe to find."""
+    rng = np.random.default_rng(seed)
+    cos = rng.uniform(0.2, 1.0, n)
+    sin = np.sqrt(1 - cos**2)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    normal = np.stack([sin * np.cos(phi), sin * np.sin(phi), cos], -1)
+    view = np.tile([0.0, 0.0, 1.0], (n, 1))
+    values = np.asarray(RHO) / np.pi * cos[:, None]
+    values = values + rng.normal(0, 1 / 255, values.shape)
+    as_vec = lambda a: ctjax.Vec3(*(jnp.asarray(a[:, k]) for k in range(3)))  # noqa: E731
+    return ShadingSamples(
+        as_vec(normal), as_vec(view), as_vec(view), jnp.ones(n), jnp.asarray(values)
+    )
+
+
+def test_the_bnb_on_a_matte_surface_reports_no_lobe_not_success():
+    fit = fit_brdf(_lambertian_samples(), PAPER)
+    model = ctjax.ShadingModel(fit.brdf, ctjax.ColocatedLight())
+    estimate = flag_brdf_fit(Estimate(model), fit)
+    assert estimate.status in (Status.no_lobe, Status.at_bound), estimate.warnings
+    assert estimate.warnings and estimate.details["undetermined"]
+
+
+def test_an_opened_family_range_is_checked_against_its_own_box():
+    opened = BRDFFamily(PAPER.build, PAPER.names, (1e-5,), (3.0,), PAPER.weight_names)
+    model = paper_model(RHO, 0.3, 2.97)
+    estimate = flag(Estimate(model), {"F_tilde": [0.01] * 3, "sigma": 0.01}, {"sigma": (1e-5, 3.0)})
+    assert estimate.status == Status.at_bound and "(1e-05, 3]" in estimate.warnings[0]
+    assert opened.hi == (3.0,)
+
+
+def test_halves_of_the_frames_that_disagree_make_an_unstable_lobe():
+    values = {"rho_tilde": RHO, "F_tilde": [0.1] * 3, "sigma": 0.45}
+    stderrs = {"F_tilde": [0.001] * 3, "sigma": 0.002}
+    found = undetermined(values, stderrs, halves={"sigma": (0.28, 0.82)})
+    assert [(u.parameter, u.status) for u in found] == [("sigma", Status.unstable)]
+    assert "0.28 on the even frames and 0.82 on the odd" in found[0].reason
+    assert undetermined(values, stderrs, halves={"sigma": (0.44, 0.47)}) == []
