@@ -256,11 +256,12 @@ def flag(
     return estimate
 
 
-def flag_model(estimate, stderrs: dict | None = None, ranges=None):
+def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=None):
     """`flag` for an estimate whose standard errors are in `details["stderr"]` by dotted
-    field name (the LM fitters'), plus `stderrs` by paper name."""
+    field name (the LM fitters'), plus `stderrs` by paper name; `lobe_gain` as in
+    `undetermined`."""
     from ._json import paper_names
 
     names = paper_names(estimate.model)
     by_name = {names[k]: v for k, v in estimate.details.get("stderr", {}).items() if k in names}
-    return flag(estimate, by_name | (stderrs or {}), ranges)
+    return flag(estimate, by_name | (stderrs or {}), ranges, lobe_gain=lobe_gain)

@@ -150,6 +150,8 @@ def _estimate_rows(summary: dict) -> list[tuple]:
         for key in ("rho_tilde", "F_tilde", "sigma"):
             value, true = estimate[key], truth[key]
             rows.append((name, key, _fmt(value), _fmt(true), _relative(value, true)))
+        # Not "successful" where the data do not determine the lobe (`ctjax._determined`).
+        rows.append((name, "status", str(estimate.get("status", "")), "", ""))
     near = summary["near_light"]
     offset = np.asarray(near["offset_mm"]) - np.asarray(truth["light_mm"])
     rows.append(
@@ -354,6 +356,9 @@ _FIT_KEYS = (
     "albedo",
     "n_points",
     "n_ring_pixels",
+    "status",
+    "undetermined",
+    "halves",
     "warnings",
 )
 

@@ -66,6 +66,8 @@ def test_demo_command_runs_the_whole_pipeline_from_images(tmp_path):
     assert set(summary["timings_s"]) >= {"reconstruct", "fit", "evaluate", "total"}
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") >= 5 and "Cook-Torrance" in page
+    # Each estimate's status is in the summary and the report (a synthetic lobe: measured).
+    assert summary["brdf_fit"]["status"] == "successful" and "<td>status</td>" in page
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,7 @@ into rho_tilde and F_tilde, as the paper does (it is not separable from them).
 """
 
 import itertools
+import math
 import time
 from collections.abc import Sequence
 
@@ -26,6 +27,7 @@ from ..fitting import (
     ShadingModel,
     fit_model,
     fit_model_map,
+    free_parameters,
     map_standard_errors,
     paper_model,
     pixel_columns,
@@ -42,6 +44,7 @@ from ..heldout import (
 from ..io import Capture
 from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
 from ..lights._point import offset_starts
+from ..lobes import BRDF, Lambertian
 from ..observations import Observations
 from ..solvers import Solver
 
@@ -313,7 +316,26 @@ def near_light_map(
         result.warnings.append(f"the solver did not converge: {result.status.message}")
     # Without an offset the estimate is the light at the lens with a bound, which an
     # offset's standard error that could not be computed leaves infinite.
-    return flag_model(result, None if detected else {"offset_mm": reported})
+    gain = _lobe_gain(result, every, tracks)
+    return flag_model(result, None if detected else {"offset_mm": reported}, lobe_gain=gain)
+
+
+def _lobe_gain(result, every, tracks) -> float | None:
+    """What the lobes bring under the fitted light: 1 - RMSE / RMSE of the Lambertian model
+    under the same light (held) on the same tracks, each point's albedo eliminated; None
+    where the refit on every frame did not give a finite cost."""
+    if not np.isfinite(every.cost):
+        return None
+    light = result.model.light
+    lambertian = ShadingModel(BRDF(Lambertian(1.0)), light, result.model.effects)
+    held = [p.name for p in free_parameters(lambertian) if not p.name.startswith("brdf")]
+    plain = fit_model_map(lambertian, tracks, freeze=held, standard_errors=False)
+    if not np.isfinite(plain.cost) or plain.cost <= 0:
+        return None
+    gain = 1 - math.sqrt(every.cost / plain.cost)
+    result.details["lobe_gain"] = gain
+    result.details["lambertian_same_light_rmse_all_frames"] = plain.rmse["calibration"]
+    return gain
 
 
 def _no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
