@@ -6,8 +6,10 @@ not a measurement of each parameter. On real frames three things happen that a r
 
 - `no_lobe`: a specular lobe whose weight F_tilde cannot be told from 0 (its chi-square
   over the channels within the 95% quantile, or at the nonnegativity bound), or that lowers
-  the RMSE by under 0.5% against the model without it. The data are explained without it,
-  and its roughness sigma, whatever its value, is not determined.
+  the RMSE by under 0.5% against the model without it, or whose colour is not the light's
+  (its least channel under a quarter of its greatest: a highlight reflects the light's
+  colour; on a real sinus video a fit put F_tilde at [0, 0.033, 0.035]). The data are
+  explained without a highlight lobe, and its roughness sigma is not determined.
 - `at_bound`: a roughness at the end of its search range: within 2% of either end of the
   paper's (0, 1], or near or above 1 where a range is opened. At the top, the lobe
   explains a broad angular trend (a falloff, vignetting, the camera's response, a
@@ -26,6 +28,7 @@ per parameter, and `details["undetermined"]`.
 """
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -42,9 +45,15 @@ TREND = 1.0 - EDGE
 CHI2_3_95 = 7.815
 # ... nor when it lowers the RMSE by less than this share against the model without it.
 MIN_LOBE_GAIN = 0.005
+# A specular reflection has the light's colour (the dichromatic model; tissue's Fresnel
+# coefficient barely changes over the visible range): a lobe whose least channel is under
+# this share of its greatest, by more than 2 standard errors, explains something else.
+MIN_LOBE_WHITENESS = 0.25
 # Roughness parameters by the prefix of their paper name, and the lobe weights beside them.
 ROUGHNESS = ("sigma", "alpha")
 LOBE_WEIGHT = "F_tilde"
+# Differences beyond this many standard errors are not noise.
+SIGNIFICANCE = 2.0
 # Two halves of the frames agree on a roughness within this share of their mean.
 HALVES_AGREE = 0.2
 # Where several apply, the status reported is the first of these.
@@ -78,6 +87,18 @@ def _array(value) -> np.ndarray | None:
     return np.asarray([np.nan if v is None else float(v) for v in array.reshape(-1)], float)
 
 
+def _coloured(weight: np.ndarray, error: np.ndarray | None) -> bool:
+    """A lobe weight (3,) far from the light's colour: its least channel under
+    `MIN_LOBE_WHITENESS` of its greatest, by more than 2 standard errors of the two."""
+    top, least = float(np.max(weight)), float(np.min(weight))
+    if top <= 0 or least >= MIN_LOBE_WHITENESS * top:
+        return False
+    if error is None or not np.all(np.isfinite(error)):
+        return True
+    spread = math.hypot(float(error[np.argmax(weight)]), float(error[np.argmin(weight)]))
+    return MIN_LOBE_WHITENESS * top - least > SIGNIFICANCE * spread
+
+
 def _roughness_name(values: dict, suffix: str) -> str | None:
     for prefix in ROUGHNESS:
         if prefix + suffix in values:
@@ -103,12 +124,19 @@ def _absent_lobes(
         else:
             why, zero = "at the nonnegativity bound", bool(np.all(weight <= 1e-6 * scale))
         small = lobe_gain is not None and lobe_gain < MIN_LOBE_GAIN
-        if not (zero or small):
+        coloured = _coloured(weight, error)
+        if not (zero or small or coloured):
             continue
         if small and not zero:
             why = (
                 f"nearly 0: the lobe lowers the RMSE by {100 * lobe_gain:.2f}% against the "
                 f"model without it (under {100 * MIN_LOBE_GAIN:g}%)"
+            )
+        elif coloured and not zero:
+            why = (
+                "coloured: a specular reflection has the light's colour, and this lobe's "
+                f"least channel is under {MIN_LOBE_WHITENESS:g} of its greatest (it explains "
+                "something else: the camera's response, a colour shift with the angle)"
             )
         rough = _roughness_name(values, suffix)
         absent.add(suffix)

@@ -60,7 +60,11 @@ def test_a_lobe_that_barely_lowers_the_rmse_is_no_lobe():
     found = undetermined(values, stderrs, lobe_gain=1 - 12.62 / 12.64)
     assert [(u.parameter, u.status) for u in found] == [("F_tilde", Status.no_lobe)]
     assert "lowers the RMSE by 0.16%" in found[0].reason
-    assert _statuses(values | {"sigma": 0.3}, stderrs) == {}
+    # The same red-only lobe is no highlight's whatever its gain (see the next test); a
+    # grey one that lowers the RMSE is a lobe.
+    assert _statuses(values | {"sigma": 0.3}, stderrs) == {"F_tilde": Status.no_lobe}
+    grey = values | {"sigma": 0.3, "F_tilde": [0.035, 0.03, 0.032]}
+    assert _statuses(grey, stderrs) == {}
 
 
 def test_a_second_lobe_is_checked_by_its_own_name():
@@ -131,3 +135,17 @@ def test_halves_of_the_frames_that_disagree_make_an_unstable_lobe():
     assert [(u.parameter, u.status) for u in found] == [("sigma", Status.unstable)]
     assert "0.28 on the even frames and 0.82 on the odd" in found[0].reason
     assert undetermined(values, stderrs, halves={"sigma": (0.44, 0.47)}) == []
+
+
+def test_a_lobe_that_is_not_the_lights_colour_is_no_highlight():
+    values = {"rho_tilde": RHO, "F_tilde": [0.0, 0.0333, 0.0355], "sigma": 0.27}
+    stderrs = {"F_tilde": [0.0019, 0.0015, 0.0014], "sigma": 0.005}
+    found = undetermined(values, stderrs, lobe_gain=0.016)
+    assert [(u.parameter, u.status) for u in found] == [("F_tilde", Status.no_lobe)]
+    assert "coloured" in found[0].reason
+    # A tinted but white-ish lobe (white balance is never exact) is a lobe.
+    tinted = values | {"F_tilde": [0.2, 0.3, 0.32]}
+    assert undetermined(tinted, stderrs, lobe_gain=0.05) == []
+    # A difference within the noise is not a colour.
+    noisy = values | {"F_tilde": [0.004, 0.02, 0.02]}
+    assert undetermined(noisy, {"F_tilde": [0.01] * 3}, lobe_gain=0.05) == []
