@@ -602,7 +602,11 @@ def _import_command(commands) -> None:
         help="write the frames this many pixels wide (area-averaged; camera.json scaled to "
         "match; default: the video's size)",
     )
-    video.add_argument("--force", action="store_true", help="replace OUT/images")
+    video.add_argument(
+        "--force",
+        action="store_true",
+        help="replace OUT/images (and the depth, normals and poses reconstructed from them)",
+    )
     video.add_argument("--json", type=Path, help="write the report to this JSON file")
     video.set_defaults(run=_cmd_import)
 

@@ -368,6 +368,11 @@ OPTION_CASES = [
         id="reconstruct-two-scales",
     ),
     pytest.param(["reconstruct", "{cap}"], "poses.json: exists", id="reconstruct-would-overwrite"),
+    pytest.param(
+        ["diagnose", "{cap}", "--json", "{out}/d.json", "--loop", "--max-rounds", "0"],
+        "--max-rounds",
+        id="diagnose-loop-no-rounds",
+    ),
 ]
 
 

@@ -62,6 +62,22 @@ def test_import_keeps_one_sharp_frame_per_view_and_reconstruct_registers_them(vi
     assert main(argv) == 2
     assert main([*argv, "--force", "--every", "2", "--max-frames", "4"]) == 0
     assert len(list((out / "images").glob("*.png"))) == 4
+    # The endoscope's camera.json says how its frames are encoded (this synthetic one:
+    # linear), and the capture keeps it; where it does not say, video frames are sRGB.
+    # --width resamples them with the intrinsics scaled (pixel centres kept).
+    assert json.loads((out / "camera.json").read_text())["encoding"] == "linear"
+    full = json.loads(camera.read_text())
+    unsaid = tmp_path / "unsaid.json"
+    unsaid.write_text(json.dumps({k: v for k, v in full.items() if k != "encoding"}))
+    argv = ["import", str(path), "--camera", str(unsaid), "--out", str(out), "--force"]
+    assert main([*argv, "--max-frames", "2", "--width", "32"]) == 0
+    small = json.loads((out / "camera.json").read_text())
+    assert small["encoding"] == "srgb" and load_capture(out).notes == ()
+    # The shape reconstructed from the replaced frames went with them.
+    assert not (out / "depth").exists() and not (out / "poses.json").exists()
+    assert small["width"] == 32 and small["fx"] == pytest.approx(full["fx"] * 32 / full["width"])
+    assert small["cx"] == pytest.approx((full["cx"] + 0.5) * 32 / full["width"] - 0.5)
+    assert cv2.imread(str(next((out / "images").glob("*.png")))).shape[1] == 32
 
 
 def _one_view(root):
@@ -107,3 +123,5 @@ def test_bad_imports_fail_with_one_line(tmp_path, capsys, content, extra, expect
 def test_options_are_checked():
     with pytest.raises(Exception, match="--max-frames"):
         ImportOptions(max_frames=1)
+    with pytest.raises(Exception, match="--width must be an integer >= 16"):
+        ImportOptions(width=5)

@@ -233,6 +233,12 @@ def import_video(
     )
     if images.is_dir() and force:
         shutil.rmtree(images)
+        # The shape reconstructed from the replaced frames belongs to them, not to the new.
+        for stale in ("depth", "normals"):
+            if (out / stale).is_dir():
+                shutil.rmtree(out / stale)
+        for stale in ("poses.json", "reconstruction.json"):
+            (out / stale).unlink(missing_ok=True)
     wanted = {int(scan.indices[i]) for i in kept}
     digits = max(6, len(str(max(wanted))))
     names = []
