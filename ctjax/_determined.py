@@ -198,6 +198,8 @@ def _unstable(values: dict, halves: dict, flagged: set[str]) -> list[Undetermine
         if name in flagged or name not in values or len(parts) != 2:
             continue
         a, b = parts
+        if not (math.isfinite(a) and math.isfinite(b)):
+            continue  # a half without data says nothing either way
         spread = abs(a - b) / max(abs(a + b) / 2, 1e-12)
         if spread <= HALVES_AGREE:
             continue

@@ -2,6 +2,7 @@
 capture is reported and the others kept; a rerun skips what is done."""
 
 import csv
+import json
 
 import pytest
 
@@ -33,6 +34,9 @@ def test_a_failed_capture_is_reported_and_the_others_kept(captures, tmp_path, ca
     rows = _rows(out)
     assert rows["good"]["status"] == "ok" and float(rows["good"]["sigma"]) > 0
     assert len(rows["good"]["F_tilde"].split()) == 3 and rows["good"]["length_unit"] == "mm"
+    # The fit's own status (a measured lobe on this synthetic capture) beside its figures.
+    fit = json.loads((out / "good" / "fit.json").read_text())
+    assert rows["good"]["fit_status"] == fit["status"] != ""
     assert (
         rows["broken"]["status"] == "failed" and "camera.json not found" in rows["broken"]["error"]
     )
