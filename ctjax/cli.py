@@ -468,6 +468,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
             f"(Lambertian under the same light: {same:.2f}) + {gain['lobe_levels']:.2f} from "
             "the lobe"
         )
+    fitted = summary["models"]["cook_torrance"]
+    for flagged in fitted["undetermined"]:
+        print(
+            f"ctjax evaluate: warning: Cook-Torrance's fit is {fitted['status']}: "
+            f"{flagged['reason']}",
+            file=sys.stderr,
+        )
     for note in summary["notes"]:
         print(f"ctjax evaluate: note: {note}", file=sys.stderr)
     if summary["lambertian_sfs_error_mm"] is not None:

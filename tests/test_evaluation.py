@@ -257,6 +257,9 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path):
         < summary["lambertian_sfs_error_near_highlights_mm"]
     )
     assert {p.name for p in plots.iterdir()} >= {"errors.png", "rgb_residuals.png"}
+    # Cook-Torrance's own status is in the evaluation (a measured lobe here).
+    assert summary["models"]["cook_torrance"]["status"] == "successful"
+    assert summary["models"]["cook_torrance"]["undetermined"] == []
 
 
 def _bump_capture(root, seed=0):

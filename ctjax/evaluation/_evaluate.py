@@ -186,6 +186,9 @@ class Evaluation:
             "cook_torrance": {
                 **named_parameters(self.cook_torrance.model.brdf),
                 "light": type(self.cook_torrance.model.light).__name__,
+                # Not "successful" where the data do not determine its lobe.
+                "status": Status(self.cook_torrance.status).name,
+                "undetermined": self.cook_torrance.details.get("undetermined", []),
             },
         }
         out["sfs_frames"] = [shape.to_json() for shape in self.shapes]
