@@ -9,6 +9,7 @@ from . import lights as lights
 from . import lobes as lobes
 from ._camera import Camera as Camera
 from ._convert import FIXED as FIXED
+from ._convert import PER_FRAME as PER_FRAME
 from ._convert import POSITIVE as POSITIVE
 from ._convert import UNIT_INTERVAL as UNIT_INTERVAL
 from ._convert import domain as domain

@@ -106,6 +106,10 @@ UNIT_INTERVAL = domain(0.0, 1.0)
 # Held fixed by the fitters (normalisations, directions, intensities the paper folds into
 # the weights).
 FIXED = {"domain": "fixed"}
+# One value per frame of the capture (an exposure): each frame's own nuisance. A model fitted
+# on some frames knows nothing of another's, so the held-out protocol fits these on the
+# held-out frames themselves (`ctjax.heldout`), everything else held.
+PER_FRAME = {"per_frame": True}
 
 
 def named(name: str, metadata: dict | None = None) -> dict:

@@ -18,13 +18,16 @@ class ShadingModel(eqx.Module):
     light: AbstractLight
     effects: tuple[AbstractImageEffect, ...] = ()
 
-    def __call__(self, point: Vec3, normal: Vec3, pixel) -> RGB:
-        """The predicted RGB of one pixel (the renderer's `shade`)."""
-        return shade(self.brdf, self.light, point, normal, pixel, self.effects)
+    def __call__(self, point: Vec3, normal: Vec3, pixel, frame=0) -> RGB:
+        """The predicted RGB of one pixel of capture frame `frame` (the renderer's `shade`)."""
+        return shade(self.brdf, self.light, point, normal, pixel, self.effects, frame)
 
-    def render(self, camera, normals, depth):
-        """The model's image of a surface (see `ctjax.render`): (H, W, 3)."""
-        return render(self.brdf, self.light, camera, normals, depth, effects=self.effects)
+    def render(self, camera, normals, depth, frame: int = 0):
+        """The model's image of a surface, as frame `frame` of its capture (see
+        `ctjax.render`): (H, W, 3)."""
+        return render(
+            self.brdf, self.light, camera, normals, depth, effects=self.effects, frame=frame
+        )
 
     def columns(self, point: Vec3, normal: Vec3, pixel):
         """Per-lobe radiance for unit weights (no effects): the linear design row."""

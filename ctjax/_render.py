@@ -18,15 +18,11 @@ from ._numerics import safe_normalize
 from ._typing import RGB, Array, Float, Pixel, Scalar
 from ._vector import Vec3, where
 from .effects import AbstractImageEffect
+from .effects._effect import Site, apply_effects
 from .lights import AbstractLight
 from .lobes import BRDF
 
-
-def apply_effects(effects: tuple[AbstractImageEffect, ...], rgb: RGB) -> RGB:
-    """Apply per-pixel image effects in order."""
-    for effect in effects:
-        rgb = effect(rgb)
-    return rgb
+__all__ = ["Site", "apply_effects", "render", "render_columns", "shade", "shade_columns"]
 
 
 def shade_columns(
@@ -53,15 +49,18 @@ def shade(
     normal: Vec3,
     pixel: Pixel,
     effects: tuple[AbstractImageEffect, ...] = (),
+    frame=0,
 ) -> RGB:
     """One pixel's RGB value (linear units, 1.0 = 8-bit level 255): the physics of ctjax.
 
     `point` is the surface point and `normal` its unit normal, camera frame (mm); `pixel`
-    the (u, v) it is seen at.
+    the (u, v) it is seen at, in the capture's frame `frame` (for effects that depend on
+    it: an exposure per frame).
     """
     view = safe_normalize(-point)
     direction, irradiance = light.illuminate(point, view, pixel)
-    return apply_effects(effects, irradiance * brdf.radiance(normal, direction, view))
+    radiance = irradiance * brdf.radiance(normal, direction, view)
+    return apply_effects(effects, radiance, Site(pixel, jnp.asarray(frame)))
 
 
 def _pixel_grid(camera: Camera, dtype) -> tuple[Float[Array, "H W"], Float[Array, "H W"]]:
@@ -194,16 +193,23 @@ def _packed_columns(brdf, light, camera, normals, depth, points, with_validity: 
 
 
 @eqx.filter_jit
-def _combined(brdf, effects, packed):
-    """The renderer's second program: RGB from the packed columns, effects applied."""
+def _combined(brdf, effects, packed, frame):
+    """The renderer's second program: RGB from the packed columns, effects applied (at
+    each pixel of capture frame `frame`)."""
     columns = [c[..., None] for c in _unpack(packed)]
     brdf, effects = cast_floating((brdf, effects), columns[0].dtype)
     weights = brdf.weights
     # An explicit sum, not a matmul (see `BRDF.radiance`).
     rgb = sum(weights[k] * columns[k] for k in range(len(weights)))
     if effects:  # `_packed_columns` then appended each pixel's validity
-        per_pixel = jax.vmap(jax.vmap(lambda pixel: apply_effects(effects, pixel)))
-        rgb = per_pixel(rgb) * columns[-1]
+        height, width = rgb.shape[:2]
+        u = jnp.broadcast_to(jnp.arange(width, dtype=rgb.dtype), (height, width))
+        v = jnp.broadcast_to(jnp.arange(height, dtype=rgb.dtype)[:, None], (height, width))
+
+        def one(value, u, v):
+            return apply_effects(effects, value, Site((u, v), frame))
+
+        rgb = jax.vmap(jax.vmap(one))(rgb, u, v) * columns[-1]
     return rgb
 
 
@@ -216,6 +222,7 @@ def render(
     *,
     points: Vec3 | Float[Array, "H W 3"] | None = None,
     effects: tuple[AbstractImageEffect, ...] = (),
+    frame: int = 0,
 ) -> Float[Array, "H W 3"]:
     """Render a linear RGB image of a surface seen by `camera` under `light`.
 
@@ -229,6 +236,8 @@ def render(
     - `depth`: camera-frame z per pixel in mm (H, W); or `points`: camera-frame points in mm,
       (H, W, 3) or a `Vec3`. Exactly one of the two.
     - `effects`: per-pixel image effects (ambient, camera response), applied in order.
+    - `frame`: the image's index in its capture, for effects that depend on it (an
+      exposure per frame).
 
     **Returns:** linear RGB, (H, W, 3), 1.0 = 8-bit level 255, unclipped. Pixels without
     valid geometry (non-finite or non-positive depth, non-finite normal) are 0. Differentiable
@@ -243,7 +252,7 @@ def render(
     (`benchmarks/render.py`). Inside a caller's `jit` both are traced into its program.
     """
     packed = _packed_columns(brdf, light, camera, normals, depth, points, bool(effects))
-    return _combined(brdf, effects, packed)
+    return _combined(brdf, effects, packed, jnp.asarray(frame, jnp.int32))
 
 
 @eqx.filter_jit

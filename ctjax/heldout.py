@@ -9,12 +9,14 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
+import equinox as eqx
 import numpy as np
 
 from ._errors import CtjaxError
 from ._result import Estimate
-from .fitting._albedo_map import TrackSamples, heldout_map_rmse
-from .fitting._fit import pixel_predict, rmse_levels
+from .fitting._albedo_map import TrackSamples, fit_model_map, heldout_map_rmse
+from .fitting._fit import fit_model, pixel_predict, rmse_levels
+from .fitting._parameters import free_parameters
 from .io import Capture
 from .observations import Observations, PixelSamples
 
@@ -58,7 +60,7 @@ def noise_floor_levels(capture: Capture, frames: Sequence[int], model) -> float:
     residuals = []
     for index in frames:
         frame = obs.frames[index]
-        rendered = np.asarray(model.render(obs.camera, frame.normals, frame.depth))
+        rendered = np.asarray(model.render(obs.camera, frame.normals, frame.depth, index))
         residuals.append((rendered - frame.image, obs.usable[index]))
     return _second_differences_floor(residuals)
 
@@ -73,7 +75,12 @@ def noise_floor_map_levels(capture, frames: Sequence[int], model) -> float:
 
     obs = Observations.of(capture)
     images = map_residuals(
-        obs.capture, model.brdf, model.light, frames, per_point=diffuse_lobe(model)
+        obs.capture,
+        model.brdf,
+        model.light,
+        frames,
+        per_point=diffuse_lobe(model),
+        effects=tuple(model.effects),
     )
     return _second_differences_floor([(r, np.all(np.isfinite(r), axis=-1)) for r in images])
 
@@ -97,6 +104,28 @@ def _second_differences_floor(residuals) -> float:
         kept = d[np.abs(d - np.mean(kept)) < 4 * spread]
     # A Gaussian clipped at 4 sigma keeps 99.9% of its variance.
     return float(np.std(kept) / math.sqrt(6))
+
+
+# LM steps for a model's per-frame parameters on the held-out frames (one exposure each:
+# a handful of steps converge).
+_PER_FRAME_STEPS = 30
+
+
+def _per_frame_fitted(model, fit_held):
+    """`model` with its per-frame parameters (`PER_FRAME`: an exposure per frame) fitted on
+    the held-out samples by `fit_held(model, freeze)`, everything else as fitted on the
+    calibration frames: a frame's exposure is that frame's nuisance, as a point's albedo
+    is the point's, and a model fitted on other frames cannot know it. A handful of values
+    per frame against thousands of observations: the held-out error barely sees them.
+    `model` itself where it has none."""
+    parameters = free_parameters(model)
+    per_frame = [p for p in parameters if p.per_frame]
+    if not per_frame:
+        return model
+    fitted = fit_held(model, [p.name for p in parameters if not p.per_frame]).model
+    return eqx.tree_at(
+        lambda m: [p.get(m) for p in per_frame], model, [p.get(fitted) for p in per_frame]
+    )
 
 
 def median_depth_mm(capture) -> float:
@@ -143,8 +172,18 @@ class HeldOut:
         return {"calibration": self.calibration, "heldout": self.heldout}
 
     def heldout_rmse(self, model) -> float:
-        """RMSE (8-bit levels) of `model` on the held-out samples."""
-        return float(rmse_levels(model, self.test, pixel_predict))
+        """RMSE (8-bit levels) of `model` on the held-out samples (its per-frame parameters,
+        if any, fitted there: `with_heldout_frames`)."""
+        return float(rmse_levels(self.with_heldout_frames(model), self.test, pixel_predict))
+
+    def with_heldout_frames(self, model):
+        """`model` with its per-frame parameters fitted on the held-out samples."""
+        return _per_frame_fitted(
+            model,
+            lambda m, freeze: fit_model(
+                m, self.test, pixel_predict, freeze=freeze, max_steps=_PER_FRAME_STEPS
+            ),
+        )
 
     def rmse(self, model) -> dict[str, float]:
         """RMSE (8-bit levels) of `model` on the calibration and the held-out samples."""
@@ -158,15 +197,18 @@ class HeldOut:
         return noise_floor_levels(self.capture, self.heldout, model)
 
     def judge(self, fit: Estimate, *, noise_floor: bool = True) -> Estimate:
-        """`fit` (fitted on `train`) with its held-out RMSE, noise floor and frames."""
+        """`fit` (fitted on `train`) with its held-out RMSE, noise floor and frames (its
+        per-frame parameters, if any, fitted on the held-out frames)."""
+        model = self.with_heldout_frames(fit.model)
         rmse = {
             "calibration": fit.rmse.get("calibration", math.nan),
-            "heldout": self.heldout_rmse(fit.model),
+            "heldout": float(rmse_levels(model, self.test, pixel_predict)),
         }
         return dataclasses.replace(
             fit,
+            model=model,
             rmse=rmse,
-            noise_floor=self.noise_floor(fit.model) if noise_floor else fit.noise_floor,
+            noise_floor=self.noise_floor(model) if noise_floor else fit.noise_floor,
             frames=self.frames,
         )
 
@@ -220,8 +262,23 @@ class HeldOutTracks:
         return {"calibration": self.calibration, "heldout": self.heldout}
 
     def heldout_rmse(self, model) -> float:
-        """RMSE (8-bit levels) of `model` on the held-out views (see the class doc)."""
-        return heldout_map_rmse(model, self.test, self.judged)
+        """RMSE (8-bit levels) of `model` on the held-out views (see the class doc; its
+        per-frame parameters, if any, fitted there: `with_heldout_frames`)."""
+        return heldout_map_rmse(self.with_heldout_frames(model), self.test, self.judged)
+
+    def with_heldout_frames(self, model):
+        """`model` with its per-frame parameters fitted on the held-out tracks (every
+        point's albedo eliminated as in the fit)."""
+        return _per_frame_fitted(
+            model,
+            lambda m, freeze: fit_model_map(
+                m,
+                self.test,
+                freeze=freeze,
+                max_steps=_PER_FRAME_STEPS,
+                standard_errors=False,
+            ),
+        )
 
     def rmse(self, model) -> dict[str, float]:
         """RMSE (8-bit levels) of a model fitted elsewhere: every view of `train` and the
@@ -238,15 +295,18 @@ class HeldOutTracks:
     def judge(self, fit: Estimate, *, noise_floor: bool = True) -> Estimate:
         """`fit` (fitted on `train`) with its held-out RMSE (each held-out view predicted
         from the albedo of the point's other views; the calibration RMSE stays the fit's own
-        over its observations), the noise floor and its frames."""
+        over its observations), the noise floor and its frames (its per-frame parameters,
+        if any, fitted on the held-out frames)."""
+        model = self.with_heldout_frames(fit.model)
         rmse = {
             "calibration": fit.rmse.get("calibration", math.nan),
-            "heldout": self.heldout_rmse(fit.model),
+            "heldout": heldout_map_rmse(model, self.test, self.judged),
         }
         return dataclasses.replace(
             fit,
+            model=model,
             rmse=rmse,
-            noise_floor=self.noise_floor(fit.model) if noise_floor else fit.noise_floor,
+            noise_floor=self.noise_floor(model) if noise_floor else fit.noise_floor,
             frames=self.frames,
         )
 

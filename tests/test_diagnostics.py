@@ -31,6 +31,12 @@ HIDDEN = {
     "geometric_attenuation": dict(effects={"geometric_attenuation": True}, sigma=0.6),
     "ggx": dict(effects={"ggx": True}),
     "second_lobe": dict(effects={"second_lobe": (0.55, 0.6)}),
+    # Auto-exposure: each frame's exposure within about 10% of the first's (the held-out
+    # frames' own exposures fitted on them, as a point's albedo is).
+    "frame_exposure": dict(effects={"frame_exposure": 0.1}),
+    # The optics' radial falloff, 20% at the image's corners: told from the light's spot
+    # falloff (cos^k about the same axis with the light at the lens) by its shape alone.
+    "vignetting": dict(effects={"vignetting": -0.4}),
 }
 
 

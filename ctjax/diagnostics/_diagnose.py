@@ -256,6 +256,9 @@ def diagnose(
     context = {
         "median_depth_mm": median_depth_mm(capture),
         "length_unit": length_unit_of(capture),
+        "frames": len(capture),
+        "principal_point": (float(capture.camera.cx), float(capture.camera.cy)),
+        "focal_px": (float(capture.camera.fx), float(capture.camera.fy)),
         "albedo": albedo,
         "albedo_map_possible": default_albedo(capture) == "map",
     }

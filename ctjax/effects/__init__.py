@@ -2,5 +2,9 @@
 
 from ._ambient import Ambient as Ambient
 from ._effect import AbstractImageEffect as AbstractImageEffect
+from ._effect import Gain as Gain
+from ._effect import Site as Site
+from ._exposure import FrameExposure as FrameExposure
 from ._gamma import CameraGamma as CameraGamma
 from ._srgb import SRGBResponse as SRGBResponse
+from ._vignetting import Vignetting as Vignetting

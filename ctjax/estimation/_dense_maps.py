@@ -27,6 +27,7 @@ from .._tracks import (
     sight_own,
     world_points,
 )
+from ..effects._effect import Site, apply_effects, undo_effects
 from ..lights import AbstractLight, ColocatedLight
 
 # Albedo maps are left NaN where the diffuse column is below this (N.L / pi in every view
@@ -70,13 +71,14 @@ def _albedo_of(
     global_ = np.arange(len(weights)) != per_point
     looked = [partners(capture, i, count, among) for i, _, _ in pieces]
 
-    def add(where, obs, columns):  # one frame's observations of the pixels `where`
+    def add(where, obs, columns, frame):  # frame's observations of the pixels `where`
         seen = obs.weight > 0  # some channel counts
         columns = np.where(seen[:, None], columns.reshape(len(seen), -1), 0.0)  # (N, K)
         a, rest = columns[:, per_point], columns[:, global_] @ weights[global_]
         # Per channel: a channel clipped in this view says nothing of that channel's albedo.
         weight = obs.weight[:, None] * obs.channel_seen
-        contribution = a[:, None] * (_undone(effects, obs.values) - rest) * weight
+        linear = _undone(effects, obs.values, obs.u, obs.v, frame)
+        contribution = a[:, None] * (linear - rest) * weight
         numerator[where] += contribution
         denominator[where] += (a * a)[:, None] * weight
         cosine[where] += a * a * seen
@@ -90,7 +92,9 @@ def _albedo_of(
         ):
             if index == other:
                 part = slice(lo, hi)
-                found = add(part, sight_own(data[index], rows, cols), shading(other)[rows, cols])
+                found = add(
+                    part, sight_own(data[index], rows, cols), shading(other)[rows, cols], other
+                )
                 for kept, value in zip(own, found, strict=True):
                     kept[part] = value
             elif other in frames:
@@ -104,7 +108,7 @@ def _albedo_of(
                 else np.concatenate([np.arange(lo, hi) for lo, hi in away])
             )
             obs = sight(camera, data[other], world[where], tolerance)
-            add(where, obs, sample_image(shading(other), obs.u, obs.v))
+            add(where, obs, sample_image(shading(other), obs.u, obs.v), other)
     enough = (cosine[:, None] > (MIN_COSINE / np.pi) ** 2) & (denominator > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         albedo = np.where(enough, np.maximum(numerator / denominator, 0), np.nan)
@@ -114,7 +118,11 @@ def _albedo_of(
         enough_others = enough & (others > 1e-3 * denominator)
         albedo_others = np.maximum((numerator - own_numerator) / others, 0)
         predicted = rest + a[:, None] * albedo_others
-        residual = values - _applied(effects, np.nan_to_num(predicted))
+        own_frame = np.concatenate([np.full(len(rows), i) for i, rows, _ in pieces])
+        own_u = np.concatenate([cols for _, _, cols in pieces]).astype(float)
+        own_v = np.concatenate([rows for _, rows, _ in pieces]).astype(float)
+        predicted = _applied(effects, np.nan_to_num(predicted), own_u, own_v, own_frame)
+        residual = values - predicted
         residual = np.where(enough_others & (weight > 0), residual, np.nan)
     return albedo, seen_count, residual
 
@@ -180,18 +188,25 @@ def albedo_samples(
     ]
 
 
-def _undone(effects, values: np.ndarray) -> np.ndarray:
-    """Measured values (N, 3) with the image effects undone, last first."""
-    for effect in reversed(tuple(effects)):
-        values = np.asarray(effect.inverse(jnp.asarray(values)))
-    return values
+def _sites(u, v, frame, n: int) -> Site:
+    return Site((jnp.asarray(u), jnp.asarray(v)), jnp.broadcast_to(jnp.asarray(frame), (n,)))
 
 
-def _applied(effects, values: np.ndarray) -> np.ndarray:
-    """Linear values (N, 3) with the image effects applied, in order."""
-    for effect in effects:
-        values = np.asarray(effect(jnp.asarray(values)))
-    return values
+def _undone(effects, values: np.ndarray, u, v, frame) -> np.ndarray:
+    """Measured values (N, 3), recorded at pixels (u, v) of `frame` (an index, or one per
+    value), with the image effects undone, last first."""
+    if not effects:
+        return values
+    undo = jax.vmap(lambda x, site: undo_effects(effects, x, site))
+    return np.asarray(undo(jnp.asarray(values), _sites(u, v, frame, len(values))))
+
+
+def _applied(effects, values: np.ndarray, u, v, frame) -> np.ndarray:
+    """Linear values (N, 3) with the image effects applied, in order (as `_undone`)."""
+    if not effects:
+        return values
+    apply = jax.vmap(lambda x, site: apply_effects(effects, x, site))
+    return np.asarray(apply(jnp.asarray(values), _sites(u, v, frame, len(values))))
 
 
 def _frames_of(

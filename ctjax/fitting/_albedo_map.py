@@ -23,6 +23,7 @@ from .._status import Status
 from .._tracks import Tracks, views_first
 from .._vector import Vec3
 from ..effects import AbstractImageEffect
+from ..effects._effect import Site, apply_effects, undo_effects
 from ..estimation._projection import projected_residuals
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
@@ -34,7 +35,8 @@ class TrackSamples(eqx.Module):
     """Tracks as the general fitter sees them, views first and points last
     (`ctjax._tracks.views_first`): every observation's four corners flattened (4 M P:
     camera-frame point, normal, pixel), their bilinear weights (4, M, P), the measured RGB
-    (3, M, P) and each observation's least-squares weight (M, P)."""
+    (3, M, P), each observation's least-squares weight (M, P) and where it was recorded
+    (`site`: its sub-pixel position and frame, (M, P) each; -1 where unobserved)."""
 
     point: Vec3
     normal: Vec3
@@ -42,6 +44,7 @@ class TrackSamples(eqx.Module):
     corner_weight: jax.Array
     values: jax.Array
     weight: jax.Array
+    site: Site
 
     @classmethod
     def of(cls, tracks: Tracks, dtype=None, *, pad: bool = True) -> "TrackSamples":
@@ -53,6 +56,7 @@ class TrackSamples(eqx.Module):
             tracks = tracks.padded(max(1024, 1 << max(len(tracks) - 1, 1).bit_length()))
         as_jax = lambda a: jnp.asarray(views_first(a), dtype)  # noqa: E731
         pixel = as_jax(tracks.corner_pixel)
+        at = as_jax(np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_pixel))
         return cls(
             Vec3.from_array(as_jax(tracks.corner_point)),
             Vec3.from_array(as_jax(tracks.corner_normal)),
@@ -60,6 +64,7 @@ class TrackSamples(eqx.Module):
             as_jax(tracks.corner_weight),
             as_jax(tracks.values),
             as_jax(tracks.weight),
+            Site((at[0], at[1]), jnp.asarray(views_first(tracks.frame), jnp.int32)),
         )
 
     @property
@@ -106,39 +111,37 @@ def _linear(model, samples: TrackSamples):
     if not effects:
         return samples.values, samples.weight
 
-    def undo(rgb):
-        for effect in reversed(effects):
-            rgb = effect.inverse(rgb)
-        return rgb
-
-    def apply(rgb):
-        for effect in effects:
-            rgb = effect(rgb)
-        return rgb
-
     # Unobserved slots (0) and black pixels at a harmless value: a gamma's slope is
     # infinite at 0, and its derivative in gamma takes log(0).
     observed = samples.weight > 0
     values = jnp.where(observed, jnp.maximum(samples.values, _DARKEST), 0.5)
     flat = values.reshape(samples.channels, -1)
-    linear = jax.vmap(undo, 1, 1)(flat)
-    slope = jax.vmap(lambda x: jax.jvp(apply, (x,), (jnp.ones_like(x),))[1], 1, 1)(linear)
+    sites = _flat_sites(samples)
+    linear = jax.vmap(lambda x, site: undo_effects(effects, x, site), (1, 0), 1)(flat, sites)
+
+    def slope_at(x, site):
+        apply = lambda rgb: apply_effects(effects, rgb, site)  # noqa: E731
+        return jax.jvp(apply, (x,), (jnp.ones_like(x),))[1]
+
+    slope = jax.vmap(slope_at, (1, 0), 1)(linear, sites)
     slope = jnp.clip(jnp.abs(slope), 0, _MAX_SLOPE)
     scale = jnp.mean(slope * slope, axis=0).reshape(samples.weight.shape)
     return linear.reshape(samples.values.shape), samples.weight * scale
 
 
-def _apply_effects(model, linear):
-    """The model's image effects applied to linear RGB (3, ...)."""
+def _flat_sites(samples: TrackSamples) -> Site:
+    """Where each observation was recorded, flattened (M P,) like the values' columns."""
+    (u, v), frame = samples.site
+    return Site((u.reshape(-1), v.reshape(-1)), frame.reshape(-1))
+
+
+def _apply_effects(model, linear, samples: TrackSamples):
+    """The model's image effects applied to linear RGB (3, M, P), each observation's
+    where it was recorded."""
     effects = tuple(getattr(model, "effects", ()))
-
-    def apply(rgb):
-        for effect in effects:
-            rgb = effect(rgb)
-        return rgb
-
     flat = linear.reshape(linear.shape[0], -1)
-    return jax.vmap(apply, 1, 1)(flat).reshape(linear.shape)
+    apply = lambda rgb, site: apply_effects(effects, rgb, site)  # noqa: E731
+    return jax.vmap(apply, (1, 0), 1)(flat, _flat_sites(samples)).reshape(linear.shape)
 
 
 def _root(weight):
@@ -160,7 +163,7 @@ def _projected(model, samples: TrackSamples, per_point: int):
         c * (albedo.T[:, None, :] if k == per_point else weights[k][:, None, None])
         for k, c in enumerate(columns)
     )
-    image = _apply_effects(model, linear)
+    image = _apply_effects(model, linear, samples)
     return albedo, weights, (samples.values - image) * _root(samples.weight)
 
 
@@ -192,7 +195,7 @@ def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     residual = target - a * albedo
     w = samples.weight
     if tuple(getattr(model, "effects", ())):  # the image's residual (see `_projected`)
-        residual = samples.values - _apply_effects(model, rest + a * albedo)
+        residual = samples.values - _apply_effects(model, rest + a * albedo, samples)
     residual = jnp.where(ok, residual, 0)
     return jnp.sum(w * residual * residual), jnp.sum(jnp.where(ok, w, 0)) * samples.channels
 
@@ -274,7 +277,8 @@ def fit_model_map(
     starts = [starts] if isinstance(starts, eqx.Module) else list(starts)
     for start in starts:
         for effect in getattr(start, "effects", ()):
-            if type(effect).inverse is AbstractImageEffect.inverse:
+            here = effect.at(Site((jnp.zeros(()), jnp.zeros(())), jnp.zeros((), jnp.int32)))
+            if type(here).inverse is AbstractImageEffect.inverse:
                 raise ParameterError(
                     f"fit_model_map needs image effects it can undo: {type(effect).__name__} "
                     "has no inverse (an effect after the lobes makes the albedo nonlinear; "

@@ -15,6 +15,7 @@ from .._programs import persistent_jit
 from .._result import Estimate
 from .._status import Status
 from .._typing import Array, Float, Scalar
+from ..effects._effect import Site, undo_effects
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
 from ..solvers import DenseLM, Solver, least_squares
@@ -52,6 +53,15 @@ def _rmse_levels(model, samples, mask, predict: Predict, scale: float) -> Scalar
     return scale * jnp.sqrt(jnp.sum(residual * residual) / count)
 
 
+def _sites(samples) -> Site:
+    """Where each sample was recorded (N,): its pixel and frame, or pixel (0, 0) of frame 0
+    for samples that are not pixels (measured BRDF data)."""
+    if hasattr(samples, "frame") and hasattr(samples, "pixel"):
+        return Site(samples.pixel, samples.frame)
+    zero = jnp.zeros(samples.values.shape[0])
+    return Site((zero, zero), jnp.zeros(samples.values.shape[0], int))
+
+
 # Weights start at least this fraction of the largest: a weight that starts at exactly the
 # bound of its reparametrisation has no gradient and would stay there.
 _WEIGHT_FLOOR = 1e-2
@@ -65,8 +75,9 @@ def initial_weights(model, samples, columns: Callable, mask=None) -> eqx.Module:
     False (padding) are left out."""
     design = jax.vmap(lambda s: columns(model, s))(samples)
     values = samples.values
-    for effect in reversed(getattr(model, "effects", ())):
-        values = jax.vmap(effect.inverse)(values)
+    effects = tuple(getattr(model, "effects", ()))
+    if effects:
+        values = jax.vmap(lambda v, site: undo_effects(effects, v, site))(values, _sites(samples))
     if values.shape[-1] < 3:  # monochrome data: the same weight in every channel
         values = jnp.broadcast_to(values[:, :1], (values.shape[0], 3))
     if mask is not None:
@@ -208,7 +219,7 @@ def roughness_variants(model) -> list:
 
 def pixel_predict(model, sample) -> Float[Array, "3"]:
     """`Predict` for `PixelSamples` and a `ShadingModel`."""
-    return model(sample.point, sample.normal, sample.pixel)
+    return model(sample.point, sample.normal, sample.pixel, sample.frame)
 
 
 def pixel_columns(model, sample) -> Float[Array, " K"]:

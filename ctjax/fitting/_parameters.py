@@ -28,6 +28,7 @@ class Parameter:
     get: Callable
     name: str
     domain: tuple[float, float]
+    per_frame: bool = False
 
 
 def _walk(node, get, name, out, freeze):
@@ -43,7 +44,8 @@ def _walk(node, get, name, out, freeze):
                 continue
             if eqx.is_array(value):
                 if jnp.issubdtype(value.dtype, jnp.floating):
-                    out.append(Parameter(child_get, child_name, declared))
+                    per_frame = bool(field.metadata.get("per_frame", False))
+                    out.append(Parameter(child_get, child_name, declared, per_frame))
             else:
                 _walk(value, child_get, child_name, out, freeze)
     elif isinstance(node, tuple | list):
@@ -58,6 +60,11 @@ def free_parameters(model, freeze: Callable[[str], bool] = lambda name: False) -
     out: list[Parameter] = []
     _walk(model, lambda m: m, "", out, freeze)
     return out
+
+
+def per_frame_names(model) -> list[str]:
+    """The names of `model`'s free parameters with one value per frame (`PER_FRAME`)."""
+    return [p.name for p in free_parameters(model) if p.per_frame]
 
 
 def _to_unconstrained(value, domain):

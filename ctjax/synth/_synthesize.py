@@ -21,7 +21,7 @@ from .._candidate import AbstractCandidate, discover_candidates
 from .._errors import ParameterError
 from .._json import array_fields, named_parameters
 from .._model import ShadingModel
-from .._render import apply_effects, render_columns
+from .._render import Site, apply_effects, render_columns
 from ..io import Frame, write_capture
 from ..io._atomic import atomic_write_npy
 from ..lights import ColocatedLight
@@ -107,12 +107,24 @@ def _paper_scene(options: SynthOptions) -> ShadingModel:
     )
 
 
+def _context(options: SynthOptions) -> dict:
+    """What a candidate's `synthesize` may need of the capture."""
+    camera = synthetic_camera(options)
+    return {
+        "working_distance_mm": WORKING_DISTANCE_MM,
+        "frames": options.frames,
+        "seed": options.seed,
+        "principal_point": (float(camera.cx), float(camera.cy)),
+        "focal_px": (float(camera.fx), float(camera.fy)),
+    }
+
+
 def scene_model(options: SynthOptions) -> ShadingModel:
     """The synthetic scene's model: the paper's, with each effect added at its true value
     (in the order of their names, which puts a falloff before the light that keeps it)."""
     model = _paper_scene(options)
     known = synth_effects()
-    context = {"working_distance_mm": WORKING_DISTANCE_MM}
+    context = _context(options)
     for name in sorted(options.effects):
         model = known[name].synthesize(model, options.effects[name], context)
     return model
@@ -122,7 +134,7 @@ def effects_truth(options: SynthOptions) -> dict:
     """Each effect's parameters as the scene has them (truth.json's `effects`): the array
     fields it added or changed, by their dotted names (`light.position_mm`...)."""
     known = synth_effects()
-    context = {"working_distance_mm": WORKING_DISTANCE_MM}
+    context = _context(options)
     out = {}
     for name in sorted(options.effects):
         base = _paper_scene(options)
@@ -144,15 +156,27 @@ def synthetic_camera(options: SynthOptions) -> Camera:
     )
 
 
-def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map):
-    """Linear RGB of one frame: the diffuse lobes' weights are multiplied by the texture."""
+def _with_effects(effects, rgb, frame: int):
+    """The image effects applied to a rendered frame's linear RGB (H, W, 3)."""
+    if not effects:
+        return rgb
+    height, width = rgb.shape[:2]
+    u = jnp.broadcast_to(jnp.arange(width, dtype=rgb.dtype), (height, width))
+    v = jnp.broadcast_to(jnp.arange(height, dtype=rgb.dtype)[:, None], (height, width))
+    one = lambda x, u, v: apply_effects(effects, x, Site((u, v), jnp.asarray(frame)))  # noqa: E731
+    return jax.vmap(jax.vmap(one))(rgb, u, v)
+
+
+def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map, frame: int):
+    """Linear RGB of frame `frame`: the diffuse lobes' weights are multiplied by the
+    texture."""
     brdf = model.brdf
     columns = render_columns(brdf, model.light, camera, jnp.asarray(normals), jnp.asarray(depth))
     weights = brdf.weights  # (K, 3)
     diffuse = jnp.array([isinstance(lobe, Lambertian) for lobe in brdf.lobes])
     texture = jnp.where(diffuse[:, None, None, None], jnp.asarray(albedo_map)[None], 1.0)
     rgb = jnp.einsum("hwk,khwc,kc->hwc", columns, texture, weights)
-    return jax.vmap(jax.vmap(lambda pixel: apply_effects(model.effects, pixel)))(rgb)
+    return _with_effects(model.effects, rgb, frame)
 
 
 def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
@@ -190,7 +214,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         )
         if options.texture_contrast != 1:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
-        linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map))
+        linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map, index))
         true_albedo[f"frame_{index:03d}"] = np.where(
             np.isfinite(depth)[..., None],
             albedo_map * np.asarray(options.rho_tilde, np.float32),
