@@ -33,6 +33,7 @@ def _synth_options_from(args: argparse.Namespace):
         F_tilde=tuple(args.F) if args.F else SynthOptions.F_tilde,
         sigma=args.sigma,
         effects=effects,
+        stereo_mm=getattr(args, "stereo", None),
     )
 
 
@@ -46,6 +47,12 @@ def _add_synth_arguments(
     size.add_argument("--seed", type=int, default=0, help="random seed (organ, path, noise)")
     size.add_argument("--width", type=int, default=SynthOptions.width)
     size.add_argument("--height", type=int, default=SynthOptions.height)
+    size.add_argument(
+        "--stereo",
+        type=float,
+        metavar="BASELINE_MM",
+        help="a stereo laparoscope: right images from a camera this far right (mm)",
+    )
     if texture:
         size.add_argument("--no-texture", action="store_true", help="uniform albedo")
     else:
@@ -215,6 +222,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         force=args.force,
         photometric=not args.no_photometric,
         shading=args.shading,
+        stereo=args.stereo,
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
         verbose=args.verbose,
     )
@@ -698,6 +706,14 @@ def _recon_command(commands) -> None:
         action="store_true",
         help="then refine the shape by every frame's shading, one world surface fitted with "
         "the BRDF (assumes the light at the camera; about 15 s at 640x512 x 8)",
+    )
+    recon.add_argument(
+        "--stereo",
+        choices=("scale", "surface", "none"),
+        default="scale",
+        help="on a stereo capture (right/NAME.png, camera.json's stereo): the pairs' depth "
+        "gives the scale in mm (scale), and also dense points for the surfaces (surface; "
+        "noisier normals on the synthetic captures), or is not used (none)",
     )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")

@@ -171,7 +171,8 @@ def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
     # An unrelated image (another texture altogether): features, but no match.
     noise = np.random.default_rng(0).integers(0, 256, (160, 192, 3), np.uint8)
     cv2.imwrite(str(capture / "images" / "frame_999.png"), cv2.GaussianBlur(noise, (3, 3), 0))
-    report = reconstruct(capture)
+    # The registration is what is checked: SfM's surface, not refined by the texture.
+    report = reconstruct(capture, photometric=False)
     assert report["unregistered"] == ["frame_999"]
     assert report["registered"] == ["frame_000", "frame_001", "frame_002"]
     assert any("frame_999 did not register" in w for w in report["warnings"])

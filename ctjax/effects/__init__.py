@@ -1,4 +1,6 @@
-"""Per-pixel effects between scene radiance and the recorded pixel (ambient, camera response)."""
+"""Per-pixel effects between scene radiance and the recorded pixel: ambient light, the
+camera's response, and those that depend on where the value was recorded (`Site`: the
+pixel and the frame): the optics' vignetting, the scope's auto-exposure."""
 
 from ._ambient import Ambient as Ambient
 from ._effect import AbstractImageEffect as AbstractImageEffect

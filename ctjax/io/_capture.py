@@ -7,6 +7,8 @@
       depth/NAME.npy       optional, float32 (H, W) camera-frame z in mm, NaN where unknown
       normals/NAME.npy     optional, float32 (H, W, 3) unit normals, camera frame, facing the camera
       poses.json           optional, {"NAME": 4x4 camera-to-world}
+      right/NAME.png       optional, a stereo laparoscope's right image (camera.json's
+                           "stereo" block: the right camera, R and T; `ctjax.io._stereo`)
       truth.json           optional, ground truth of synthetic captures
 
 Frames are the images, sorted by name; depth, normals and poses are matched by NAME.
@@ -32,6 +34,7 @@ from ._atomic import atomic_write_json, atomic_write_npy
 from ._encoding import LINEAR, SRGB, declared_encoding, decode, default_encoding, encode
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
+from ._stereo import RIGHT, StereoRig, parse_stereo, right_image_path
 
 # Normals further than this from unit length are rejected (float32 files are ~1e-7 off).
 _UNIT_TOLERANCE = 1e-3
@@ -97,6 +100,18 @@ class Capture:
     encoding: str = LINEAR
     # What the user should know about how the capture was read (one sentence each).
     notes: tuple[str, ...] = ()
+    # A stereo laparoscope's right camera (camera.json's "stereo"; `ctjax.io._stereo`).
+    stereo: StereoRig | None = None
+
+    def right_image(self, name: str) -> np.ndarray | None:
+        """Frame `name`'s right image as recorded (encoded, float in [0, 1], the right
+        camera's own grid, not undistorted), None where the capture has none."""
+        path = right_image_path(self.root, name) if self.stereo is not None else None
+        if path is None:
+            return None
+        raw = read_recorded(path)
+        top = 255.0 if raw.dtype == np.uint8 else 65535.0
+        return raw.astype(np.float32) / top
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -106,8 +121,7 @@ class Capture:
         return all(frame.has_geometry for frame in self.frames)
 
 
-def read_camera(path: Path) -> Camera:
-    """Parse and validate `camera.json`."""
+def _camera_json(path: Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: camera.json not found")
@@ -117,6 +131,25 @@ def read_camera(path: Path) -> Camera:
         raise CaptureError(f"{path}: not valid JSON ({error})") from None
     if not isinstance(data, dict):
         raise CaptureError(f"{path}: expected a JSON object with width, height, fx, fy, cx, cy")
+    return data
+
+
+def read_camera(path: Path) -> Camera:
+    """Parse and validate `camera.json`."""
+    return camera_from_json(_camera_json(path), path)
+
+
+def read_stereo(path: Path) -> StereoRig | None:
+    """`camera.json`'s `"stereo"` block (the right camera of a stereo laparoscope,
+    `ctjax.io._stereo`), None where there is none."""
+    data = _camera_json(path)
+    if "stereo" not in data:
+        return None
+    return parse_stereo(data["stereo"], camera_from_json(data, path), str(path), camera_from_json)
+
+
+def camera_from_json(data: dict, path) -> Camera:
+    """A `Camera` from camera.json's keys (`path` names it in errors)."""
     missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy") if k not in data]
     if missing:
         raise CaptureError(f"{path}: missing key(s) {', '.join(missing)}")
@@ -328,7 +361,15 @@ def load_capture(
         camera = camera.without_distortion()
     if field_of_view:
         frames = _with_field_of_view(frames, encoding)
-    return Capture(root, camera, tuple(frames), truth, unit, encoding, notes)
+    stereo = read_stereo(root / "camera.json")
+    if stereo is not None:
+        absent = [f.name for f in frames if right_image_path(root, f.name) is None]
+        if absent:
+            raise CaptureError(
+                f"{root / RIGHT}: camera.json describes a stereo camera but the right image of "
+                f"{', '.join(absent[:3])}{' ...' if len(absent) > 3 else ''} is missing"
+            )
+    return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo)
 
 
 # Frames whose images differ by at most this much (recorded units) everywhere are the same
@@ -375,15 +416,23 @@ def write_capture(
     *,
     bits: int = 8,
     encoding: str = LINEAR,
+    stereo: StereoRig | None = None,
+    right: dict | None = None,
 ) -> Path:
     """Write frames in the capture format (atomically, file by file). Returns the folder.
 
     Images are linear float RGB in [0, 1], clipped, encoded with `encoding` ("linear" or
-    "srgb", recorded in camera.json) and quantised to `bits` (8 or 16).
+    "srgb", recorded in camera.json) and quantised to `bits` (8 or 16). A stereo capture:
+    `stereo` (camera.json's "stereo") and `right` {NAME: the right camera's linear image}.
     """
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(root / "camera.json", {**camera.to_json(), "encoding": encoding})
+    described = {**camera.to_json(), "encoding": encoding}
+    if stereo is not None:
+        described["stereo"] = stereo.to_json()
+    atomic_write_json(root / "camera.json", described)
+    for name, image in (right or {}).items():
+        write_rgb(root / RIGHT / f"{name}.png", image, bits=bits, encoding=encoding)
     poses = {}
     for frame in frames:
         path = root / "images" / f"{frame.name}.png"

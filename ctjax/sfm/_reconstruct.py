@@ -21,12 +21,13 @@ import cv2
 import numpy as np
 
 from .._camera import Camera
-from .._errors import CaptureError, ParameterError
+from .._errors import CaptureError, ParameterError, ReconstructionError
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel, sparse_reconstruction
 from ._photometric import POINTS_WEIGHT, SMOOTHING, refine_views
+from ._stereo import stereo_points
 from ._surface import DepthSurface, fit_depth_surface
 
 # Fraction kept along each axis for the bounding box of `volume_mm3` (robust to stray points).
@@ -109,6 +110,7 @@ def reconstruct_capture(
     volume_mm3: float | None = None,
     knot_spacing_px: float | None = None,
     photometric: bool = True,
+    stereo: str = "scale",
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> Reconstruction:
@@ -119,6 +121,11 @@ def reconstruct_capture(
     frame. `volume_mm3`: the volume of the axis-aligned bounding box (reference camera axes)
     of the sparse points, each axis trimmed to its 0.5-99.5 percentiles (the paper's known
     size). Without either, depth is up to scale (median reference depth = 1).
+
+    `stereo`: on a stereo capture (camera.json's "stereo", right/NAME.png), what the pairs'
+    depth (`_stereo.py`) is used for: `"scale"` (default) SfM's scale (mm, unless
+    `scale_mm` or `volume_mm3` says otherwise), `"surface"` also their dense points for
+    every view's surface beside SfM's, `"none"` nothing.
 
     `photometric`: refine each view's surface by the texture seen from the other frames
     (`_photometric.py`; on by default: SfM's points alone leave the normals 2-3 degrees off
@@ -146,6 +153,15 @@ def reconstruct_capture(
         camera, sparse, points, world_from_ref, unit, knot_spacing_px, say
     )
     scale, scale_info = _scale(camera, surfaces.get(reference), hulls.get(reference), points)
+    pairs = {}
+    if stereo not in STEREO_USES:
+        raise ParameterError(f"stereo must be one of {STEREO_USES}, got {stereo!r}")
+    if capture.stereo is not None and stereo != "none":
+        index = {frame.name: i for i, frame in enumerate(capture.frames)}
+        pairs = {name: stereo_points(capture, index[name]) for name in surfaces}
+        say(f"stereo: {sum(map(len, pairs.values()))} points from {len(pairs)} pairs")
+        if scale_mm is None and volume_mm3 is None:
+            scale = _stereo_scale(surfaces, hulls, pairs, scale_info, capture.stereo)
     if scale_mm is not None:
         scale = scale_mm / scale_info["median_reference_depth"]
         scale_info.update(metric=True, method="scale_mm", value=scale_mm)
@@ -160,6 +176,15 @@ def reconstruct_capture(
         pose = np.linalg.inv(cams[name])
         pose[:3, 3] *= scale
         u, v, z, weight = surface.points
+        if name in pairs and stereo == "surface":  # SfM's points and the pair's (mm)
+            pair = pairs[name]
+            u, v, z = (np.concatenate(a) for a in ((u, pair.u), (v, pair.v), (z * scale, pair.z)))
+            margin = knot_spacing_px  # as `_view_surfaces`
+            bounds = (-margin, camera.width - 1 + margin, -margin, camera.height - 1 + margin)
+            scaled = fit_depth_surface(u, v, z, bounds, knot_spacing_px=knot_spacing_px)
+            hull = _hull_mask(camera, u[scaled.inliers], v[scaled.inliers])
+            views[name] = ViewSurface(name, scaled, hull, pose, int(scaled.inliers.sum()))
+            continue
         scaled = dataclasses.replace(
             surface,
             coefficients=surface.coefficients * scale,
@@ -172,8 +197,57 @@ def reconstruct_capture(
         views, refinements = refine_views(camera, views, capture.frames, say)
 
     report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
+    if pairs:
+        report["stereo"] = _stereo_report(pairs, capture.stereo, stereo)
     report["surface"]["photometric"] = _photometric_report(refinements)
     return Reconstruction(camera, views, sparse, report)
+
+
+STEREO_USES = ("scale", "surface", "none")
+
+
+def _stereo_scale(surfaces, hulls, pairs, scale_info, rig) -> float:
+    """SfM's scale from the stereo pairs: per frame the median ratio of the pair's depth to
+    SfM's surface at the same pixels (inside its hull), then the median over frames; the
+    frames' spread says how well the two agree."""
+    ratios = {}
+    for name, pair in pairs.items():
+        surface, hull = surfaces[name], hulls[name]
+        rows = np.clip(np.round(pair.v).astype(int), 0, hull.shape[0] - 1)
+        cols = np.clip(np.round(pair.u).astype(int), 0, hull.shape[1] - 1)
+        inside = hull[rows, cols]
+        if inside.sum() < 16:
+            continue
+        sfm = surface.depth_and_gradient(pair.u[inside], pair.v[inside])[0]
+        ratio = pair.z[inside] / sfm
+        ratios[name] = float(np.median(ratio[np.isfinite(ratio) & (ratio > 0)]))
+    if not ratios:
+        raise ReconstructionError(
+            "stereo: no pair matched SfM's surface (too few stereo points inside the frames' "
+            "hulls); check camera.json's stereo block (R, T in mm, X_right = R X_left + T)"
+        )
+    scale = float(np.median(list(ratios.values())))
+    spread = [abs(r / scale - 1) for r in ratios.values()]
+    scale_info.update(
+        metric=True,
+        method="stereo",
+        value=rig.baseline_mm,
+        stereo_scale_per_frame=ratios,
+        stereo_scale_max_deviation=float(max(spread)),
+    )
+    return scale
+
+
+def _stereo_report(pairs, rig, use: str) -> dict:
+    return {
+        "baseline_mm": rig.baseline_mm,
+        "matcher": "OpenCV StereoSGBM on the rectified pairs (cv2.stereoRectify)",
+        "points_per_frame": {name: len(pair) for name, pair in pairs.items()},
+        "matched_per_frame": {name: pair.matched for name, pair in pairs.items()},
+        "surface": "each view's surface fitted to SfM's points and its pair's together (mm)"
+        if use == "surface"
+        else "SfM's points alone (the pairs give the scale)",
+    }
 
 
 def _photometric_report(refinements) -> dict:
@@ -235,6 +309,7 @@ def reconstruct(
     force: bool = False,
     photometric: bool = True,
     shading: bool = False,
+    stereo: str = "scale",
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> dict:
@@ -249,7 +324,8 @@ def reconstruct(
     pixel, so that `load_capture` (which undistorts them) reads them back on its grid.
     `shading`: then refine the shape by the shading of every frame, one world surface fitted
     with the BRDF (`_shading.py`; assumes the paper's light, at the camera); the report's
-    `surface.shading` says what it did, or why it was skipped.
+    `surface.shading` says what it did, or why it was skipped. `stereo`: see
+    `reconstruct_capture` (a stereo capture is in mm without a size given).
 
     Returns the report (see `reconstruct_capture`).
     """
@@ -262,6 +338,8 @@ def reconstruct(
     if out.resolve() != root.resolve():
         image_files = sorted(p for p in (root / "images").iterdir() if p.is_file())
         copies = [root / "camera.json", *image_files]
+        if (root / "right").is_dir():  # a stereo capture's right images
+            copies += sorted(p for p in (root / "right").iterdir() if p.is_file())
         if (root / "truth.json").is_file():
             copies.append(root / "truth.json")
     targets = [out / p.relative_to(root) for p in copies] + _geometry_files(out, names)
@@ -274,6 +352,7 @@ def reconstruct(
         scale_mm=scale_mm,
         volume_mm3=volume_mm3,
         photometric=photometric,
+        stereo=stereo,
         progress=progress,
         verbose=verbose,
     )

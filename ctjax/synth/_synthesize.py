@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -24,7 +25,8 @@ from .._model import ShadingModel
 from .._render import Site, apply_effects, render_columns
 from ..io import Frame, write_capture
 from ..io._atomic import atomic_write_npy
-from ..lights import ColocatedLight
+from ..io._stereo import StereoRig
+from ..lights import ColocatedLight, PointLight
 from ..lobes import Lambertian, cook_torrance_brdf
 from ._organ import OrganSurface, cast_rays
 from ._texture import sample_texture, seeded_texture
@@ -74,6 +76,9 @@ class SynthOptions:
     sigma: float = DEFAULT_SIGMA
     focal_px: float | None = None  # default: 0.9 * width (a ~58 degree field of view)
     effects: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    # A stereo laparoscope: the right camera this far right of the left one (mm), parallel,
+    # the same intrinsics; the light stays at the left lens. None: one camera.
+    stereo_mm: float | None = None
 
     def __post_init__(self):
         problems = []
@@ -85,6 +90,10 @@ class SynthOptions:
             problems.append(f"frames={self.frames} (at least 1)")
         if not np.isfinite(self.noise_levels) or self.noise_levels < 0:
             problems.append(f"noise_levels={self.noise_levels} (>= 0)")
+        if self.stereo_mm is not None and not (
+            np.isfinite(self.stereo_mm) and 0 < self.stereo_mm < 0.5 * WORKING_DISTANCE_MM
+        ):
+            problems.append(f"stereo_mm={self.stereo_mm} (a baseline in (0, 35) mm)")
         if self.bits not in (8, 16):
             problems.append(f"bits={self.bits} (8 or 16)")
         if not (np.isfinite(self.sigma) and 1e-5 <= self.sigma <= 1):
@@ -179,6 +188,30 @@ def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map, frame
     return _with_effects(model.effects, rgb, frame)
 
 
+def _stereo_rig(options: SynthOptions, camera: Camera) -> StereoRig | None:
+    """The synthetic stereo rig: the right camera `stereo_mm` to the right, parallel."""
+    if options.stereo_mm is None:
+        return None
+    return StereoRig(camera, np.eye(3), np.array([-options.stereo_mm, 0.0, 0.0]))
+
+
+def _left_from_right(rig: StereoRig) -> np.ndarray:
+    """The right camera's pose in the left camera's frame (4x4, right-to-left)."""
+    pose = np.eye(4)
+    pose[:3, :3] = rig.R.T
+    pose[:3, 3] = -rig.R.T @ rig.T
+    return pose
+
+
+def _seen_from_the_right(model: ShadingModel, rig: StereoRig) -> ShadingModel:
+    """The scene's model in the right camera's frame: the light where it is, at the left
+    lens (or at its offset from it), with its falloffs."""
+    light = model.light
+    position = np.asarray(getattr(light, "position_mm", np.zeros(3)), np.float64)
+    moved = PointLight(rig.R @ position + rig.T, light.intensity, light.falloff)
+    return eqx.tree_at(lambda m: m.light, model, moved)
+
+
 def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     """Generate a synthetic laparoscope capture into folder `out`; returns the folder.
 
@@ -202,7 +235,13 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     frames = []
     saturated = []
     true_albedo = {}
-    for index, pose in enumerate(poses):
+    rig = _stereo_rig(options, camera)
+    right_model = None if rig is None else _seen_from_the_right(model, rig)
+    right_images = {}
+    top = 255 if options.bits == 8 else 65535
+
+    def view(model, pose, index):
+        """One camera's linear image of frame `index` at `pose`, and its geometry."""
         depth, normals, points_world = cast_rays(surface, camera, pose)
         # Render from exactly what is stored (float32), so the files are self-consistent.
         depth = depth.astype(np.float32)
@@ -215,18 +254,22 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         if options.texture_contrast != 1:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
         linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map, index))
-        true_albedo[f"frame_{index:03d}"] = np.where(
+        noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
+        quantised = np.round(np.clip(noisy, 0, 1) * top) / top
+        return quantised.astype(np.float32), depth, normals, albedo_map
+
+    for index, pose in enumerate(poses):
+        name = f"frame_{index:03d}"
+        image, depth, normals, albedo_map = view(model, pose, index)
+        true_albedo[name] = np.where(
             np.isfinite(depth)[..., None],
             albedo_map * np.asarray(options.rho_tilde, np.float32),
             np.nan,
         ).astype(np.float32)
-        noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
-        top = 255 if options.bits == 8 else 65535
-        quantised = np.round(np.clip(noisy, 0, 1) * top) / top
-        saturated.append(float(np.mean(np.any(quantised >= 1, axis=-1))))
-        frames.append(
-            Frame(f"frame_{index:03d}", quantised.astype(np.float32), depth, normals, pose)
-        )
+        saturated.append(float(np.mean(np.any(image >= 1, axis=-1))))
+        frames.append(Frame(name, image, depth, normals, pose))
+        if rig is not None:
+            right_images[name] = view(right_model, pose @ _left_from_right(rig), index)[0]
     truth = {
         "rho_tilde": list(map(float, options.rho_tilde)),
         "F_tilde": list(map(float, options.F_tilde)),
@@ -255,7 +298,11 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         "organ": {"base_mm": surface.base_mm, "radius_mm": surface.radius_mm},
         "poses": {frame.name: frame.pose.tolist() for frame in frames},
     }
-    root = write_capture(out, camera, frames, truth, bits=options.bits)
+    if rig is not None:
+        truth["stereo"] = {"baseline_mm": rig.baseline_mm, "light": "at the left lens"}
+    root = write_capture(
+        out, camera, frames, truth, bits=options.bits, stereo=rig, right=right_images or None
+    )
     for name, albedo in true_albedo.items():
         atomic_write_npy(root / "albedo" / f"{name}.npy", albedo)
     return root

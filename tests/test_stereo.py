@@ -1,0 +1,120 @@
+"""Stereo captures: the format (camera.json's "stereo", right/NAME.png), `ctjax synth
+--stereo`, the pairs' dense depth and `reconstruct` in millimetres without a size given."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from ctjax import CaptureError
+from ctjax.cli import main
+from ctjax.io import load_capture
+from ctjax.sfm import reconstruct_capture
+from ctjax.sfm._stereo import stereo_points
+from ctjax.synth import SynthOptions, synthesize
+
+BASELINE_MM = 5.0
+
+
+@pytest.fixture(scope="module")
+def stereo_capture(tmp_path_factory):
+    root = tmp_path_factory.mktemp("stereo") / "c"
+    options = SynthOptions(width=256, height=208, frames=3, seed=1, stereo_mm=BASELINE_MM)
+    return synthesize(root, options)
+
+
+def test_synth_writes_the_right_camera_and_its_images(stereo_capture):
+    described = json.loads((stereo_capture / "camera.json").read_text())
+    assert described["stereo"]["T"] == [-BASELINE_MM, 0.0, 0.0]
+    capture = load_capture(stereo_capture)
+    assert capture.stereo.baseline_mm == pytest.approx(BASELINE_MM)
+    right = capture.right_image(capture.frames[0].name)
+    assert right.shape == capture.frames[0].image.shape
+    # The same scene from 5 mm to the right: alike, not the same.
+    assert 0 < np.mean(np.abs(right - capture.frames[0].image)) < 0.2
+
+
+def test_the_pairs_measure_depth_in_millimetres(stereo_capture):
+    capture = load_capture(stereo_capture)
+    for index, frame in enumerate(capture.frames):
+        points = stereo_points(capture, index)
+        assert len(points) > 1000 and points.matched > 0.5
+        rows = np.round(points.v).astype(int)
+        cols = np.round(points.u).astype(int)
+        true = frame.depth[rows, cols]
+        ok = np.isfinite(true)
+        error = points.z[ok] / true[ok] - 1
+        assert abs(np.median(error)) < 0.005
+        assert np.median(np.abs(error - np.median(error))) < 0.015
+
+
+def test_reconstruct_is_metric_from_the_pairs_alone(stereo_capture, tmp_path):
+    """No --scale-mm: the pairs give SfM's scale; depth within 0.5% of the truth."""
+    images = tmp_path / "images-only"
+    images.mkdir()
+    for name in ("camera.json",):
+        shutil.copy(stereo_capture / name, images / name)
+    for folder in ("images", "right"):
+        shutil.copytree(stereo_capture / folder, images / folder)
+    truth = load_capture(stereo_capture)
+    result = reconstruct_capture(load_capture(images), photometric=False)
+    scale = result.report["scale"]
+    assert scale["metric"] and scale["method"] == "stereo" and scale["unit"] == "mm"
+    assert scale["stereo_scale_max_deviation"] < 0.01
+    assert result.report["length_unit"] == "mm"
+    assert result.report["stereo"]["baseline_mm"] == pytest.approx(BASELINE_MM)
+    for frame in truth.frames:
+        depth, _ = result.views[frame.name].depth_and_normals(truth.camera)
+        ok = np.isfinite(depth) & np.isfinite(frame.depth)
+        assert abs(np.median(depth[ok] / frame.depth[ok] - 1)) < 0.005
+
+
+@pytest.mark.parametrize(
+    "stereo, message",
+    [
+        ({"right": {"fx": 1, "fy": 1, "cx": 0, "cy": 0}, "R": np.eye(3).tolist()}, "missing T"),
+        (
+            {
+                "right": {"fx": 1, "fy": 1, "cx": 0, "cy": 0},
+                "R": [[2, 0, 0], [0, 1, 0], [0, 0, 1]],
+                "T": [-5, 0, 0],
+            },
+            "rotation",
+        ),
+        ({"right": {"fx": 1, "cx": 0, "cy": 0}, "R": np.eye(3).tolist(), "T": [-5, 0, 0]}, "fy"),
+        (
+            {
+                "right": {"fx": 1, "fy": 1, "cx": 0, "cy": 0},
+                "R": np.eye(3).tolist(),
+                "T": [0, 0, 0],
+            },
+            "nonzero",
+        ),
+        ("left", "an object"),
+    ],
+)
+def test_a_bad_stereo_block_is_one_clear_error(stereo_capture, tmp_path, stereo, message):
+    copy = tmp_path / "c"
+    shutil.copytree(stereo_capture, copy)
+    described = json.loads((copy / "camera.json").read_text())
+    described["stereo"] = stereo
+    (copy / "camera.json").write_text(json.dumps(described))
+    with pytest.raises(CaptureError, match=message):
+        load_capture(copy)
+
+
+def test_a_missing_right_image_is_named(stereo_capture, tmp_path):
+    copy = tmp_path / "c"
+    shutil.copytree(stereo_capture, copy)
+    (copy / "right" / "frame_001.png").unlink()
+    with pytest.raises(CaptureError, match="right image of frame_001 is missing"):
+        load_capture(copy)
+
+
+def test_synth_command_stereo(tmp_path):
+    out = tmp_path / "s"
+    argv = ["synth", str(out), "--frames", "1", "--width", "64", "--height", "48"]
+    assert main([*argv, "--stereo", "4"]) == 0
+    assert (out / "right" / "frame_000.png").is_file()
+    assert main(["synth", str(tmp_path / "bad"), "--stereo", "-1"]) == 2
