@@ -618,6 +618,18 @@ def _import_command(commands) -> None:
         "match; default: the video's size)",
     )
     video.add_argument(
+        "--right",
+        type=Path,
+        help="a stereo laparoscope's right video, frame for frame with VIDEO (camera.json "
+        "needs its stereo block); writes OUT/right/frame_NNNNNN.png",
+    )
+    video.add_argument(
+        "--side-by-side",
+        action="store_true",
+        help="a stereo video with the left camera's image in each frame's left half and the "
+        "right camera's in its right half (camera.json needs its stereo block)",
+    )
+    video.add_argument(
         "--force",
         action="store_true",
         help="replace OUT/images (and the depth, normals and poses reconstructed from them)",
@@ -641,12 +653,14 @@ def _cmd_import(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         distinct=args.distinct,
         width=args.width,
+        side_by_side=args.side_by_side,
     )
     report = import_video(
         args.video,
         args.camera,
         args.out,
         options,
+        right=args.right,
         force=args.force,
         progress=lambda m: print(f"[ctjax import] {m}", flush=True),
     )

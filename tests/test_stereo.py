@@ -4,6 +4,7 @@
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -118,3 +119,48 @@ def test_synth_command_stereo(tmp_path):
     assert main([*argv, "--stereo", "4"]) == 0
     assert (out / "right" / "frame_000.png").is_file()
     assert main(["synth", str(tmp_path / "bad"), "--stereo", "-1"]) == 2
+
+
+def _video(path, images, held=3):
+    height, width = images[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 24, (width, height))
+    for image in images:
+        bgr = np.round(np.clip(image[..., ::-1], 0, 1) * 255).astype(np.uint8)
+        for _ in range(held):
+            writer.write(bgr)
+    writer.release()
+    return path
+
+
+@pytest.mark.parametrize("layout", ["two videos", "side by side"])
+def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path, layout):
+    capture = load_capture(stereo_capture)
+    left = [frame.image for frame in capture.frames]
+    right = [capture.right_image(frame.name) for frame in capture.frames]  # as recorded
+    out = tmp_path / "imported"
+    argv = ["import", "--camera", str(stereo_capture / "camera.json"), "--out", str(out)]
+    if layout == "two videos":
+        argv += [str(_video(tmp_path / "l.mp4", left)), "--right"]
+        argv += [str(_video(tmp_path / "r.mp4", right))]
+    else:
+        pairs = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=True)]
+        argv += [str(_video(tmp_path / "lr.mp4", pairs)), "--side-by-side"]
+    assert main([*argv, "--width", "128"]) == 0
+    imported = load_capture(out)
+    assert len(imported) == 3 and imported.stereo.right.width == 128
+    assert imported.stereo.baseline_mm == pytest.approx(BASELINE_MM)
+    assert float(imported.stereo.right.fx) == pytest.approx(float(capture.camera.fx) / 2)
+    image = imported.right_image(imported.frames[0].name)
+    assert image.shape == (104, 128, 3)
+
+
+def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys):
+    described = json.loads((stereo_capture / "camera.json").read_text())
+    del described["stereo"]
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps(described))
+    frames = [frame.image for frame in load_capture(stereo_capture).frames]
+    video = _video(tmp_path / "v.mp4", frames)
+    argv = ["import", str(video), "--camera", str(camera), "--out", str(tmp_path / "o")]
+    assert main([*argv, "--side-by-side"]) == 2
+    assert "stereo" in capsys.readouterr().err

@@ -31,10 +31,11 @@ import numpy as np
 
 from .._errors import CaptureError, ParameterError
 from ._atomic import atomic_write_json
-from ._capture import read_camera, read_encoding
+from ._capture import read_camera, read_encoding, read_stereo
 from ._encoding import SRGB
 from ._field_of_view import field_of_view
 from ._images import write_quantised_rgb
+from ._stereo import RIGHT
 
 THUMBNAIL_WIDTH = 320
 BLUR_WINDOW = 31
@@ -51,6 +52,9 @@ class ImportOptions:
     distinct: float = 0.03  # a new view: thumbnails differ by this, relative
     blur_ratio: float = 0.5  # blurred: sharpness below this times its neighbours' median
     width: int | None = None  # write the frames this wide (area-averaged), K scaled
+    # A stereo video recorded side by side: each frame's left half is the left camera's,
+    # its right half the right camera's.
+    side_by_side: bool = False
 
     def __post_init__(self):
         if int(self.every) != self.every or self.every < 1:
@@ -112,6 +116,15 @@ def _frames(path: Path, options: ImportOptions, fps: float):
         video.release()
 
 
+def _halves(image: np.ndarray, options: ImportOptions) -> tuple[np.ndarray, np.ndarray | None]:
+    """The left camera's image and the right one's in a side-by-side frame, else the
+    frame itself and None."""
+    if not options.side_by_side:
+        return image, None
+    half = image.shape[1] // 2
+    return image[:, :half], image[:, half : 2 * half]
+
+
 def _small(image: np.ndarray) -> np.ndarray:
     """A BGR frame as RGB, `THUMBNAIL_WIDTH` px wide."""
     height, width = image.shape[:2]
@@ -136,6 +149,7 @@ def _scan(path: Path, options: ImportOptions, progress: Callable[[str], None]) -
     indices, thumbnails, sharpness = [], [], []
     fov = size = None
     for index, image in _frames(path, options, fps):
+        image = _halves(image, options)[0]
         if fov is None:
             size = (image.shape[1], image.shape[0])
             fov = field_of_view(_small(image).astype(np.float32) / 255)
@@ -206,15 +220,30 @@ def import_video(
     out: str | Path,
     options: ImportOptions = ImportOptions(),
     *,
+    right: str | Path | None = None,
     force: bool = False,
     progress: Callable[[str], None] = lambda message: None,
 ) -> dict:
     """Write a capture folder `out` from the distinct, sharp frames of `video` (see the
     module doc). `camera` is the camera.json of the endoscope (its size must be the
     video's). Returns a report: the counts of frames considered, dropped and kept, and the
-    kept frames' names and times."""
+    kept frames' names and times.
+
+    A stereo laparoscope: `right`, the right camera's video (frame for frame with
+    `video`), or `options.side_by_side` (each frame holds both); camera.json must then
+    have its `"stereo"` block (`ctjax.io._stereo`), and the capture gets
+    `right/NAME.png` beside `images/NAME.png`. Frames are chosen on the left camera's."""
     video, camera_path, out = Path(video), Path(camera), Path(out)
     intrinsics = read_camera(camera_path)
+    stereo = options.side_by_side or right is not None
+    rig = read_stereo(camera_path) if stereo else None
+    if stereo and rig is None:
+        raise CaptureError(
+            f'{camera_path}: a stereo import needs camera.json\'s "stereo" block (the right '
+            'camera\'s "right": {fx, fy, cx, cy}, "R" and "T" in mm, X_right = R X_left + T)'
+        )
+    if right is not None and options.side_by_side:
+        raise ParameterError("give a right video or --side-by-side, not both")
     images = out / "images"
     if images.is_dir() and any(images.iterdir()) and not force:
         raise CaptureError(f"{images}: already has images (--force replaces them)")
@@ -233,6 +262,8 @@ def import_video(
     )
     if images.is_dir() and force:
         shutil.rmtree(images)
+        if (out / RIGHT).is_dir():
+            shutil.rmtree(out / RIGHT)
         # The shape reconstructed from the replaced frames belongs to them, not to the new.
         for stale in ("depth", "normals"):
             if (out / stale).is_dir():
@@ -243,7 +274,19 @@ def import_video(
     digits = max(6, len(str(max(wanted))))
     names = []
     intrinsics, size = _scaled(intrinsics, options.width)
+    right_size = None
+    recorded_right = None if rig is None else (rig.right.width, rig.right.height)
+    if rig is not None and size is not None:
+        scale = size[0] / rig.right.width if rig.right.width else 1.0
+        rig = dataclasses.replace(rig, right=_scaled(rig.right, round(rig.right.width * scale))[0])
+        right_size = (rig.right.width, rig.right.height)
+    right_frames = _frames(Path(right), options, scan.fps) if right is not None else None
     for index, image in _frames(video, options, scan.fps):
+        image, other = _halves(image, options)
+        if right_frames is not None:
+            other_index, other = next(right_frames, (None, None))
+            if other_index != index:
+                raise CaptureError(f"{right}: ends before {video} (frame {index})")
         if index not in wanted:
             continue
         name = f"frame_{index:0{digits}d}"
@@ -252,6 +295,15 @@ def import_video(
             # error against averaging light is a fraction of a level on tissue.
             image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
         write_quantised_rgb(images / f"{name}.png", image[..., ::-1])
+        if rig is not None:
+            if (other.shape[1], other.shape[0]) != recorded_right:
+                raise CaptureError(
+                    f"{right or video}: right frames are {other.shape[1]}x{other.shape[0]}, "
+                    f"{camera_path}'s stereo.right says {recorded_right[0]}x{recorded_right[1]}"
+                )
+            if right_size is not None:
+                other = cv2.resize(other, right_size, interpolation=cv2.INTER_AREA)
+            write_quantised_rgb(out / RIGHT / f"{name}.png", np.ascontiguousarray(other[..., ::-1]))
         names.append(name)
         progress(f"wrote {len(names)}/{len(wanted)} frames")
         if len(names) == len(wanted):
@@ -259,7 +311,10 @@ def import_video(
     # Video frames are sRGB-encoded (every camera pipeline encodes before compression),
     # unless the endoscope's camera.json says otherwise.
     encoding = read_encoding(camera_path) or SRGB
-    atomic_write_json(out / "camera.json", {**intrinsics.to_json(), "encoding": encoding})
+    described = {**intrinsics.to_json(), "encoding": encoding}
+    if rig is not None:
+        described["stereo"] = rig.to_json()
+    atomic_write_json(out / "camera.json", described)
     return {
         "video": str(video),
         "out": str(out),
