@@ -10,6 +10,7 @@ import math
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import numpy as np
 
 from ._errors import CtjaxError
@@ -107,8 +108,10 @@ def _second_differences_floor(residuals) -> float:
 
 
 # LM steps for a model's per-frame parameters on the held-out frames (one exposure each:
-# a handful of steps converge).
+# a handful of steps converge), and the most tracked points (pixels: 4x) they are fitted
+# on: a value per frame needs few, and every candidate of a diagnosis pays for the fit.
 _PER_FRAME_STEPS = 30
+_PER_FRAME_POINTS = 2048
 
 
 def _per_frame_fitted(model, fit_held):
@@ -177,11 +180,15 @@ class HeldOut:
         return float(rmse_levels(self.with_heldout_frames(model), self.test, pixel_predict))
 
     def with_heldout_frames(self, model):
-        """`model` with its per-frame parameters fitted on the held-out samples."""
+        """`model` with its per-frame parameters fitted on (a subset of) the held-out
+        samples."""
+        # Every k-th sample: they are sorted by frame, and every frame needs its share.
+        step = max(1, len(self.test) // (4 * _PER_FRAME_POINTS))
+        subset = jax.tree_util.tree_map(lambda a: a[::step], self.test)
         return _per_frame_fitted(
             model,
             lambda m, freeze: fit_model(
-                m, self.test, pixel_predict, freeze=freeze, max_steps=_PER_FRAME_STEPS
+                m, subset, pixel_predict, freeze=freeze, max_steps=_PER_FRAME_STEPS
             ),
         )
 
@@ -229,6 +236,8 @@ class HeldOutTracks:
     train: TrackSamples
     test: TrackSamples
     judged: np.ndarray
+    # A subset of `test`'s points, for the models' per-frame parameters (`PER_FRAME`).
+    nuisance: TrackSamples | None = None
 
     @classmethod
     def split(
@@ -255,7 +264,10 @@ class HeldOutTracks:
         samples = TrackSamples.of(test)  # padded: the rows past the tracks are not judged
         judged = np.zeros(samples.weight.shape, bool)  # (M, P) as the samples
         judged[:, : len(test)] = (np.isin(test.frame, heldout) & test.observed).T
-        return cls(obs, calib, heldout, TrackSamples.of(train), samples, judged)
+        rng = np.random.default_rng(seed + 2)
+        few = np.sort(rng.permutation(len(test))[:_PER_FRAME_POINTS])
+        nuisance = TrackSamples.of(test.select(few))
+        return cls(obs, calib, heldout, TrackSamples.of(train), samples, judged, nuisance)
 
     @property
     def frames(self) -> dict[str, list[int]]:
@@ -267,13 +279,13 @@ class HeldOutTracks:
         return heldout_map_rmse(self.with_heldout_frames(model), self.test, self.judged)
 
     def with_heldout_frames(self, model):
-        """`model` with its per-frame parameters fitted on the held-out tracks (every
-        point's albedo eliminated as in the fit)."""
+        """`model` with its per-frame parameters fitted on (a subset of) the held-out
+        tracks (every point's albedo eliminated as in the fit)."""
         return _per_frame_fitted(
             model,
             lambda m, freeze: fit_model_map(
                 m,
-                self.test,
+                self.test if self.nuisance is None else self.nuisance,
                 freeze=freeze,
                 max_steps=_PER_FRAME_STEPS,
                 standard_errors=False,
