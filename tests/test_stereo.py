@@ -21,7 +21,7 @@ BASELINE_MM = 5.0
 @pytest.fixture(scope="module")
 def stereo_capture(tmp_path_factory):
     root = tmp_path_factory.mktemp("stereo") / "c"
-    options = SynthOptions(width=256, height=208, frames=3, seed=1, stereo_mm=BASELINE_MM)
+    options = SynthOptions(width=192, height=160, frames=3, seed=1, stereo_mm=BASELINE_MM)
     return synthesize(root, options)
 
 
@@ -149,9 +149,10 @@ def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path
     imported = load_capture(out)
     assert len(imported) == 3 and imported.stereo.right.width == 128
     assert imported.stereo.baseline_mm == pytest.approx(BASELINE_MM)
-    assert float(imported.stereo.right.fx) == pytest.approx(float(capture.camera.fx) / 2)
+    scale = 128 / capture.camera.width
+    assert float(imported.stereo.right.fx) == pytest.approx(float(capture.camera.fx) * scale)
     image = imported.right_image(imported.frames[0].name)
-    assert image.shape == (104, 128, 3)
+    assert image.shape == (round(capture.camera.height * scale), 128, 3)
 
 
 def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys):
