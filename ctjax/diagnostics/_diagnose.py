@@ -27,6 +27,7 @@ from ..fitting import (
     pixel_predict,
     roughness_variants,
 )
+from ..fitting._parameters import per_frame_names
 from ..heldout import HeldOutTracks, median_depth_mm, noise_floor_map_levels, split_for
 from ..io import Capture
 from ..observations import Observations
@@ -104,17 +105,39 @@ def _new_parameters(base: ShadingModel, fitted: ShadingModel) -> dict:
     return out
 
 
-def _fit(starts, heldout, max_steps) -> Estimate:
+def _fit(starts, heldout, max_steps, freeze=()) -> Estimate:
     """LM from the 3 best of `starts` and their roughness variants: with one albedo per
-    surface point on tracks (`HeldOutTracks`), or one albedo on pixels (`HeldOut`)."""
+    surface point on tracks (`HeldOutTracks`), or one albedo on pixels (`HeldOut`);
+    `freeze` names parameters held at their start."""
     starts = [variant for start in starts for variant in roughness_variants(start)]
     if isinstance(heldout, HeldOutTracks):
         return fit_model_map(
-            starts, heldout.train, max_steps=max_steps, refine=3, standard_errors=False
+            starts,
+            heldout.train,
+            freeze=freeze,
+            max_steps=max_steps,
+            refine=3,
+            standard_errors=False,
         )
     return fit_model(
-        starts, heldout.train, pixel_predict, columns=pixel_columns, max_steps=max_steps, refine=3
+        starts,
+        heldout.train,
+        pixel_predict,
+        columns=pixel_columns,
+        freeze=freeze,
+        max_steps=max_steps,
+        refine=3,
     )
+
+
+def _base_per_frame(starts, base) -> tuple[str, ...]:
+    """The per-frame parameters (`PER_FRAME`) of a candidate's starts that the base model
+    already had: a candidate keeps them at the base's values (a frame's exposure is a
+    nuisance each candidate would refit alike, at the cost of a Jacobian column per frame;
+    the held-out frames' are fitted when judged, `HeldOutTracks.with_heldout_frames`)."""
+    if not per_frame_names(base.model):
+        return ()
+    return tuple(per_frame_names(starts[0]))
 
 
 def _training_size(heldout) -> str:
@@ -159,10 +182,10 @@ def _candidate_fit(effect, starts, base, heldout, capture, settings) -> Estimate
             )
         except CtjaxError:  # e.g. too few calibration frames for a map
             return None
-        fit = _fit(starts, tracks, max_steps)
+        fit = _fit(starts, tracks, max_steps, _base_per_frame(starts, base))
         return tracks.judge(fit, noise_floor=False) if np.isfinite(fit.cost) else None
     try:
-        fit = _fit(starts, heldout, max_steps)
+        fit = _fit(starts, heldout, max_steps, _base_per_frame(starts, base))
     except ParameterError:  # e.g. an image effect the albedo map cannot undo
         return None
     if not np.isfinite(fit.cost):
