@@ -38,8 +38,13 @@ def shade_columns(
 def _lobe_radiances(brdf: BRDF, light: AbstractLight, point: Vec3, normal: Vec3, pixel: Pixel):
     """`shade_columns` as a tuple of scalars (stacked, they are one XLA concatenation)."""
     view = safe_normalize(-point)
-    direction, irradiance = light.illuminate(point, view, pixel)
-    return tuple(irradiance * lobe.radiance(normal, direction, view) for lobe in brdf.lobes)
+    sources = light.sources(point, view, pixel)
+    return tuple(
+        sum(
+            irradiance * lobe.radiance(normal, direction, view) for direction, irradiance in sources
+        )
+        for lobe in brdf.lobes
+    )
 
 
 def shade(
@@ -58,8 +63,10 @@ def shade(
     it: an exposure per frame).
     """
     view = safe_normalize(-point)
-    direction, irradiance = light.illuminate(point, view, pixel)
-    radiance = irradiance * brdf.radiance(normal, direction, view)
+    radiance = sum(
+        irradiance * brdf.radiance(normal, direction, view)
+        for direction, irradiance in light.sources(point, view, pixel)
+    )
     return apply_effects(effects, radiance, Site(pixel, jnp.asarray(frame)))
 
 

@@ -37,6 +37,9 @@ HIDDEN = {
     # The optics' radial falloff, 20% at the image's corners: told from the light's spot
     # falloff (cos^k about the same axis with the light at the lens) by its shape alone.
     "vignetting": dict(effects={"vignetting": -0.4}),
+    # Two light guides 6 mm either side of the lens (a da Vinci's): one light at the lens
+    # misses their doubled highlights.
+    "light_guides": dict(effects={"light_guides": (6.0, 2)}),
 }
 
 

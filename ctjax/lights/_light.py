@@ -16,8 +16,15 @@ class AbstractLight(eqx.Module):
 
         `view` is the unit direction from `point` to the camera centre; `pixel` the (u, v)
         pixel the point is seen at (used by per-pixel light fields). The irradiance factor
-        multiplies every lobe; 1 for the paper's light.
+        multiplies every lobe; 1 for the paper's light. A light of several sources (light
+        guides around the lens) gives its single-direction summary here (the estimators
+        that take one light direction per pixel use it) and each source in `sources`.
         """
+
+    def sources(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[tuple[Vec3, Scalar], ...]:
+        """Every source's (direction, irradiance factor) at `point`: the renderer sums the
+        lobes over them. One source, `illuminate`'s, by default."""
+        return (self.illuminate(point, view, pixel),)
 
 
 class AbstractFalloff(eqx.Module):

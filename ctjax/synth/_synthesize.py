@@ -207,6 +207,10 @@ def _seen_from_the_right(model: ShadingModel, rig: StereoRig) -> ShadingModel:
     """The scene's model in the right camera's frame: the light where it is, at the left
     lens (or at its offset from it), with its falloffs."""
     light = model.light
+    if not isinstance(light, ColocatedLight | PointLight):
+        raise ParameterError(
+            f"synth --stereo: the light must be at or beside the lens, got {type(light).__name__}"
+        )
     position = np.asarray(getattr(light, "position_mm", np.zeros(3)), np.float64)
     moved = PointLight(rig.R @ position + rig.T, light.intensity, light.falloff)
     return eqx.tree_at(lambda m: m.light, model, moved)
