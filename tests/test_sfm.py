@@ -284,38 +284,44 @@ def test_fit_on_images_only_refines_the_shape_by_the_shading(tmp_path, monkeypat
     assert shading["refined"] and shading["cost_after"] <= shading["cost_before"]
 
 
-def test_the_shading_normal_equations_are_the_dense_jacobians(tmp_path):
-    """The refinement's J^T J and J^T r, assembled from each point's 2x2 blocks, the sigma
-    column and the rank-3 part through the eliminated F_tilde, equal the dense Jacobian's
-    (forward mode over every coefficient) at a point away from the start."""
+@pytest.mark.parametrize("light", ["camera", "near"])
+def test_the_shading_normal_equations_are_the_dense_jacobians(tmp_path, light):
+    """The refinement's J^T J and J^T r, assembled from each point's 2x2 blocks, the global
+    columns (sigma; with a near light also its position) and the rank-3 part through the
+    eliminated F_tilde, equal the dense Jacobian's (forward mode over every coefficient) at
+    a point away from the start."""
     import jax
     import jax.numpy as jnp
 
+    from ctjax.lights import InverseSquare, PointLight
     from ctjax.sfm import _shading
 
     capture = load_capture(
         synthesize(tmp_path / "c", SynthOptions(width=160, height=128, frames=3, seed=1))
     )
-    points = _shading._Points(capture, 5.0, 200)
-    n, smoothing = points.spline.size + 1, 10.0
+    near = PointLight(jnp.asarray([3.0, -2.0, 1.0]), falloff=(InverseSquare(70.0),))
+    points = _shading._Points(capture, 5.0, 200, near if light == "near" else None)
+    globals_count = points.problem.globals_count
+    assert globals_count == (4 if light == "near" else 1)
+    n, smoothing = points.spline.size + globals_count, 10.0
     rng = np.random.default_rng(0)
-    theta = jnp.asarray(np.append(rng.normal(0, 0.01, n - 1), 0.21))
+    start = np.concatenate([[0.21], points.problem.free.vector(points.problem.light)])
+    theta = jnp.asarray(np.append(rng.normal(0, 0.01, n - globals_count), start + 0.1))
     residual = lambda problem, t: problem.residuals(t, smoothing)[0]  # noqa: E731
     dense = np.asarray(jax.jit(jax.jacfwd(residual, argnums=1))(points.problem, theta))
     r = np.asarray(jax.jit(residual)(points.problem, theta))
     terms = jax.jit(lambda problem, t: problem.gauss_newton_terms(t))(points.problem, theta)
     normal, gradient = _shading._normal_equations(terms, _shading._slope_map(points))
     penalty = points.spline.penalty_matrix() * (smoothing / 255)
-    np.testing.assert_allclose(
-        penalty @ np.asarray(theta[:-1]), smoothing / 255 * points.spline.penalty(theta[:-1])
-    )
-    normal[:-1, :-1] += (penalty.T @ penalty).toarray()
-    gradient[:-1] += penalty.T @ (penalty @ np.asarray(theta[:-1]))
+    c = np.asarray(theta[:-globals_count])
+    np.testing.assert_allclose(penalty @ c, smoothing / 255 * points.spline.penalty(c))
+    normal[: c.size, : c.size] += (penalty.T @ penalty).toarray()
+    gradient[: c.size] += penalty.T @ (penalty @ c)
     scale = np.abs(dense.T @ dense).max()
     np.testing.assert_allclose(normal, dense.T @ dense, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(
         gradient, dense.T @ r, rtol=0, atol=1e-12 * np.abs(dense.T @ r).max()
     )
-    assert float(terms["cost"]) + np.sum(np.square(penalty @ np.asarray(theta[:-1]))) == (
+    assert float(terms["cost"]) + np.sum(np.square(penalty @ c)) == (
         pytest.approx(float(r @ r), rel=1e-12)
     )

@@ -308,7 +308,7 @@ def reconstruct(
     volume_mm3: float | None = None,
     force: bool = False,
     photometric: bool = True,
-    shading: bool = False,
+    shading: bool | str = False,
     stereo: str = "scale",
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
@@ -323,13 +323,17 @@ def reconstruct(
     distorted camera, depth and normals are evaluated at the undistorted position of every
     pixel, so that `load_capture` (which undistorts them) reads them back on its grid.
     `shading`: then refine the shape by the shading of every frame, one world surface fitted
-    with the BRDF (`_shading.py`; assumes the paper's light, at the camera); the report's
-    `surface.shading` says what it did, or why it was skipped. `stereo`: see
+    with the BRDF (`_shading.py`): True or "camera" with the paper's light, at the camera;
+    "near" jointly with a point light's position (inverse-square falloff, from the lens:
+    `SHADING_LIGHTS`); the report's `surface.shading` says what it did (with "near", the
+    light's fitted `position_mm` in the capture's length unit), or why it was skipped. `stereo`: see
     `reconstruct_capture` (a stereo capture is in mm without a size given).
 
     Returns the report (see `reconstruct_capture`).
     """
     _check_scale(scale_mm, volume_mm3)
+    if shading not in (False, True, *SHADING_LIGHTS):
+        raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {shading!r}")
     root = Path(capture_dir)
     capture = load_capture(root)
     out = root if out is None else Path(out)
@@ -380,14 +384,37 @@ def reconstruct(
     report = {**result.report, "capture": str(root), "out": str(out)}
     report |= {"encoding": capture.encoding, "notes": list(capture.notes)}
     if shading:
-        report["surface"]["shading"] = _refine_by_shading(out, distorted is not None, progress)
+        report["surface"]["shading"] = _refine_by_shading(
+            out, distorted is not None, progress, "camera" if shading is True else shading
+        )
     atomic_write_json(out / "reconstruction.json", report)
     return report
 
 
-def _refine_by_shading(out: Path, distorted: bool, progress) -> dict:
-    """Refine the written shape by the shading (`_shading.py`) and write it back; the
-    refinement's report, or why it was skipped."""
+# The lights `reconstruct(shading=...)` refines the shape under (the command line's
+# `--shading LIGHT`).
+SHADING_LIGHTS = ("camera", "near")
+
+
+def _shading_light(name: str, capture: Capture):
+    """The light the shading refinement starts from: the paper's (held), or a point light at
+    the lens with inverse-square falloff at the working distance (its position fitted)."""
+    import jax.numpy as jnp
+
+    from ..lights import InverseSquare, PointLight
+
+    if name not in SHADING_LIGHTS:
+        raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {name!r}")
+    if name == "camera":
+        return None
+    depth = np.concatenate([f.depth[np.isfinite(f.depth)] for f in capture.frames])
+    reference = float(np.median(depth))
+    return PointLight(jnp.zeros(3), falloff=(InverseSquare(reference),))
+
+
+def _refine_by_shading(out: Path, distorted: bool, progress, light: str) -> dict:
+    """Refine the written shape by the shading (`_shading.py`) under `light`
+    (`SHADING_LIGHTS`) and write it back; the refinement's report, or why it was skipped."""
     from .._errors import CtjaxError
     from ._shading import refine_shape_by_shading
 
@@ -395,7 +422,9 @@ def _refine_by_shading(out: Path, distorted: bool, progress) -> dict:
         return {"refined": False, "reason": "a distorted camera (not supported yet)"}
     say = progress or (lambda message: None)
     try:
-        refined, report = refine_shape_by_shading(load_capture(out), say=say)
+        capture = load_capture(out)
+        start = _shading_light(light, capture)
+        refined, report = refine_shape_by_shading(capture, light=start, say=say)
     except CtjaxError as error:
         return {"refined": False, "reason": str(error)}
     for frame in refined.frames:

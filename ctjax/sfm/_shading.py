@@ -197,7 +197,8 @@ class _Points:
     (`spline`, its coefficients fitted to the frames' depth: `base`), and the refinement's
     data on them (`problem`)."""
 
-    def __init__(self, capture, spline_spacing: float, max_points: int):
+    def __init__(self, capture, spline_spacing: float, max_points: int, light=None, fit_light=True):
+        from ..lights import ColocatedLight
         from ..observations import Observations
 
         tracks = Observations.of(capture).tracks(max_points=max_points)
@@ -206,6 +207,7 @@ class _Points:
         count = len(tracks)
         point = np.sum(tracks.corner_point * tracks.corner_weight[..., None], axis=2)
         normal = np.sum(tracks.corner_normal * tracks.corner_weight[..., None], axis=2)
+        pixel = np.sum(tracks.corner_pixel * tracks.corner_weight[..., None], axis=2)
         rotation = rotations[np.where(tracks.observed, tracks.frame, 0)]
         world_normal = np.einsum("pmij,pmj->pmi", rotation, normal)
         # The sum of each point's world normals over its views: it must face the reference camera.
@@ -224,7 +226,14 @@ class _Points:
         index, _, d_x, d_y, _ = self.spline.basis(world[keep, :2])
         self.base = base_surface(capture, self.spline)
         base = self.base[index]
-        view = -point[keep] / np.maximum(np.linalg.norm(point[keep], axis=-1, keepdims=True), 1e-9)
+        observed = tracks.observed[keep][..., None]
+        # Unobserved slots: a point straight ahead at the median depth (finite, weight 0).
+        ahead = [0.0, 0.0, float(np.nanmedian(point[keep][..., 2]))]
+        camera_point = np.where(observed, np.nan_to_num(point[keep]), ahead)
+        view = -camera_point / np.maximum(
+            np.linalg.norm(camera_point, axis=-1, keepdims=True), 1e-9
+        )
+        light = ColocatedLight() if light is None else light
         self.problem = _Problem(
             *map(
                 jnp.asarray,
@@ -234,21 +243,65 @@ class _Points:
                     d_y,
                     np.stack([np.sum(base * d_x, -1), np.sum(base * d_y, -1)], -1),
                     rotation[keep],
-                    np.where(tracks.observed[keep][..., None], view, [0, 0, 1.0]),
+                    view,
+                    camera_point,
+                    np.where(observed, np.nan_to_num(pixel[keep]), 0.0),
                     np.transpose(np.nan_to_num(tracks.values[keep]), (2, 1, 0)),
                     np.where(tracks.observed[keep], tracks.weight[keep], 0).T,
                 ),
             ),
+            light,
             self.spline.shape,
+            _LightParameters.of(light, fit_light),
         )
         self.shading = tracks.select(np.nonzero(keep)[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class _LightParameters:
+    """The light's free parameters (`ctjax.fitting.free_parameters`: for a `PointLight` its
+    position, for a spot its exponent), the refinement's global unknowns beside sigma, as
+    one flat vector of unconstrained values."""
+
+    parameters: tuple
+    shapes: tuple
+
+    @classmethod
+    def of(cls, light, fitted: bool = True) -> "_LightParameters":
+        from ..fitting import free_parameters
+
+        parameters = tuple(free_parameters(light)) if fitted else ()
+        return cls(parameters, tuple(tuple(np.shape(p.get(light))) for p in parameters))
+
+    @property
+    def size(self) -> int:
+        return sum(int(np.prod(shape)) for shape in self.shapes)
+
+    def vector(self, light) -> np.ndarray:
+        from ..fitting import unconstrained
+
+        values = unconstrained(light, list(self.parameters))
+        return np.concatenate([np.ravel(np.asarray(v, float)) for v in values] + [np.zeros(0)])
+
+    def light(self, light, vector):
+        """`light` with its free parameters set from the unconstrained `vector`."""
+        from ..fitting import constrained
+
+        values, at = [], 0
+        for shape in self.shapes:
+            size = int(np.prod(shape))
+            values.append(vector[at : at + size].reshape(shape))
+            at += size
+        return constrained(light, list(self.parameters), values)
 
 
 class _Problem(eqx.Module):
     """The refinement's data, passed to its compiled functions as arguments (not baked into
     them as constants): the spline's basis at the points (`index`, `d_x`, `d_y`, (P, 16)),
     the base surface's slopes there (P, 2), each observation's rotation (camera to world,
-    (P, M, 3, 3)) and view direction (P, M, 3), the values (C, M, P) and weights (M, P)."""
+    (P, M, 3, 3)), view direction, camera-frame point (mm) and pixel (P, M, 3 / 2), the
+    values (C, M, P) and weights (M, P); the light, whose free parameters (`free`) are
+    global unknowns beside sigma: theta = (coefficients, sigma, the light's)."""
 
     index: Array
     d_x: Array
@@ -256,9 +309,22 @@ class _Problem(eqx.Module):
     slopes: Array
     rotation: Array
     view: Array
+    point: Array
+    pixel: Array
     values: Array
     weight: Array
+    light: eqx.Module
     grid: tuple[int, int] = eqx.field(static=True)
+    free: _LightParameters = eqx.field(static=True)
+
+    @property
+    def globals_count(self) -> int:
+        """sigma and the light's free parameters: the unknowns every observation shares."""
+        return 1 + self.free.size
+
+    def split(self, theta):
+        """theta -> (coefficients, globals)."""
+        return theta[: -self.globals_count], theta[-self.globals_count :]
 
     def slopes_of(self, c):
         """Each point's height-field slopes (h_x, h_y) with correction coefficients `c`."""
@@ -267,158 +333,169 @@ class _Problem(eqx.Module):
             self.slopes[:, 1] + jnp.sum(c[self.index] * self.d_y, -1),
         )
 
-    def columns(self, hx, hy, sigma):
-        """The paper's lobes' values for unit weight at every observation, (views, P) each."""
+    def columns(self, hx, hy, g):
+        """The paper's lobes' values for unit weight at every observation under the light
+        (sigma = g[0], the light's free parameters g[1:]), (views, P) each."""
         from .._vector import Vec3
         from ..estimation._brdf import PAPER, design_columns
         from ..observations import ShadingSamples
 
         camera = jnp.einsum("pmji,pj->pmi", self.rotation, _normals_from_slopes(hx, hy, jnp))
         flat = lambda a, k: a[..., k].T.ravel()  # noqa: E731  views first, flattened
-        normal = Vec3(*(flat(camera, k) for k in range(3)))
-        view = Vec3(*(flat(self.view, k) for k in range(3)))
+        normal, view, point = (
+            Vec3(*(flat(a, k) for k in range(3))) for a in (camera, self.view, self.point)
+        )
+        light = self.free.light(self.light, g[1:])
+        pixel = jnp.stack([flat(self.pixel, 0), flat(self.pixel, 1)], -1)
+        direction, irradiance = jax.vmap(light.illuminate)(point, view, pixel)
         size, views = normal.x.shape[0], camera.shape[1]
-        samples = ShadingSamples(normal, view, view, jnp.ones(size), jnp.zeros((size, 3)))
-        return tuple(c.reshape(views, -1) for c in design_columns(PAPER, sigma[None], samples))
+        samples = ShadingSamples(normal, direction, view, irradiance, jnp.zeros((size, 3)))
+        return tuple(c.reshape(views, -1) for c in design_columns(PAPER, g[:1], samples))
 
     def residuals(self, theta, smoothing):
         """The observations' weighted residuals, each point's albedo and F_tilde eliminated
-        (paper's model, L = V), then the penalty; and F_tilde (3,)."""
+        (paper's model), then the penalty; and F_tilde (3,)."""
         from ..estimation._projection import projected_residuals
 
-        c, sigma = theta[:-1], theta[-1]
-        columns = self.columns(*self.slopes_of(c), sigma)
+        c, g = self.split(theta)
+        columns = self.columns(*self.slopes_of(c), g)
         _, weights, residual = projected_residuals(columns, self.values, self.weight, 0)
         penalty = smoothing / 255 * _second_differences(self.grid, c)
         return jnp.concatenate([residual.ravel(), penalty]), weights[1]
 
     def gauss_newton_terms(self, theta):
-        """The data residuals' Gauss-Newton terms over h = (every point's h_x, h_y; sigma).
+        """The data residuals' Gauss-Newton terms over h = (every point's h_x, h_y; g, the
+        G global unknowns: sigma and the light's).
 
-        With F_tilde given, a point's residuals depend on its own slopes and sigma alone
-        (its albedo is eliminated from its own observations): that Jacobian A is a 2x2
-        block per point plus the sigma column. F_tilde* (eliminated) depends on all: the
-        projected residuals' Jacobian is A + U W^T with U = dr/dF_tilde (R, 3) and
-        W = dF_tilde*/dh (3 columns), exactly (chain rule). Returns per point the sums over
-        its rows of A's products (A^T A's blocks, A^T U, A^T r), and U^T U, U^T r, W, and
-        the cost: everything J^T J and J^T r need, in one pass of 6 tangents and 3
-        cotangents instead of a dense (R, n) Jacobian."""
+        With F_tilde given, a point's residuals depend on its own slopes and g alone (its
+        albedo is eliminated from its own observations): that Jacobian A is a 2x2 block per
+        point plus G global columns. F_tilde* (eliminated) depends on all: the projected
+        residuals' Jacobian is A + U W^T with U = dr/dF_tilde (R, 3) and W = dF_tilde*/dh
+        (3 columns), exactly (chain rule). Returns per point the sums over its rows of A's
+        products (A^T A's blocks, A^T U, A^T r), and U^T U, U^T r, W, and the cost:
+        everything J^T J and J^T r need, in one pass of 5 + G tangents and 3 cotangents
+        instead of a dense (R, n) Jacobian."""
         from ..estimation._projection import projected_residuals, residuals_given_weights
 
-        c, sigma = theta[:-1], theta[-1]
+        c, g = self.split(theta)
         hx, hy = self.slopes_of(c)
+        count, dtype = self.globals_count, theta.dtype
 
-        def brdf_weights(hx, hy, sigma):
-            columns = self.columns(hx, hy, sigma)
+        def brdf_weights(hx, hy, g):
+            columns = self.columns(hx, hy, g)
             return projected_residuals(columns, self.values, self.weight, 0)[1]
 
-        weights, pullback = jax.vjp(lambda *h: brdf_weights(*h)[1], hx, hy, sigma)
-        w_x, w_y, w_sigma = jax.vmap(pullback)(jnp.eye(3, dtype=theta.dtype))
+        weights, pullback = jax.vjp(lambda *h: brdf_weights(*h)[1], hx, hy, g)
+        w_x, w_y, w_g = jax.vmap(pullback)(jnp.eye(3, dtype=dtype))
 
-        def local(hx, hy, sigma, f):
-            columns = self.columns(hx, hy, sigma)
+        def local(hx, hy, g, f):
+            columns = self.columns(hx, hy, g)
             return residuals_given_weights(columns, self.values, self.weight, jnp.stack([f, f]))
 
-        zero, one = jnp.zeros_like(hx), jnp.ones_like(hx)
-        eye = jnp.eye(3, dtype=theta.dtype)
+        # Tangent directions: h_x, h_y (every point at once: each point's rows depend on its
+        # own), each global, each F_tilde channel.
+        k = 2 + count + 3
+        pick = lambda i: jnp.zeros(k, dtype).at[i].set(1)  # noqa: E731
         tangents = (
-            jnp.stack([one, zero, zero, zero, zero, zero]),
-            jnp.stack([zero, one, zero, zero, zero, zero]),
-            jnp.asarray([0, 0, 1, 0, 0, 0], theta.dtype),
-            jnp.concatenate([jnp.zeros((3, 3), theta.dtype), eye]),
+            jnp.outer(pick(0), jnp.ones_like(hx)),
+            jnp.outer(pick(1), jnp.ones_like(hx)),
+            jnp.eye(k, dtype=dtype)[:, 2 : 2 + count],
+            jnp.eye(k, dtype=dtype)[:, 2 + count :],
         )
-        primals = (hx, hy, sigma, weights)
+        primals = (hx, hy, g, weights)
         r, derivatives = jax.vmap(lambda *t: jax.jvp(local, primals, t), out_axes=(None, 0))(
             *tangents
         )
-        a_x, a_y, a_sigma, u = derivatives[0], derivatives[1], derivatives[2], derivatives[3:]
-        per_point = lambda x, y: jnp.sum(x * y, axis=(0, 1))  # noqa: E731  (C, M, P) -> (P,)
-        at_a = jnp.stack(
-            [per_point(*pair) for pair in ((a_x, a_x), (a_x, a_y), (a_y, a_y), (a_x, a_sigma))]
-            + [per_point(a_y, a_sigma)]
-        )
-        at_u = jnp.stack([jnp.stack([per_point(a, u_k) for u_k in u]) for a in (a_x, a_y)])
+        a_x, a_y = derivatives[0], derivatives[1]
+        a_g, u = derivatives[2 : 2 + count], derivatives[2 + count :]
+        per_point = lambda x, y: jnp.sum(x * y, axis=(-3, -2))  # noqa: E731  (C, M, P) -> (P,)
+        total = lambda x, y: jnp.sum(x * y, axis=(-3, -2, -1))  # noqa: E731
         return {
-            "at_a": at_a,  # (5, P): xx, xy, yy, x sigma, y sigma
-            "sigma_sigma": jnp.sum(a_sigma * a_sigma),
-            "at_u": at_u,  # (2, 3, P)
-            "sigma_u": jnp.stack([jnp.sum(a_sigma * u_k) for u_k in u]),
+            "at_a": jnp.stack([per_point(a_x, a_x), per_point(a_x, a_y), per_point(a_y, a_y)]),
+            "at_g": jnp.stack([per_point(a_x[None], a_g), per_point(a_y[None], a_g)]),  # (2,G,P)
+            "gt_g": total(a_g[:, None], a_g[None]),  # (G, G)
+            "at_u": jnp.stack([per_point(a_x[None], u), per_point(a_y[None], u)]),  # (2, 3, P)
+            "gt_u": total(a_g[:, None], u[None]),  # (G, 3)
             "at_r": jnp.stack([per_point(a_x, r), per_point(a_y, r)]),
-            "sigma_r": jnp.sum(a_sigma * r),
-            "ut_u": jnp.stack([jnp.stack([jnp.sum(u_k * u_l) for u_l in u]) for u_k in u]),
-            "ut_r": jnp.stack([jnp.sum(u_k * r) for u_k in u]),
-            "w": (w_x, w_y, w_sigma),  # (3, P), (3, P), (3,)
+            "gt_r": total(a_g, r[None]),  # (G,)
+            "ut_u": total(u[:, None], u[None]),  # (3, 3)
+            "ut_r": total(u, r[None]),  # (3,)
+            "w": (w_x, w_y, w_g),  # (3, P), (3, P), (3, G)
             "cost": jnp.sum(r * r),
         }
 
 
 def _slope_map(points: _Points) -> sparse.csr_matrix:
-    """S (2P + 1, n): h = (h_x, h_y, sigma) is affine in theta = (coefficients, sigma)."""
-    count, n = points.count, points.spline.size + 1
+    """S (2P + G, n): h = (h_x, h_y, g) is affine in theta = (coefficients, g)."""
+    count, globals_count = points.count, points.problem.globals_count
+    n = points.spline.size + globals_count
     index = np.asarray(points.problem.index)
     rows = np.concatenate(
         [np.repeat(np.arange(count), 16), np.repeat(np.arange(count), 16) + count]
     )
     cols = np.concatenate([index.ravel(), index.ravel()])
     values = np.concatenate([np.ravel(points.problem.d_x), np.ravel(points.problem.d_y)])
-    rows, cols = np.append(rows, 2 * count), np.append(cols, n - 1)
-    return sparse.csr_matrix((np.append(values, 1.0), (rows, cols)), (2 * count + 1, n))
+    rows = np.concatenate([rows, 2 * count + np.arange(globals_count)])
+    cols = np.concatenate([cols, n - globals_count + np.arange(globals_count)])
+    values = np.concatenate([values, np.ones(globals_count)])
+    return sparse.csr_matrix((values, (rows, cols)), (2 * count + globals_count, n))
 
 
 def _normal_equations(terms, slope_map):
     """J^T J (n, n) and J^T r (n,) of the data residuals from `gauss_newton_terms`."""
     t = jax.tree_util.tree_map(np.asarray, terms)
     count = t["at_a"].shape[1]
-    xx, xy, yy, xs, ys = t["at_a"]
-    p, q, last = np.arange(count), np.arange(count) + count, 2 * count
-    rows = np.concatenate([p, p, q, q, p, q, np.full(count, last), np.full(count, last), [last]])
-    cols = np.concatenate([p, q, p, q, np.full(count, last), np.full(count, last), p, q, [last]])
-    values = np.concatenate([xx, xy, xy, yy, xs, ys, xs, ys, [t["sigma_sigma"]]])
-    at_a = sparse.csr_matrix((values, (rows, cols)), (last + 1, last + 1))
+    xx, xy, yy = t["at_a"]
+    p, q = np.arange(count), np.arange(count) + count
+    rows, cols = np.concatenate([p, p, q, q]), np.concatenate([p, q, p, q])
+    blocks = sparse.csr_matrix(
+        (np.concatenate([xx, xy, xy, yy]), (rows, cols)), (2 * count, 2 * count)
+    )
+    across = sparse.csr_matrix(np.concatenate([t["at_g"][0].T, t["at_g"][1].T]))  # (2P, G)
+    at_a = sparse.bmat([[blocks, across], [across.T, sparse.csr_matrix(t["gt_g"])]]).tocsr()
     normal = (slope_map.T @ at_a @ slope_map).toarray()
-    stack = lambda x, y, sigma: np.concatenate([x, y, sigma[None]])  # noqa: E731  h-space
-    at_u = slope_map.T @ stack(t["at_u"][0].T, t["at_u"][1].T, t["sigma_u"])  # (n, 3)
-    w = slope_map.T @ stack(t["w"][0].T, t["w"][1].T, t["w"][2])  # (n, 3)
+    stack = lambda x, y, g: np.concatenate([x, y, g])  # noqa: E731  h-space
+    at_u = slope_map.T @ stack(t["at_u"][0].T, t["at_u"][1].T, t["gt_u"])  # (n, 3)
+    w = slope_map.T @ stack(t["w"][0].T, t["w"][1].T, t["w"][2].T)  # (n, 3)
     normal += at_u @ w.T + w @ at_u.T + w @ t["ut_u"] @ w.T
-    gradient = slope_map.T @ stack(*t["at_r"], np.asarray(t["sigma_r"])) + w @ t["ut_r"]
+    gradient = slope_map.T @ stack(*t["at_r"], t["gt_r"]) + w @ t["ut_r"]
     return normal, gradient
 
 
 def _levenberg_marquardt(points: _Points, sigma: float, smoothing: float, iterations: int, say):
-    """(coefficients, sigma) by LM from 0 and the BnB's sigma, on the normal equations
-    assembled from `gauss_newton_terms` (the penalty's own are constant). Returns theta,
-    the cost before and after, the steps."""
+    """theta = (coefficients, sigma, the light's free parameters) by LM from a flat
+    correction, the BnB's sigma and the given light, on the normal equations assembled from
+    `gauss_newton_terms` (the penalty's own are constant). Returns theta, the cost before
+    and after, the steps."""
     residual = jax.jit(lambda problem, t: problem.residuals(t, smoothing)[0])
     terms_at = jax.jit(lambda problem, t: problem.gauss_newton_terms(t))
     slope_map = _slope_map(points)
+    size = points.spline.size
     penalty = points.spline.penalty_matrix() * (smoothing / 255)
     penalty_normal = np.zeros((slope_map.shape[1],) * 2)
-    penalty_normal[:-1, :-1] = (penalty.T @ penalty).toarray()
+    penalty_normal[:size, :size] = (penalty.T @ penalty).toarray()
 
-    theta = jnp.concatenate([jnp.zeros(points.spline.size), jnp.asarray([sigma])])
-    r = np.asarray(residual(points.problem, theta))
+    problem = points.problem
+    light = problem.free.vector(problem.light)
+    theta = jnp.asarray(np.concatenate([np.zeros(size), [sigma], light]))
+    r = np.asarray(residual(problem, theta))
     first = cost = float(r @ r)
     damping, steps = 1e-3, 0
     for iteration in range(iterations):
         previous = cost
-        normal, gradient = _normal_equations(terms_at(points.problem, theta), slope_map)
+        normal, gradient = _normal_equations(terms_at(problem, theta), slope_map)
         normal += penalty_normal
         gradient += penalty_normal @ np.asarray(theta)
         while damping < 1e8:
             step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), gradient)
             trial = theta + jnp.asarray(step)
-            r_trial = np.asarray(residual(points.problem, trial))
-            if float(trial[-1]) > 0.01 and float(r_trial @ r_trial) < cost:
-                theta, r, cost, damping, steps = (
-                    trial,
-                    r_trial,
-                    float(r_trial @ r_trial),
-                    damping / 3,
-                    steps + 1,
-                )
+            r_trial = np.asarray(residual(problem, trial))
+            if float(trial[size]) > 0.01 and float(r_trial @ r_trial) < cost:
+                theta, r, cost = trial, r_trial, float(r_trial @ r_trial)
+                damping, steps = damping / 3, steps + 1
                 break
             damping *= 10
-        say(f"shading: iteration {iteration + 1}, cost {cost:.4g}, sigma {float(theta[-1]):.4f}")
+        say(f"shading: iteration {iteration + 1}, cost {cost:.4g}, sigma {float(theta[size]):.4f}")
         if previous - cost < RTOL * previous:  # (no step accepted: no decrease)
             break
     return theta, first, cost, steps
@@ -427,6 +504,8 @@ def _levenberg_marquardt(points: _Points, sigma: float, smoothing: float, iterat
 def refine_shape_by_shading(
     capture,
     *,
+    light=None,
+    fit_light: bool = True,
     smoothing: float | None = None,
     iterations: int | None = None,
     max_points: int | None = None,
@@ -435,8 +514,11 @@ def refine_shape_by_shading(
     """The capture with every frame's normals and depth corrected by one world height field
     fitted with sigma to the shading of every frame (see the module doc), and a report.
     The capture needs depth, normals and poses (world = a camera looking at the surface,
-    as `reconstruct` writes them). `smoothing`, `iterations`, `max_points`: `SMOOTHING`,
-    `ITERATIONS`, `MAX_POINTS` by default."""
+    as `reconstruct` writes them). `light`: the laparoscope's light (`ctjax.lights`; the
+    paper's, at the camera, by default); with `fit_light` its free parameters (a
+    `PointLight`'s position, a spot's exponent) are fitted jointly with the surface, from
+    their given values (the report's `light`). `smoothing`, `iterations`, `max_points`:
+    `SMOOTHING`, `ITERATIONS`, `MAX_POINTS` by default."""
     smoothing = SMOOTHING if smoothing is None else smoothing
     iterations = ITERATIONS if iterations is None else iterations
     max_points = MAX_POINTS if max_points is None else max_points
@@ -445,11 +527,12 @@ def refine_shape_by_shading(
     started = time.perf_counter()
     depth = np.concatenate([f.depth[np.isfinite(f.depth)] for f in capture.frames])
     spacing = KNOT_FRACTION * float(np.median(depth))
-    points = _Points(capture, spacing, max_points)
+    points = _Points(capture, spacing, max_points, light, fit_light)
     start = fit_brdf_map(track_shading(points.shading))
     sigma0 = float(start.params[0])
     theta, before, after, steps = _levenberg_marquardt(points, sigma0, smoothing, iterations, say)
-    coefficients = np.asarray(theta[:-1])
+    problem = points.problem
+    coefficients, g = (np.asarray(x) for x in problem.split(theta))
     frames, changes = [], []
     for frame in capture.frames:
         corrected, change = _corrected(
@@ -459,20 +542,33 @@ def refine_shape_by_shading(
         changes.append(change)
     report = {
         "model": "one world height-field correction (cubic B-spline) fitted with sigma to "
-        "every frame's shading, albedo per point and F_tilde eliminated, light at the camera",
+        "every frame's shading, albedo per point and F_tilde eliminated, " + _light_words(problem),
         "knot_spacing": spacing,
         "coefficients": points.spline.size,
         "smoothing": smoothing,
         "points": points.count,
         "sigma_before": sigma0,
-        "sigma_after": float(theta[-1]),
+        "sigma_after": float(g[0]),
         "cost_before": before,
         "cost_after": after,
         "steps": steps,
         "median_normal_change_deg": float(np.nanmedian(np.concatenate(changes))),
         "seconds": round(time.perf_counter() - started, 1),
     }
+    if problem.free.size:
+        fitted = problem.free.light(problem.light, jnp.asarray(g[1:]))
+        report["light"] = {
+            p.name: np.asarray(p.get(fitted)).tolist() for p in problem.free.parameters
+        }
     return dataclasses.replace(capture, frames=tuple(frames)), report
+
+
+def _light_words(problem: _Problem) -> str:
+    name = type(problem.light).__name__
+    if not problem.free.size:
+        return f"light {name} held"
+    names = ", ".join(p.name for p in problem.free.parameters)
+    return f"light {name} fitted jointly ({names})"
 
 
 def _corrected(frame, camera, spline: HeightSpline, surface, correction):
