@@ -27,6 +27,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from ._commands import COMMANDS
+from ._commands._runner import execute, parser_of
 from ._errors import CtjaxError
 from .io._atomic import atomic_write_bytes, atomic_write_json
 
@@ -75,11 +77,17 @@ def _step_argv(step: str, capture: Path, folder: Path) -> list[str]:
     return [step, str(capture), "--json", json_path]
 
 
+def _run_step(argv: list[str]) -> int:
+    """`ctjax STEP ...` in this process, as the command line runs it: the same commands'
+    parser (`ctjax`'s but `batch`), set-up and one-line errors on stderr, which the row
+    quotes. From `ctjax._commands`, not `ctjax.cli`, which imports this module for `ctjax
+    batch`: the dependency goes one way."""
+    return execute(parser_of(COMMANDS.values()), argv)
+
+
 def run_job(job: CaptureJob) -> dict:
     """Run `job`'s steps (in this process) and return its summary row. Never raises: a
     failure is the row's `status` and `error`."""
-    from .cli import main
-
     started = time.perf_counter()
     job.folder.mkdir(parents=True, exist_ok=True)
     capture = job.capture
@@ -88,7 +96,7 @@ def run_job(job: CaptureJob) -> dict:
         stderr = io.StringIO()
         try:
             with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
-                status = main(_step_argv(step, capture, job.folder))
+                status = _run_step(_step_argv(step, capture, job.folder))
         except Exception as failure:  # one capture must not stop the batch
             status, error = 1, f"{step}: {type(failure).__name__}: {failure}".splitlines()[0]
         if status != 0:

@@ -1,0 +1,138 @@
+"""What several commands share: argument types and groups (`--max-tracks`'s positive
+integer, the specular set's options, `--falloff`), the capture loaded with its notes, and the
+command line's words for objects (`--engine`, `--light`), in one place.
+"""
+
+import argparse
+import sys
+
+from .._errors import CtjaxError
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return value
+
+
+def load_capture(args: argparse.Namespace):
+    """`args.capture` loaded, with its notes (how its images were decoded) on stderr."""
+    from ..io import load_capture as load
+
+    capture = load(args.capture)
+    for note in capture.notes:
+        print(f"ctjax {args.command}: note: {note}", file=sys.stderr)
+    return capture
+
+
+def add_mask_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..estimation._highlights import HLSThresholds, WhiterThanTissue
+    from ..estimation._specular_set import DEFAULT_MIN_SPECK_PX, DEFAULT_RING_PX
+
+    whiter, hls = WhiterThanTissue(), HLSThresholds()
+    group = parser.add_argument_group(
+        "specular set S and ring S~",
+        "S: 'whiter' (default) takes pixels bright and whiter than the tissue around them, "
+        "or clipped; 'hls' is the paper's rule (HLS lightness and saturation thresholds)",
+    )
+    group.add_argument(
+        "--highlights",
+        choices=("whiter", "hls"),
+        default="whiter",
+        help="the rule that finds S (default: whiter)",
+    )
+    group.add_argument(
+        "--whiteness",
+        type=float,
+        default=whiter.whiteness,
+        help="whiter: fraction of the way from the local tissue's colour to white "
+        f"(default {whiter.whiteness})",
+    )
+    group.add_argument(
+        "--contrast",
+        type=float,
+        default=whiter.contrast,
+        help="whiter: luminance at least this times the local tissue's "
+        f"(default {whiter.contrast})",
+    )
+    group.add_argument(
+        "--lightness",
+        type=float,
+        default=None,
+        help=f"hls: HLS lightness at least this (default {hls.lightness})",
+    )
+    group.add_argument(
+        "--saturation",
+        type=float,
+        default=None,
+        help=f"hls: HLS saturation at most this (default {hls.saturation})",
+    )
+    group.add_argument(
+        "--ring-px",
+        type=float,
+        default=DEFAULT_RING_PX,
+        help="S~: non-specular pixels within this distance of S "
+        f"(default and paper: {DEFAULT_RING_PX})",
+    )
+    group.add_argument(
+        "--min-speck",
+        type=int,
+        default=DEFAULT_MIN_SPECK_PX,
+        help="drop specular specks smaller than this many pixels, 0 keeps all "
+        f"(default {DEFAULT_MIN_SPECK_PX})",
+    )
+
+
+def mask_options(args: argparse.Namespace):
+    from ..estimation._capture_fit import MaskOptions
+    from ..estimation._highlights import HLSThresholds, WhiterThanTissue
+
+    if args.highlights == "hls":
+        hls = HLSThresholds()
+        rule = HLSThresholds(
+            hls.lightness if args.lightness is None else args.lightness,
+            hls.saturation if args.saturation is None else args.saturation,
+        )
+    else:
+        if args.lightness is not None or args.saturation is not None:
+            raise CtjaxError(
+                "--lightness and --saturation set the paper's rule: add --highlights hls"
+            )
+        rule = WhiterThanTissue(whiteness=args.whiteness, contrast=args.contrast)
+    return MaskOptions(rule, args.ring_px, args.min_speck)
+
+
+def add_falloff_argument(parser) -> None:
+    parser.add_argument(
+        "--falloff",
+        default="auto",
+        # ctjax.calibration._near_light.FALLOFF_NAMES (not imported here: it loads JAX)
+        choices=("auto", "none", "inverse_square", "spot", "inverse_square+spot"),
+        help="falloffs of the near light (auto: chosen on held-out frames)",
+    )
+
+
+# The command line's words for objects, in one place.
+
+
+def field_solver(engine: str):
+    """`--engine`: the light field's per-pixel solver."""
+    from ..calibration import FIELD_SOLVER, ClosedFormLM
+
+    return {"optimistix": FIELD_SOLVER, "closed-form": ClosedFormLM(iterations=10)}[engine]
+
+
+def cook_torrance_estimator(light: str):
+    """`--light`: how `ctjax evaluate` fits Cook-Torrance and its light."""
+    from ..calibration import calibrate_light_field, calibrate_near_light
+    from ..evaluation import fit_colocated
+
+    return {
+        "near": calibrate_near_light,
+        "colocated": fit_colocated,
+        "field": calibrate_light_field,
+    }[light]

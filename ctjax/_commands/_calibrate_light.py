@@ -1,0 +1,114 @@
+"""`ctjax calibrate-light`: the laparoscope's light from images, a near point light
+(`--model near`) or the paper's per-pixel light field (`--model field`).
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+from .._units import in_length_unit, label
+from ._args import add_falloff_argument, field_solver, load_capture
+
+
+def add_calibrate_light_parser(commands) -> None:
+    light = commands.add_parser("calibrate-light", help="the laparoscope's light from images")
+    light.add_argument("capture", type=Path, help="capture folder (with depth)")
+    light.add_argument(
+        "--model",
+        choices=("near", "field"),
+        default="near",
+        help="near: point light offset from the lens; field: the paper's per-pixel "
+        "light directions (eq. 7-8)",
+    )
+    light.add_argument("--json", type=Path, required=True, help="output JSON file")
+    light.add_argument(
+        "--npz",
+        type=Path,
+        help="field: output NPZ with the (H, W, 3) light directions, theta, phi, status",
+    )
+    add_falloff_argument(light)
+    light.add_argument(
+        "--engine",
+        choices=("optimistix", "closed-form"),
+        default="optimistix",
+        help="field: the per-pixel LM solver, optimistix's (the reference) or a batched 2x2 "
+        "one written out (closed-form: several times faster)",
+    )
+    light.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="one albedo per surface point (map; the default when every frame has depth and "
+        "a pose) or one for the capture (uniform, the paper's)",
+    )
+    light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    light.set_defaults(run=run_calibrate_light)
+
+
+def run_calibrate_light(args: argparse.Namespace) -> int:
+    from ..calibration import calibrate_near_light, named_falloff
+    from ..io._atomic import atomic_write_json
+
+    if args.model == "field":
+        return _calibrate_light_field(args)
+    capture = load_capture(args)
+    falloff = named_falloff(args.falloff, capture)
+    result = calibrate_near_light(
+        capture,
+        calibration=args.calib,
+        falloff=falloff,
+        albedo=args.albedo,
+        progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
+    )
+    summary = result.to_json()
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
+    offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
+    if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
+        errors = summary["offset_stderr_mm"]
+        offset += " +- " + ", ".join("?" if v is None else f"{v:.2f}" for v in errors)
+    print(
+        f"light offset ({offset}) {label(capture.length_unit)}, "
+        f"falloff {'+'.join(summary['falloff']) or 'none'}, "
+        f"albedo {summary['albedo']}, status {summary['status']}; "
+        f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
+        f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
+    )
+    for warning in result.warnings:
+        print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
+    return 0
+
+
+def _calibrate_light_field(args: argparse.Namespace) -> int:
+    import io
+
+    import numpy as np
+
+    from ..calibration import calibrate_light_field
+    from ..io._atomic import atomic_write_bytes, atomic_write_json
+
+    capture = load_capture(args)
+    result = calibrate_light_field(
+        capture,
+        calibration=args.calib,
+        solver=field_solver(args.engine),
+        albedo=args.albedo,
+        progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
+    )
+    summary = result.to_json()
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
+    if args.npz is not None:
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **result.arrays)
+        atomic_write_bytes(args.npz, buffer.getvalue())
+    counts = summary["solver_status"]
+    print(
+        f"light field over {summary['solved_pixels']} pixels (converged {counts['converged']}, "
+        f"max steps {counts['max_steps']}, failed {counts['failed']}), median "
+        f"{summary['median_angle_from_view_deg']:.2f} deg from the view direction, "
+        f"albedo {summary['albedo']}, status {summary['status']}; "
+        f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
+        f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
+        + (f" and {args.npz}" if args.npz is not None else "")
+    )
+    for warning in result.warnings:
+        print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
+    return 0

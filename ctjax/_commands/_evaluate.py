@@ -1,0 +1,105 @@
+"""`ctjax evaluate`: Lambertian against Cook-Torrance, their RGB errors and their shape from
+shading.
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+from .._units import in_length_unit, label
+from ._args import cook_torrance_estimator, load_capture
+
+
+def add_evaluate_parser(commands) -> None:
+    evaluate = commands.add_parser(
+        "evaluate", help="Lambertian vs Cook-Torrance: RGB error and shape from shading"
+    )
+    evaluate.add_argument("capture", type=Path, help="capture folder (with depth)")
+    evaluate.add_argument("--json", type=Path, required=True, help="output JSON file")
+    evaluate.add_argument("--plots", type=Path, help="folder for the paper's Fig. 4-7 plots")
+    evaluate.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    evaluate.add_argument(
+        "--light",
+        choices=("near", "colocated", "field"),
+        default="near",
+        help="Cook-Torrance's light: near (point light offset), colocated (paper's BRDF fit "
+        "with L = V) or field (the paper's per-pixel light field)",
+    )
+    evaluate.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="one albedo per surface point for both models (map; the default when every "
+        "frame has depth and a pose) or one per model (uniform, the paper's)",
+    )
+    evaluate.add_argument(
+        "--per-pixel-sfs",
+        action="store_true",
+        help="also run the paper's Cook-Torrance SfS (Tsai-Shah's normals refined per pixel, "
+        "eq. 9) and report it beside the joint one",
+    )
+    evaluate.add_argument(
+        "--no-sfs",
+        action="store_true",
+        help="RGB errors only: no shape from shading (it needs depth with relief to score)",
+    )
+    evaluate.set_defaults(run=run_evaluate)
+
+
+def run_evaluate(args: argparse.Namespace) -> int:
+    from ..evaluation import evaluate, evaluation_plots
+    from ..io._atomic import atomic_write_json
+
+    capture = load_capture(args)
+    evaluation = evaluate(
+        capture,
+        calibration=args.calib,
+        cook_torrance=cook_torrance_estimator(args.light),
+        albedo=args.albedo,
+        per_pixel_sfs=args.per_pixel_sfs,
+        sfs=not args.no_sfs,
+        progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
+    )
+    summary = evaluation.to_json()
+    atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
+    if args.plots:
+        for path in evaluation_plots(capture, evaluation, args.plots).values():
+            print(f"wrote {path}")
+    print(
+        "RGB RMSE (levels), calibration / test: Lambertian "
+        f"{summary['lambertian_rgb_rmse_calibration']:.2f} / "
+        f"{summary['lambertian_rgb_rmse_test']:.2f}, Cook-Torrance "
+        f"{summary['cook_torrance_rgb_rmse_calibration']:.2f} / "
+        f"{summary['cook_torrance_rgb_rmse_test']:.2f} (albedo {summary['albedo']})"
+    )
+    gain = summary["gain"]
+    if "lobe_levels" in gain:
+        same = summary["lambertian_same_light_rgb_rmse_test"]
+        print(
+            "Cook-Torrance's gain on the test frames: "
+            f"{gain['total_levels']:.2f} levels = {gain['light_levels']:.2f} from its light "
+            f"(Lambertian under the same light: {same:.2f}) + {gain['lobe_levels']:.2f} from "
+            "the lobe"
+        )
+    fitted = summary["models"]["cook_torrance"]
+    for flagged in fitted["undetermined"]:
+        print(
+            f"ctjax evaluate: warning: Cook-Torrance's fit is {fitted['status']}: "
+            f"{flagged['reason']}",
+            file=sys.stderr,
+        )
+    for note in summary["notes"]:
+        print(f"ctjax evaluate: note: {note}", file=sys.stderr)
+    if summary["lambertian_sfs_error_mm"] is not None:
+        models = [("Lambertian", "lambertian"), ("Cook-Torrance", "cook_torrance")]
+        if args.per_pixel_sfs:
+            models.append(("the paper's per-pixel refinement", "cook_torrance_per_pixel"))
+        unit = label(capture.length_unit)
+        for what, where in (("mean", ""), ("mean near highlights", "_near_highlights")):
+            errors = (summary[f"{key}_sfs_error{where}_mm"] for _, key in models)
+            figures = ", ".join(
+                f"{name} {float('nan') if e is None else e:.2f}"
+                for (name, _), e in zip(models, errors, strict=True)
+            )
+            print(f"SfS 3D error ({what}, {unit}): {figures}")
+    print(f"wrote {args.json}")
+    return 0

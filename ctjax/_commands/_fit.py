@@ -1,0 +1,128 @@
+"""`ctjax fit`: the BRDF (rho_tilde, F_tilde, sigma) of a capture, its shape reconstructed
+first when it has images only.
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+from .._errors import CtjaxError
+from .._units import in_length_unit
+from ._args import add_mask_arguments, load_capture, mask_options, positive_int
+
+
+def add_fit_parser(commands) -> None:
+    from ..observations import DEFAULT_MAX_TRACKS
+
+    fit = commands.add_parser("fit", help="estimate (rho_tilde, F_tilde, sigma) from a capture")
+    fit.add_argument(
+        "capture", type=Path, help="capture folder (without depth or normals: reconstructed first)"
+    )
+    fit.add_argument("--json", type=Path, required=True, help="output JSON file")
+    fit.add_argument(
+        "--model",
+        choices=("paper", "two-scales"),
+        default="paper",
+        help="paper: one Beckmann lobe (eq. 2); two-scales: two (eq. 3)",
+    )
+    fit.add_argument(
+        "--albedo",
+        choices=("map", "uniform"),
+        help="map: rho_tilde per surface point from all frames (default when every frame has "
+        "depth and a pose, or the shape is reconstructed); uniform: one rho_tilde (the paper)",
+    )
+    fit.add_argument(
+        "--albedo-maps",
+        type=Path,
+        metavar="DIR",
+        help="write DIR/NAME.npy per frame: float32 (H, W, 3) rho_tilde per pixel, NaN where "
+        "not estimated",
+    )
+    fit.add_argument(
+        "--max-tracks",
+        type=positive_int,
+        metavar="N",
+        help="with the albedo map: follow at most N surface points across frames (default "
+        f"{DEFAULT_MAX_TRACKS}; more: steadier sigma and F_tilde on a reconstructed shape, "
+        "slower)",
+    )
+    fit.add_argument(
+        "--no-shading",
+        action="store_true",
+        help="images only: keep SfM's shape (refined by the texture) without refining it by "
+        "the shading (faster; sigma and F_tilde then off by up to tens of percent)",
+    )
+    add_mask_arguments(fit)
+    fit.set_defaults(run=run_fit)
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+
+    from ..estimation import PAPER, TWO_SCALES
+    from ..estimation._capture_fit import fit_capture
+    from ..io._atomic import atomic_write_json, atomic_write_npy
+
+    capture = load_capture(args)
+    shape = None
+    if not any(frame.has_geometry for frame in capture.frames):
+        from ..sfm import with_reconstructed_shape
+
+        print(
+            f"ctjax fit: {args.capture} has images only; reconstructing its shape by SfM "
+            "first (in memory; `ctjax reconstruct` writes it to the capture)"
+            + ("" if args.no_shading else ", then refining it by the shading"),
+            file=sys.stderr,
+        )
+        capture, shape = with_reconstructed_shape(capture, shading=not args.no_shading)
+        for warning in shape["warnings"]:
+            print(f"ctjax fit: warning: {warning}", file=sys.stderr)
+    family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
+    if args.albedo_maps is not None and args.albedo == "uniform":
+        raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")
+    if args.max_tracks is not None and args.albedo == "uniform":
+        raise CtjaxError("--max-tracks is for the albedo map (--albedo map)")
+    estimate = fit_capture(
+        capture, mask_options(args), family, albedo=args.albedo, max_points=args.max_tracks
+    )
+    if args.albedo_maps is not None:
+        if "albedo" not in estimate.details or estimate.details["albedo"] != "map":
+            raise CtjaxError(
+                f"{args.capture}: --albedo-maps needs the albedo map, which needs depth and "
+                "poses in every frame (poses.json), or a capture with images only"
+            )
+        for key, albedo in estimate.arrays.items():
+            if key.startswith("albedo/"):
+                name = key.removeprefix("albedo/")
+                atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
+    result = estimate.to_json()
+    if shape is not None:
+        result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
+    atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
+    keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status")
+    print(json.dumps({k: result[k] for k in result if k in keys}))
+    samples = (
+        f"{result['n_points']} tracked points"
+        if result["albedo"] == "map"
+        else f"{result['n_ring_pixels']} ring pixels"
+    )
+    print(
+        f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; {samples}; "
+        f"wrote {args.json}" + (f" and {args.albedo_maps}/" if args.albedo_maps else "")
+    )
+    halves = result.get("halves", {})
+    if halves:
+        names = [n for n in ("sigma", "sigma_1", "sigma_2") if n in halves["even_frames"]]
+        print(
+            "stability: "
+            + "; ".join(
+                f"{n} {halves['even_frames'][n]:.4g} (even frames) / "
+                f"{halves['odd_frames'][n]:.4g} (odd)"
+                for n in names
+            )
+        )
+    for warning in result["warnings"]:
+        print(f"ctjax fit: warning: {warning}", file=sys.stderr)
+    return 0

@@ -1,0 +1,105 @@
+"""`ctjax import`: a capture from a video, its distinct and sharp frames."""
+
+import argparse
+import sys
+from pathlib import Path
+
+# `ctjax import` warns above this many kept frames.
+MANY_FRAMES = 200
+
+
+def add_import_parser(commands) -> None:
+    from ..io._video import ImportOptions
+
+    default = ImportOptions()
+    video = commands.add_parser(
+        "import",
+        help="a capture from a video: its distinct, sharp frames",
+        description="Keeps the video's distinct frames (near-duplicates of a still camera "
+        "dropped, the sharpest of each run kept) and drops motion-blurred ones; writes "
+        "OUT/images/frame_NNNNNN.png (the frame number: names sort in time) and "
+        "OUT/camera.json.",
+    )
+    video.add_argument("video", type=Path, help="any video file OpenCV reads (MP4, AVI, MKV...)")
+    video.add_argument("--camera", type=Path, required=True, help="the endoscope's camera.json")
+    video.add_argument("--out", type=Path, required=True, help="the capture folder to write")
+    video.add_argument(
+        "--every", type=int, default=default.every, help="consider every N-th frame (default 1)"
+    )
+    video.add_argument("--start", type=float, default=0.0, help="from this time, s (default 0)")
+    video.add_argument("--end", type=float, help="up to this time, s (default: the end)")
+    video.add_argument(
+        "--max-frames", type=int, help="keep at most this many, evenly in time (default: all)"
+    )
+    video.add_argument(
+        "--distinct",
+        type=float,
+        default=default.distinct,
+        help="a new view differs from the last by this much, relative to the mean "
+        f"brightness (default {default.distinct})",
+    )
+    video.add_argument(
+        "--width",
+        type=int,
+        help="write the frames this many pixels wide (area-averaged; camera.json scaled to "
+        "match; default: the video's size)",
+    )
+    video.add_argument(
+        "--right",
+        type=Path,
+        help="a stereo laparoscope's right video, frame for frame with VIDEO (camera.json "
+        "needs its stereo block); writes OUT/right/frame_NNNNNN.png",
+    )
+    video.add_argument(
+        "--side-by-side",
+        action="store_true",
+        help="a stereo video with the left camera's image in each frame's left half and the "
+        "right camera's in its right half (camera.json needs its stereo block)",
+    )
+    video.add_argument(
+        "--force",
+        action="store_true",
+        help="replace OUT/images (and the depth, normals and poses reconstructed from them)",
+    )
+    video.add_argument("--json", type=Path, help="write the report to this JSON file")
+    video.set_defaults(run=run_import)
+
+
+def run_import(args: argparse.Namespace) -> int:
+    from ..io._atomic import atomic_write_json
+    from ..io._video import ImportOptions, import_video
+
+    options = ImportOptions(
+        every=args.every,
+        start=args.start,
+        end=args.end,
+        max_frames=args.max_frames,
+        distinct=args.distinct,
+        width=args.width,
+        side_by_side=args.side_by_side,
+    )
+    report = import_video(
+        args.video,
+        args.camera,
+        args.out,
+        options,
+        right=args.right,
+        force=args.force,
+        progress=lambda m: print(f"[ctjax import] {m}", flush=True),
+    )
+    if args.json is not None:
+        atomic_write_json(args.json, report)
+    print(f"wrote {report['kept']} frames to {report['out']}")
+    if report["kept"] < 3:
+        print(
+            f"ctjax import: warning: {report['kept']} distinct frame(s): structure from motion "
+            "needs views from several positions (a lower --distinct keeps more)",
+            file=sys.stderr,
+        )
+    elif report["kept"] > MANY_FRAMES:
+        print(
+            f"ctjax import: warning: {report['kept']} frames kept: structure from motion and "
+            "the fits on that many take long; --max-frames or --every keeps fewer",
+            file=sys.stderr,
+        )
+    return 0

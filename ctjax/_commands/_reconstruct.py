@@ -1,0 +1,94 @@
+"""`ctjax reconstruct`: depth, normals and poses from the images (structure from motion)."""
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def add_reconstruct_parser(commands) -> None:
+    recon = commands.add_parser(
+        "reconstruct", help="depth, normals and poses from the images (structure-from-motion)"
+    )
+    recon.add_argument("capture", type=Path, help="capture folder (images and camera.json)")
+    recon.add_argument("--out", type=Path, help="output capture folder (default: CAPTURE)")
+    scale = recon.add_mutually_exclusive_group()
+    scale.add_argument(
+        "--scale-mm",
+        type=float,
+        metavar="X",
+        help="median depth of the first registered frame, mm (else depth is up to scale)",
+    )
+    scale.add_argument(
+        "--volume-mm3",
+        type=float,
+        metavar="V",
+        help="bounding-box volume of the reconstructed points, mm^3 (the paper's known size)",
+    )
+    recon.add_argument("--force", action="store_true", help="overwrite depth, normals, poses")
+    recon.add_argument(
+        "--no-photometric",
+        action="store_true",
+        help="keep the surfaces fitted to the SfM points alone (not refined by the texture)",
+    )
+    recon.add_argument(
+        "--shading",
+        action="store_true",
+        help="then refine the shape by every frame's shading, one world surface fitted with "
+        "the BRDF (assumes the light at the camera; about 15 s at 640x512 x 8)",
+    )
+    recon.add_argument(
+        "--stereo",
+        choices=("scale", "surface", "none"),
+        default="scale",
+        help="on a stereo capture (right/NAME.png, camera.json's stereo): the pairs' depth "
+        "gives the scale in mm (scale), and also dense points for the surfaces (surface; "
+        "noisier normals on the synthetic captures), or is not used (none)",
+    )
+    recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
+    recon.add_argument("--json", type=Path, help="write the report to this JSON file")
+    recon.set_defaults(run=run_reconstruct)
+
+
+def run_reconstruct(args: argparse.Namespace) -> int:
+    from ..io._atomic import atomic_write_json
+    from ..sfm import reconstruct
+
+    report = reconstruct(
+        args.capture,
+        args.out,
+        scale_mm=args.scale_mm,
+        volume_mm3=args.volume_mm3,
+        force=args.force,
+        photometric=not args.no_photometric,
+        shading=args.shading,
+        stereo=args.stereo,
+        progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
+        verbose=args.verbose,
+    )
+    for note in report["notes"]:
+        print(f"ctjax reconstruct: note: {note}", file=sys.stderr)
+    if args.json is not None:
+        atomic_write_json(args.json, report)
+    scale = report["scale"]
+    unit = "mm" if scale["metric"] else "up to scale (unit: median depth of the first frame)"
+    print(
+        f"registered {len(report['registered'])}/{report['frames']} frames, "
+        f"{report['points']} points, mean reprojection error "
+        f"{report['mean_reprojection_error_px']:.2f} px, coverage {report['coverage']:.1%}; "
+        f"depth {unit}; wrote {report['out']}"
+    )
+    shading = report["surface"].get("shading")
+    if shading and shading["refined"]:
+        print(
+            f"shape refined by the shading: {shading['points']} points, sigma "
+            f"{shading['sigma_before']:.4f} -> {shading['sigma_after']:.4f}, normals turned by "
+            f"{shading['median_normal_change_deg']:.2f} degrees (median)"
+        )
+    elif shading:
+        print(
+            f"ctjax reconstruct: warning: no shading refinement: {shading['reason']}",
+            file=sys.stderr,
+        )
+    for warning in report["warnings"]:
+        print(f"ctjax reconstruct: warning: {warning}", file=sys.stderr)
+    return 0

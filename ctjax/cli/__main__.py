@@ -1,0 +1,5 @@
+"""`python -m ctjax.cli`, as the `ctjax` command."""
+
+from . import run
+
+run()
