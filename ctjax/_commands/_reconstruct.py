@@ -32,9 +32,14 @@ def add_reconstruct_parser(commands) -> None:
     )
     recon.add_argument(
         "--shading",
-        action="store_true",
+        nargs="?",
+        const="camera",
+        choices=("camera", "near"),  # ctjax.sfm._reconstruct.SHADING_LIGHTS (it loads JAX)
+        metavar="LIGHT",
         help="then refine the shape by every frame's shading, one world surface fitted with "
-        "the BRDF (assumes the light at the camera; about 15 s at 640x512 x 8)",
+        "the BRDF under the light at the camera (camera, the default) or jointly with a near "
+        "light's position (near: inverse-square falloff; for a capture whose light is off "
+        "the lens); about 15-30 s at 640x512 x 8",
     )
     recon.add_argument(
         "--stereo",
@@ -84,6 +89,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             f"{shading['sigma_before']:.4f} -> {shading['sigma_after']:.4f}, normals turned by "
             f"{shading['median_normal_change_deg']:.2f} degrees (median)"
         )
+        if "light" in shading:
+            unit = "mm" if scale["metric"] else "median depths"
+            position = ", ".join(f"{x:.2f}" for x in shading["light"]["position_mm"])
+            print(f"near light fitted with the shape: position ({position}) {unit}")
     elif shading:
         print(
             f"ctjax reconstruct: warning: no shading refinement: {shading['reason']}",
