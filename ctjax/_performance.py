@@ -98,11 +98,13 @@ def enable_compilation_cache(folder: Path | None = None) -> Path | None:
     """JAX's persistent compilation cache in `folder` (default `compilation_cache_dir()`):
     a repeated command loads its compiled programs instead of compiling them again (the
     fitters take seconds to compile and milliseconds to run). Leaves a cache the user set
-    through JAX's own `JAX_COMPILATION_CACHE_DIR` alone. Returns the folder in use (None:
-    off)."""
+    through JAX's own `JAX_COMPILATION_CACHE_DIR` alone. The folder is created for the
+    user alone (0700); one that another user can write is not used, with a warning: its
+    compiled programs are machine code that whoever writes them chooses (`ctjax._programs`).
+    Returns the folder in use (None: off)."""
     import jax
 
-    from ._programs import keep_programs
+    from ._programs import keep_programs, private_folder
 
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         return jax.config.jax_compilation_cache_dir
@@ -110,9 +112,11 @@ def enable_compilation_cache(folder: Path | None = None) -> Path | None:
     if folder is None:
         return None
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
     except OSError:
         return None  # a read-only home: compile every time, as without the cache
+    if not private_folder(folder):
+        return None  # a shared or group folder: compile every time (warned)
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     keep_programs(folder / "programs")  # the traced programs too (`ctjax._programs`)

@@ -15,14 +15,47 @@ and the shape and dtype of every array. A static argument whose `repr` is not
 reproducible (one showing an address) only makes the program miss the cache. A program
 that cannot be exported (a host callback) runs as `eqx.filter_jit` would. Off unless the
 compilation cache is on (the command line turns it on; `CTJAX_NO_CACHE=1` turns it off).
+
+A kept program is data only, never pickled: whoever can write a file that a process
+unpickles runs code in it. `<sha256 of the key>.program` holds the line
+`ctjax-program 1` (the format and its version), one line of JSON, then the bytes of
+`jax.export`'s `Exported.serialize()`. The JSON holds the key's digest (a file renamed to
+another key is refused), the sha256 of those bytes (a damaged file is refused before
+JAX parses it) and the output's skeleton, which only tracing would tell otherwise: the
+pytree structure of the function's output (its node types, their static data) and its
+leaves, each either "an output array of the program" or a static value. Static data is
+written in a closed vocabulary: None, bool, int, float, str, tuples, lists and dicts of
+those, classes of ctjax and its libraries (and ctjax's functions) by `module:qualname`,
+enum members, and module-level constants of those libraries (equinox's MISSING). A name
+is looked up in modules already imported, through `__dict__`s, and must be where the
+object is defined: reading a program imports nothing, and the only code it runs is JSON's
+parser, `jax.export.deserialize` and the named pytree types' own unflattening. A skeleton
+is written only if it reads back the same. An output holding anything else (user code,
+an object shown by address) is used in this process but not kept: it runs from the
+exported program here, and a later process traces it again.
+
+Safety rules. The cache folder, `programs/` and its files are created for the user alone
+(0700, 0600). A folder that another user can write (owned by another user, or group- or
+world-writable) is neither read nor written, and a program file that another user can
+write is not read (it is replaced), with one warning per process: whoever can write a
+kept program, or JAX's compiled programs beside it, chooses the machine code this process
+runs (`enable_compilation_cache` leaves such a cache folder off altogether). Only the
+folder and the file are checked: one that another user put in their place is theirs. A
+file that cannot be read, parsed or checked (damaged, another format, another key's) is a
+miss: the function is traced again and the file replaced.
 """
 
+import enum
 import functools
 import hashlib
 import importlib.metadata
+import json
 import os
-import pickle
+import stat
+import sys
+import tempfile
 import types
+import warnings
 from pathlib import Path
 
 import equinox as eqx
@@ -111,6 +144,7 @@ class _Program:
     def __init__(self, exported, skeleton):
         self.exported = exported
         self.skeleton = skeleton
+        self.parts, self.structure = jax.tree.flatten(skeleton)
         # One jit per program, its inputs placed on the default device: committed and
         # uncommitted arguments (an exported program's outputs are committed) would
         # otherwise compile the program twice.
@@ -119,9 +153,8 @@ class _Program:
 
     def __call__(self, leaves):
         outputs = iter(self.run(*leaves))
-        parts, structure = jax.tree.flatten(self.skeleton)
         return jax.tree.unflatten(
-            structure, [next(outputs) if isinstance(p, _Array) else p for p in parts]
+            self.structure, [next(outputs) if isinstance(p, _Array) else p for p in self.parts]
         )
 
 
@@ -170,37 +203,306 @@ def persistent_jit(fun):
             )
         except _Unkeyable:
             return jitted(*args, **kwargs)
-        path = folder / f"{hashlib.sha256(text.encode()).hexdigest()}.program"
+        key = hashlib.sha256(text.encode()).hexdigest()
+        path = folder / f"{key}.program"
         if path not in loaded:
-            loaded[path] = _load(path) or _save(path, fun, treedef, static, leaves)
+            loaded[path] = _load(path, key, leaves) or _save(
+                path, key, fun, treedef, static, leaves
+            )
         program = loaded[path]
         return jitted(*args, **kwargs) if program is None else program(leaves)
 
     return call
 
 
-def _load(path: Path) -> _Program | None:
+# The skeleton in JSON (see the module doc). Libraries whose classes and constants it may
+# name: the key covers their versions, and naming one imports or runs nothing of theirs.
+_LIBRARIES = ("ctjax", *_PACKAGES, "jaxtyping")
+# The container node types, by name: the only builtins a skeleton names.
+_CONTAINERS = {"tuple": tuple, "list": list, "dict": dict, "None": type(None)}
+
+
+def _library(module: str) -> types.ModuleType:
+    """An already imported module of ctjax or its libraries (importing one runs its code)."""
+    if not isinstance(module, str) or module.split(".")[0] not in _LIBRARIES:
+        raise ValueError(f"not a library of ctjax's: {module!r}")
+    return sys.modules[module]
+
+
+def _named(name: str):
+    """The class of a library, or the function of ctjax's, that `module:qualname` names.
+    Looked up in `__dict__`s, where no module `__getattr__` or descriptor runs, and only
+    where it is defined: a name cannot reach an object imported into the module."""
+    module, _, qualname = name.partition(":")
+    thing = _library(module)
+    for part in qualname.split("."):
+        thing = vars(thing)[part]
+    function = isinstance(thing, types.FunctionType) and module.split(".")[0] == "ctjax"
+    if not (isinstance(thing, type) or function) or "<" in qualname:
+        raise ValueError(f"not a class or a ctjax function: {name}")
+    if (thing.__module__, thing.__qualname__) != (module, qualname):
+        raise ValueError(f"not defined as {name}")
+    return thing
+
+
+def _name(thing) -> str:
+    """`module:qualname` for `_named`; raises `_Unkeyable` where none finds `thing`."""
+    name = f"{getattr(thing, '__module__', None)}:{getattr(thing, '__qualname__', None)}"
     try:
-        with path.open("rb") as file:
-            blob, skeleton = pickle.load(file)
-        return _Program(jax.export.deserialize(blob), skeleton)
+        if _named(name) is thing:
+            return name
+    except (KeyError, TypeError, ValueError):
+        pass
+    raise _Unkeyable
+
+
+def _constant(name: str):
+    """The module-level constant `module:name` (equinox's MISSING): data of a type that
+    module defines, neither a class, a function nor anything else callable."""
+    module, _, attribute = name.partition(":")
+    value = vars(_library(module))[attribute]
+    if type(value).__module__ != module or callable(value):
+        raise ValueError(f"not a constant: {name}")
+    return value
+
+
+def _encoded(value):
+    """Static data as JSON data (see the module doc); raises `_Unkeyable` for anything
+    else."""
+    if isinstance(value, enum.Enum):
+        return {"enum": _name(type(value)), "member": value.name}
+    if value is None or type(value) in (bool, int, float, str):
+        return value
+    if type(value) in (tuple, list):
+        return {type(value).__name__: [_encoded(item) for item in value]}
+    if type(value) is dict:
+        return {"dict": [[_encoded(k), _encoded(v)] for k, v in value.items()]}
+    if isinstance(value, (type, types.FunctionType)):
+        return {"ref": _name(value)}
+    module = type(value).__module__
+    if module.split(".")[0] in _LIBRARIES and module in sys.modules:
+        for attribute, bound in vars(sys.modules[module]).items():
+            if bound is value and not callable(value):
+                return {"const": f"{module}:{attribute}"}
+    raise _Unkeyable
+
+
+def _decoded(data):
+    """The static data `_encoded` wrote; raises where `data` is not any."""
+    if data is None or type(data) in (bool, int, float, str):
+        return data
+    if type(data) is not dict:
+        raise ValueError(f"not static data: {data!r}")
+    if data.keys() == {"enum", "member"}:
+        kind = _named(data["enum"])
+        if not issubclass(kind, enum.Enum):
+            raise ValueError(f"not an enum: {kind}")
+        return kind.__members__[data["member"]]
+    ((tag, payload),) = data.items()
+    if tag in ("tuple", "list", "dict") and type(payload) is not list:
+        raise ValueError(f"not a {tag}: {payload!r}")
+    if tag == "tuple":
+        return tuple(_decoded(item) for item in payload)
+    if tag == "list":
+        return [_decoded(item) for item in payload]
+    if tag == "dict":
+        return {_decoded(k): _decoded(v) for k, v in payload}
+    if tag == "ref":
+        return _named(payload)
+    if tag == "const":
+        return _constant(payload)
+    raise ValueError(f"not static data: {data!r}")
+
+
+def _encoded_tree(treedef):
+    """A pytree structure as JSON data: "*" for a leaf, else its node type, the node's
+    static data and its children."""
+    data = treedef.node_data()
+    if data is None:
+        return "*"
+    kind, aux = data
+    names = {kind: name for name, kind in _CONTAINERS.items()}
+    return {
+        "node": names[kind] if kind in names else _name(kind),
+        "aux": _encoded(aux),
+        "children": [_encoded_tree(child) for child in treedef.children()],
+    }
+
+
+def _decoded_tree(data):
+    """The pytree structure `_encoded_tree` wrote; raises where `data` is not one."""
+    registry = jax.tree_util.default_registry
+    if data == "*":
+        return jax.tree_util.PyTreeDef.from_node_data_and_children(registry, None, [])
+    kind = _CONTAINERS[data["node"]] if data["node"] in _CONTAINERS else _named(data["node"])
+    children = [_decoded_tree(child) for child in data["children"]]
+    return jax.tree_util.PyTreeDef.from_node_data_and_children(
+        registry, (kind, _decoded(data["aux"])), children
+    )
+
+
+def _skeleton(data):
+    """The output skeleton `_skeleton_data` wrote; raises where `data` is not one."""
+    treedef = _decoded_tree(data["tree"])
+    parts = [_Array() if leaf == {"array": None} else _decoded(leaf) for leaf in data["leaves"]]
+    skeleton = jax.tree.unflatten(treedef, parts)
+    # Node types' unflattening accepts some malformed structures (a None with a child, a
+    # dict's keys out of order): what does not flatten back to itself is not a skeleton.
+    again, structure = jax.tree.flatten(skeleton)
+    if structure != treedef or len(again) != len(parts):
+        raise ValueError("not an output skeleton")
+    if any(a is not b for a, b in zip(again, parts, strict=True)):
+        raise ValueError("not an output skeleton")
+    return skeleton
+
+
+def _skeleton_data(skeleton) -> dict:
+    """An output skeleton (`_Program`) as JSON data; raises `_Unkeyable` where it holds
+    anything the format does not describe, or it does not read back the same."""
+    parts, treedef = jax.tree.flatten(skeleton)
+    data = {
+        "tree": _encoded_tree(treedef),
+        "leaves": [{"array": None} if isinstance(p, _Array) else _encoded(p) for p in parts],
+    }
+    # A kept program must rebuild exactly the output it was traced for: a name another
+    # object answers to, or a type JSON does not tell apart, is caught here, not later.
+    try:
+        again, structure = jax.tree.flatten(_skeleton(json.loads(json.dumps(data))))
+        same = structure == treedef and all(
+            isinstance(a, _Array) == isinstance(b, _Array)
+            and (isinstance(a, _Array) or (type(a) is type(b) and _keyed(a) == _keyed(b)))
+            for a, b in zip(parts, again, strict=True)
+        )
+    except Exception as error:
+        raise _Unkeyable from error
+    if not same:
+        raise _Unkeyable
+    return data
+
+
+_MAGIC = b"ctjax-program 1\n"  # the format and its version
+
+
+def _blob(key: str, program: _Program) -> bytes:
+    """A program file's bytes (see the module doc); raises `_Unkeyable` for an output the
+    format does not describe."""
+    exported = bytes(program.exported.serialize())
+    header = {
+        "key": key,
+        "sha256": hashlib.sha256(exported).hexdigest(),
+        "skeleton": _skeleton_data(program.skeleton),
+    }
+    return _MAGIC + json.dumps(header, separators=(",", ":")).encode() + b"\n" + exported
+
+
+def _program(blob: bytes, key: str, leaves) -> _Program:
+    """The program a file's bytes hold; raises (anything) where they are not this key's
+    program for arguments like `leaves`."""
+    if not blob.startswith(_MAGIC):
+        raise ValueError("not a program of this format")
+    line, _, exported = blob[len(_MAGIC) :].partition(b"\n")
+    header = json.loads(line)
+    if header["key"] != key or header["sha256"] != hashlib.sha256(exported).hexdigest():
+        raise ValueError("another key's program, or a damaged one")
+    program = _Program(jax.export.deserialize(bytearray(exported)), _skeleton(header["skeleton"]))
+    inputs = [(aval.shape, aval.dtype) for aval in program.exported.in_avals]
+    outputs = sum(isinstance(part, _Array) for part in program.parts)
+    if inputs != [(leaf.shape, leaf.dtype) for leaf in leaves]:
+        raise ValueError("a program for other arguments")
+    if len(program.exported.out_avals) != outputs:
+        raise ValueError("a program for another output")
+    return program
+
+
+# One warning per process for a cache that another user can write (see the module doc).
+_WARNED = [False]
+
+
+def _private(status: os.stat_result) -> bool:
+    """Owned by this user, and writable by no other (neither group- nor world-writable)."""
+    owner = not hasattr(os, "getuid") or status.st_uid == os.getuid()
+    return owner and not status.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+
+
+def _warn_unsafe(path: Path) -> None:
+    if not _WARNED[0]:
+        _WARNED[0] = True
+        warnings.warn(
+            f"ctjax: not using the cache at {path}: another user can write to it (it is not "
+            "yours, or it is group- or world-writable), and whoever writes it chooses the "
+            "code ctjax runs; make it yours alone (chmod go-w) or set CTJAX_CACHE_DIR to a "
+            "folder of your own",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+
+
+def private_folder(folder: Path) -> bool:
+    """Whether `folder` is the user's alone, or missing (it is then created so); warns
+    once per process otherwise (see the module doc)."""
+    try:
+        status = folder.stat()
     except FileNotFoundError:
+        return True
+    except OSError:
+        return False
+    if not _private(status):
+        _warn_unsafe(folder)
+        return False
+    return True
+
+
+def _read(path: Path) -> bytes | None:
+    """A program file's bytes; None where it is missing, or another user can write it."""
+    try:
+        # Not through a link; not blocking on a FIFO (checked below: a regular file only).
+        descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return None  # missing: the usual miss
+    with os.fdopen(descriptor, "rb") as file:
+        status = os.fstat(file.fileno())  # the file opened, not whatever the path is now
+        if not stat.S_ISREG(status.st_mode):
+            return None
+        if not _private(status):
+            _warn_unsafe(path)
+            return None
+        return file.read()
+
+
+def _load(path: Path, key: str, leaves) -> _Program | None:
+    """The program kept for `key`; None where there is none to use (a miss)."""
+    if not private_folder(path.parent):
         return None
+    try:
+        blob = _read(path)
+        return None if blob is None else _program(blob, key, leaves)
     except Exception:
-        return None
+        return None  # unreadable, damaged, another format or another key's: a miss
 
 
-def _save(path: Path, fun, treedef, static, leaves) -> _Program | None:
+def _save(path: Path, key: str, fun, treedef, static, leaves) -> _Program | None:
     try:
         program = _export(fun, treedef, static, leaves)
-        blob = pickle.dumps((program.exported.serialize(), program.skeleton))
     except Exception:
         return None
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary = path.with_suffix(f".{os.getpid()}.tmp")
-        temporary.write_bytes(blob)
-        temporary.replace(path)  # atomic: concurrent processes never read half a file
-    except OSError:
-        pass  # a read-only cache: keep the program for this process only
+        blob = _blob(key, program)
+    except Exception:
+        return program  # an output the format does not describe: used here, not kept
+    if private_folder(path.parent):
+        _write(path, blob)
     return program
+
+
+def _write(path: Path, blob: bytes) -> None:
+    try:
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        descriptor, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")  # 0600
+    except OSError:
+        return  # a read-only cache: keep the program for this process only
+    try:
+        with os.fdopen(descriptor, "wb") as file:
+            file.write(blob)
+        os.replace(temporary, path)  # atomic: concurrent processes never read half a file
+    except OSError:
+        Path(temporary).unlink(missing_ok=True)

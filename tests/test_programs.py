@@ -1,13 +1,25 @@
 """Programs kept between processes (`ctjax._programs`): a kept program is loaded, not
-traced again, and gives the same result; anything the key cannot cover is not kept."""
+traced again, and gives the same result; anything the key cannot cover is not kept. Kept
+programs are data (no pickle), and a cache that another user can write is not used."""
 
+import fractions
+import json
+import os
+import pickle
+import re
+import stat
+import warnings
+from pathlib import Path
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import ctjax
-from ctjax import _programs
+from ctjax import _performance, _programs
 from ctjax._camera import Camera
+from ctjax._status import Status
 from ctjax.estimation import PAPER
 from ctjax.estimation._dense_maps import _frame_columns
 from ctjax.lights import ColocatedLight
@@ -15,9 +27,10 @@ from ctjax.lobes import Lambertian
 
 
 @pytest.fixture
-def kept(tmp_path):
+def kept(tmp_path, monkeypatch):
     folder = tmp_path / "programs"
     _programs.keep_programs(folder)
+    monkeypatch.setattr(_programs, "_WARNED", [False])  # the warning once per test
     yield folder
     _programs.keep_programs(None)
 
@@ -107,3 +120,201 @@ def test_off_without_a_folder(tmp_path):
     _programs.keep_programs(None)
     _frame_columns(brdf, ColocatedLight(), camera, normals, depth)
     assert not list(tmp_path.rglob("*.program"))
+
+
+def _fresh_call(brdf, camera, normals, depth):
+    """`_frame_columns` as a new process runs it: a fresh wrapper, nothing loaded yet."""
+    fresh = _programs.persistent_jit(_frame_columns.__wrapped__)
+    return [np.asarray(a) for a in fresh(brdf, ColocatedLight(), camera, normals, depth)]
+
+
+@pytest.fixture
+def loads(monkeypatch):
+    """The programs read back from files (`_programs._program` calls that succeeded)."""
+    done = []
+    program = _programs._program
+
+    def spy(*args):
+        done.append(program(*args))
+        return done[-1]
+
+    monkeypatch.setattr(_programs, "_program", spy)
+    return done
+
+
+def test_a_kept_program_is_data_in_the_documented_format(kept, loads):
+    camera, normals, depth = _frame()
+    brdf = PAPER.build(jnp.array([0.25]))
+    first = [np.asarray(a) for a in _frame_columns(brdf, ColocatedLight(), camera, normals, depth)]
+    (path,) = kept.glob("*.program")
+    magic, header, exported = path.read_bytes().split(b"\n", 2)
+    assert magic == b"ctjax-program 1"
+    header = json.loads(header)
+    assert header["key"] == path.stem
+    assert jax.export.deserialize(bytearray(exported)).out_avals  # jax.export's own bytes
+    again = _fresh_call(brdf, camera, normals, depth)
+    assert len(loads) == 1  # read back from the file, not traced again
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+
+
+def test_output_skeletons_are_written_in_a_closed_vocabulary():
+    field = ctjax.LightField(jnp.ones((2, 3, 3)) / np.sqrt(3.0), method="linear")
+    model = jax.tree.map(lambda _: _programs._Array(), field)
+    skeleton = (
+        model,
+        {"a": 0.5, "b": [1, "x", None, True, float("nan")]},
+        Status.at_bound,
+        ctjax.LightField,  # a class of ctjax's
+        _performance.compilation_cache_dir,  # a function of ctjax's
+        (),
+    )
+    data = _programs._skeleton_data(skeleton)
+    text = json.dumps(data)
+    again = _programs._skeleton(json.loads(text))
+    assert jax.tree.structure(again) == jax.tree.structure(skeleton)
+    assert again[0].method == "linear" and isinstance(again[0].directions, _programs._Array)
+    assert again[2] is Status.at_bound and again[3] is ctjax.LightField
+    assert again[4] is _performance.compilation_cache_dir
+    assert "equinox._module._flatten:MISSING" in text  # equinox's own static data
+
+    class UserLobe(Lambertian):  # user code: not kept, whatever its name
+        pass
+
+    for other in [lambda: 0, UserLobe, object(), fractions.Fraction(1, 3), print, os.system]:
+        with pytest.raises(_programs._Unkeyable):
+            _programs._skeleton_data((model, other))
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"node": "os:system", "aux": None, "children": []},  # not a library of ctjax's
+        {"node": "ctjax._programs:os.system", "aux": None, "children": []},  # imported there
+        {"node": "ctjax._programs:_Program.__init__.__globals__", "aux": None, "children": []},
+        {"node": "None", "aux": None, "children": ["*"]},  # malformed: None with a leaf
+        {"node": "dict", "aux": {"list": ["b", "a"]}, "children": ["*", "*"]},
+        {"node": "tuple", "aux": {"ref": "builtins:eval"}, "children": []},
+        {"node": "tuple", "aux": {"const": "ctjax._programs:os"}, "children": []},
+        {
+            "node": "tuple",
+            "aux": {"enum": "ctjax._status:Status", "member": "__class__"},
+            "children": [],
+        },
+    ],
+)
+def test_a_skeleton_names_nothing_outside_its_vocabulary(data):
+    leaves = [{"array": None}] * len(data["children"])
+    with pytest.raises((ValueError, KeyError)):  # whatever the error, the file is a miss
+        _programs._skeleton({"tree": data, "leaves": leaves})
+
+
+def _one_kept_program(kept):
+    """A program kept in `kept`: its outputs, its file and the arguments it was run on."""
+    camera, normals, depth = _frame()
+    brdf = PAPER.build(jnp.array([0.25]))
+    expected = [
+        np.asarray(a) for a in _frame_columns(brdf, ColocatedLight(), camera, normals, depth)
+    ]
+    (path,) = kept.glob("*.program")
+    return expected, path, (brdf, camera, normals, depth)
+
+
+class _Planted:
+    """A pickle that runs code when loaded: it creates the file `marker`."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return Path.touch, (self.marker,)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "payload", "header", "renamed", "pickle"])
+def test_a_damaged_or_foreign_program_is_a_miss(kept, loads, tmp_path, damage):
+    expected, path, arguments = _one_kept_program(kept)
+    blob = path.read_bytes()
+    marker = tmp_path / "pickle-ran"
+    if damage == "truncated":
+        path.write_bytes(blob[: len(blob) // 2])
+    elif damage == "payload":  # a bit flipped in jax.export's bytes
+        path.write_bytes(blob[:-100] + bytes([blob[-100] ^ 1]) + blob[-99:])
+    elif damage == "header":
+        path.write_bytes(blob.replace(b'"leaves"', b'"leafs"', 1))
+    elif damage == "renamed":  # another key's program under this key's name
+        other = _frame(8, 10)
+        _frame_columns(arguments[0], ColocatedLight(), *other)
+        (moved,) = set(kept.glob("*.program")) - {path}
+        moved.replace(path)
+    else:  # the old format, and what an attacker would plant in it
+        path.write_bytes(pickle.dumps((b"", _Planted(marker))))
+    again = _fresh_call(*arguments)
+    assert not loads and not marker.exists()
+    for a, b in zip(expected, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+    _fresh_call(*arguments)  # exported again, in place of the damaged file
+    assert len(loads) == 1
+
+
+@pytest.mark.parametrize("writable", ["folder", "file", "owner"])
+def test_a_cache_another_user_can_write_is_not_used(kept, loads, monkeypatch, writable):
+    expected, path, arguments = _one_kept_program(kept)
+    if writable == "folder":
+        kept.chmod(0o777)
+    elif writable == "file":
+        path.chmod(0o666)
+    else:  # the files belong to another user (as though this process were someone else's)
+        uid = os.getuid()
+        monkeypatch.setattr(os, "getuid", lambda: uid + 1)
+    before = path.stat()
+    with pytest.warns(RuntimeWarning, match="another user can write"):
+        again = _fresh_call(*arguments)
+    assert not loads
+    for a, b in zip(expected, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+    if writable == "file":  # the folder is this user's: the program is written anew, private
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600
+        _fresh_call(*arguments)
+        assert len(loads) == 1
+    else:  # neither read nor written, and warned about once per process
+        assert path.stat().st_mtime_ns == before.st_mtime_ns
+        assert len(list(kept.glob("*"))) == 1
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            _fresh_call(*arguments)
+        assert not loads
+
+
+def test_the_cache_folders_and_files_are_the_users_alone(tmp_path, monkeypatch):
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setattr(jax.config, "update", lambda *args: None)  # JAX's cache as it is
+    folder = tmp_path / "shared" / "ctjax"
+    try:
+        assert _performance.enable_compilation_cache(folder) == folder
+        camera, normals, depth = _frame()
+        _frame_columns(PAPER.build(jnp.array([0.25])), ColocatedLight(), camera, normals, depth)
+    finally:
+        _programs.keep_programs(None)
+    (path,) = (folder / "programs").glob("*.program")
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert stat.S_IMODE((folder / "programs").stat().st_mode) == 0o700
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    group = tmp_path / "group"
+    group.mkdir(mode=0o770)
+    group.chmod(0o770)
+    monkeypatch.setattr(_programs, "_WARNED", [False])
+    with pytest.warns(RuntimeWarning, match="another user can write"):
+        assert _performance.enable_compilation_cache(group) is None
+    assert _programs._FOLDER[0] is None
+
+
+def test_ctjax_does_not_use_pickle():
+    root = Path(ctjax.__file__).parent
+    uses = re.compile(r"^\s*(import|from)\s+(c?pickle|dill|cloudpickle|shelve)\b|\bpickle\.")
+    found = [
+        f"{path.relative_to(root)}:{number}"
+        for path in sorted(root.rglob("*.py"))
+        for number, line in enumerate(path.read_text().splitlines(), 1)
+        if uses.search(line)
+    ]
+    assert not found
