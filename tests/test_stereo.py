@@ -165,3 +165,35 @@ def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys
     argv = ["import", str(video), "--camera", str(camera), "--out", str(tmp_path / "o")]
     assert main([*argv, "--side-by-side"]) == 2
     assert "stereo" in capsys.readouterr().err
+
+
+def test_the_near_light_fitted_with_the_shape_in_millimetres(tmp_path, monkeypatch):
+    """`reconstruct --shading near` on a stereo capture whose light sits off the lens: the
+    shape refined jointly with the light's position gives the position in mm (calibrating
+    the light on SfM's shape alone put it 3-5 mm off, its normals 0.5-1.7 degrees off)."""
+    from ctjax.sfm import _shading, reconstruct
+
+    monkeypatch.setattr(_shading, "MAX_POINTS", 3000)
+    offset = (4.0, -3.0, 0.0)
+    effects = {"light_offset": offset, "inverse_square": True}
+    options = SynthOptions(
+        width=256, height=208, frames=4, seed=4, stereo_mm=BASELINE_MM, effects=effects
+    )
+    truth = synthesize(tmp_path / "c", options)
+    images = tmp_path / "images-only"
+    images.mkdir()
+    shutil.copy(truth / "camera.json", images / "camera.json")
+    for folder in ("images", "right"):
+        shutil.copytree(truth / folder, images / folder)
+    report = reconstruct(images, tmp_path / "r", shading="near")
+    shading = report["surface"]["shading"]
+    assert shading["refined"] and shading["cost_after"] < shading["cost_before"]
+    assert "PointLight fitted jointly" in shading["model"]
+    position = np.asarray(shading["light"]["position_mm"])
+    # measured: 0.xx mm off
+    assert np.linalg.norm(position - offset) < 0.5
+    assert shading["sigma_after"] == pytest.approx(0.2, rel=0.05)
+    refined = load_capture(tmp_path / "r")
+    for true, estimate in zip(load_capture(truth).frames, refined.frames, strict=True):
+        ok = np.isfinite(true.depth) & np.isfinite(estimate.depth)
+        assert abs(np.median(estimate.depth[ok] / true.depth[ok] - 1)) < 0.02

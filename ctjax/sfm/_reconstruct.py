@@ -332,7 +332,7 @@ def reconstruct(
     Returns the report (see `reconstruct_capture`).
     """
     _check_scale(scale_mm, volume_mm3)
-    if shading not in (False, True, *SHADING_LIGHTS):
+    if shading not in (None, False, True, *SHADING_LIGHTS):
         raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {shading!r}")
     root = Path(capture_dir)
     capture = load_capture(root)
@@ -412,7 +412,7 @@ def _shading_light(name: str, capture: Capture):
     return PointLight(jnp.zeros(3), falloff=(InverseSquare(reference),))
 
 
-def _refine_by_shading(out: Path, distorted: bool, progress, light: str) -> dict:
+def _refine_by_shading(out: Path, distorted: bool, progress, light: str = "camera") -> dict:
     """Refine the written shape by the shading (`_shading.py`) under `light`
     (`SHADING_LIGHTS`) and write it back; the refinement's report, or why it was skipped."""
     from .._errors import CtjaxError
