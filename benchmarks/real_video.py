@@ -7,7 +7,7 @@ Each SOURCE is a capture folder (images/ and camera.json) or a video (imported w
 `ctjax import`, a guessed pinhole camera: fx = fy = 0.8 width, the principal point at the
 centre, unless a camera.json lies beside it). Without SOURCE: every sequence of
 `../shared/real` (the sinus frames and the cholecystectomy video). Each is reduced to
-`--frames` frames `--width` pixels wide, then run through the README's commands, as a user
+`--frames` frames `--width` pixels wide, then run through the user guide's commands, as a user
 would: `reconstruct` -> `masks` -> `fit` (and `fit` on the even and the odd frames apart:
 is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate` ->
 `diagnose --loop`. It prints, per sequence:

@@ -175,7 +175,7 @@ def test_textured_tissue_is_diagnosed_with_the_albedo_map(tmp_path):
     assert diagnosis.verdict == "none", diagnosis.to_json()
     assert len(diagnosis.candidates) == len(names) - 1  # the texture is the base now
     # At 128x96 the texture is finer than a pixel: interpolation across frames leaves more
-    # than the noise (1.15 levels at 160x128, README), but not 10%-more than the floor.
+    # than the noise (1.15 levels at 160x128, docs), but not 10%-more than the floor.
     assert diagnosis.base_rmse < 1.1 * diagnosis.noise_floor
 
 

@@ -182,7 +182,7 @@ def _warnings(capture, fit, per_point: int, points: int, coverage, sensitivity) 
             "around the highlights they are "
             f"typically 1-5 degrees off, and there the fitted specular changes by {change:.0%} "
             "per degree (the lobe is read on its tails where the core is clipped): sigma and "
-            "F_tilde may be off by tens of percent (README, 'Shape from images')"
+            "F_tilde may be off by tens of percent (docs: reconstruct, 'Shape from images')"
         )
     poorly = _poorly_determined(fit, per_point)
     if poorly:

@@ -6,7 +6,7 @@ the paper's lobe with the light at the camera, d ln(specular) / d theta = -2 tan
 (sigma^2 cos^2(theta)) + 6 tan(theta), about -20% per degree at theta = 20 degrees and
 sigma = 0.25. A systematic error of the normals there (a surface too flat or too curved
 around the highlights, as structure from motion leaves it) then biases the BRDF by tens of
-percent (README, "Shape from images"). This module measures that sensitivity on the fitted
+percent (docs, "Shape from images"). This module measures that sensitivity on the fitted
 model itself, for any BRDF family and light: every normal is tilted away from its half
 vector by a small angle and the change of the global (non-per-point) lobes is read.
 """

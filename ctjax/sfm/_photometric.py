@@ -25,7 +25,7 @@ point is not (the light moves with the camera). Highlights (S and clipped pixels
 view are masked in every frame. Each pixel's residuals depend on its depth alone, so the
 normal equations are those of the P-spline, banded.
 
-Measured (README, "Shape from images"): on the demo capture (320x256, 5 frames, texture
+Measured (docs, "Shape from images"): on the demo capture (320x256, 5 frames, texture
 30%) normals' median error 1.5 -> 0.6 degrees, the BRDF fitted on them sigma +9.5% ->
 +4.4%, F_tilde -24% -> -2..0%; at 640x512 x 8 sigma +4.1%, F_tilde -4.9..-3.3%. Elsewhere
 the error of the BRDF from images stays 5-30% in F_tilde: with the highlight's core clipped
