@@ -39,8 +39,8 @@ from _results import emit
 
 from ctjax._tissue import SUBSAMPLE, channel_max, channel_min, local_tissue, luminance
 from ctjax.estimation import specular_mask
-from ctjax.estimation._specular_set import DEFAULT_HIGHLIGHTS
 from ctjax.io import visible_masks
+from ctjax.specular._specular_set import DEFAULT_HIGHLIGHTS
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "real"

@@ -226,7 +226,7 @@ class Observations:
     @functools.cached_property
     def sets(self) -> list:
         """Per frame: S, S~ and the saturated pixels (`SpecularSets`)."""
-        from .estimation._capture_fit import MaskOptions, capture_sets
+        from .specular import MaskOptions, capture_sets
 
         return capture_sets(self.capture, self.masks or MaskOptions())
 

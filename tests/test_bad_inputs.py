@@ -22,8 +22,8 @@ from ctjax import Camera
 from ctjax._errors import CtjaxError
 from ctjax.cli import main
 from ctjax.estimation import capture_sets, fit_capture
-from ctjax.estimation._specular_set import specular_sets
 from ctjax.io import load_alta, load_capture
+from ctjax.specular import specular_sets
 from ctjax.synth import SynthOptions, synthesize
 
 ALTA_SAMPLE = Path("/work/shared/data/retro-gray-tape.dat")

@@ -11,8 +11,8 @@ from ctjax._model import paper_model
 from ctjax._result import Estimate
 from ctjax._status import Status
 from ctjax.estimation import PAPER, BRDFFamily, fit_brdf
-from ctjax.estimation._capture_fit import flag_brdf_fit
 from ctjax.estimation._samples import ShadingSamples
+from ctjax.estimation._uniform_fit import flag_brdf_fit
 
 RHO = [2.4, 1.1, 0.85]
 

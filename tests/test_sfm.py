@@ -221,7 +221,7 @@ def test_sift_reads_the_texture_along_its_colour_axis():
 
 
 def test_the_height_spline_slopes_are_the_derivatives_of_its_values():
-    from ctjax.sfm._shading import HeightSpline
+    from ctjax.sfm._height_spline import HeightSpline
 
     rng = np.random.default_rng(0)
     spline = HeightSpline.covering(rng.uniform(0, 20, (50, 2)), 3.0)

@@ -30,8 +30,7 @@ def load_capture(args: argparse.Namespace):
 
 
 def add_mask_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..estimation._highlights import HLSThresholds, WhiterThanTissue
-    from ..estimation._specular_set import DEFAULT_MIN_SPECK_PX, DEFAULT_RING_PX
+    from ..specular import DEFAULT_MIN_SPECK_PX, DEFAULT_RING_PX, HLSThresholds, WhiterThanTissue
 
     whiter, hls = WhiterThanTissue(), HLSThresholds()
     group = parser.add_argument_group(
@@ -88,8 +87,7 @@ def add_mask_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def mask_options(args: argparse.Namespace):
-    from ..estimation._capture_fit import MaskOptions
-    from ..estimation._highlights import HLSThresholds, WhiterThanTissue
+    from ..specular import HLSThresholds, MaskOptions, WhiterThanTissue
 
     if args.highlights == "hls":
         hls = HLSThresholds()

@@ -17,8 +17,8 @@ def add_masks_parser(commands) -> None:
 def run_masks(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..estimation._capture_fit import capture_sets
     from ..io._images import write_mask
+    from ..specular import capture_sets
 
     capture = load_capture(args)
     sets = capture_sets(capture, mask_options(args))

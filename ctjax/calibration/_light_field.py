@@ -56,7 +56,6 @@ from .._model import ShadingModel
 from .._result import Estimate
 from .._status import Status
 from ..estimation import ALBEDO_CHOICES, default_albedo
-from ..estimation._capture_fit import MaskOptions
 from ..estimation._dense_maps import albedo_maps
 from ..fitting import (
     TrackSamples,
@@ -82,6 +81,7 @@ from ..lights import AbstractFalloff, ColocatedLight, InverseSquare, LightField
 from ..lobes import BRDF
 from ..observations import Observations
 from ..solvers import ClosedFormLM
+from ..specular import MaskOptions
 from ._field_problem import paper_angles, solve_pixels
 from ._field_propagation import field_observations, propagate, solve_batches
 from ._spline import spline_field

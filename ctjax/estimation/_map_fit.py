@@ -26,7 +26,9 @@ from ..lights import ColocatedLight
 from ..observations import Observations
 from ._albedo_map import fit_brdf_map, track_shading
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
-from ._capture_fit import (
+from ._dense_maps import albedo_maps, albedo_samples
+from ._sensitivity import specular_change
+from ._uniform_fit import (
     _WELL_DETERMINED,
     MaskOptions,
     _require_geometry,
@@ -34,8 +36,6 @@ from ._capture_fit import (
     require_specular,
     thin_frames,
 )
-from ._dense_maps import albedo_maps, albedo_samples
-from ._sensitivity import specular_change
 
 
 def _number(value):

@@ -261,7 +261,7 @@ def _cook_torrance(capture, calibration, cook_torrance, albedo) -> Estimate:
 
 
 def _near_highlight(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    from ..estimation._specular_set import specular_sets
+    from ..specular import specular_sets
 
     specular = specular_sets(image, mask).specular
     if not specular.any():

@@ -21,8 +21,8 @@ import numpy as np
 
 from .._camera import Camera
 from .._errors import ReconstructionError
-from ..estimation._specular_set import specular_sets
 from ..io import Frame
+from ..specular import specular_sets
 
 # Shorter sequences are matched exhaustively (every pair); longer ones as video, each frame
 # with its `_SEQUENTIAL_OVERLAP` successors.

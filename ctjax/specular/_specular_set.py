@@ -2,7 +2,7 @@
 
 S: the highlights, found by a `HighlightRule` (default `WhiterThanTissue`: bright and whiter
 than the local tissue, or clipped; `HLSThresholds` is the paper's ".95" rule; see
-`ctjax.estimation._highlights`). S~: non-specular pixels within `ring_px` (paper: 3) of the
+`ctjax.specular._highlights`). S~: non-specular pixels within `ring_px` (paper: 3) of the
 specular frontier, found with a distance transform, with a valid normal and no channel at
 the sensor's maximum. Clipping is per channel (`SpecularSets.clipped`): a channel at full
 scale records "at least this bright", which the model cannot predict (on red tissue the red

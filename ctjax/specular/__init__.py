@@ -1,0 +1,15 @@
+"""The specular set S and its ring S~ (paper section 4, step 2): which pixels are
+highlights (`WhiterThanTissue`, the paper's `HLSThresholds`), the sets of one image
+(`specular_sets`) and of every frame of a capture (`capture_sets`). Below the observations
+and the estimators, which both use them."""
+
+from ._capture_sets import MaskOptions as MaskOptions
+from ._capture_sets import capture_sets as capture_sets
+from ._highlights import HighlightRule as HighlightRule
+from ._highlights import HLSThresholds as HLSThresholds
+from ._highlights import WhiterThanTissue as WhiterThanTissue
+from ._specular_set import DEFAULT_MIN_SPECK_PX as DEFAULT_MIN_SPECK_PX
+from ._specular_set import DEFAULT_RING_PX as DEFAULT_RING_PX
+from ._specular_set import SpecularSets as SpecularSets
+from ._specular_set import specular_mask as specular_mask
+from ._specular_set import specular_sets as specular_sets
