@@ -1,6 +1,7 @@
 """Stereo captures: the format (camera.json's "stereo", right/NAME.png), `ctjax synth
 --stereo`, the pairs' dense depth and `reconstruct` in millimetres without a size given."""
 
+import dataclasses
 import json
 import shutil
 
@@ -198,3 +199,29 @@ def test_an_unknown_shading_light_is_named(stereo_capture, tmp_path):
 
     with pytest.raises(CaptureError, match="shading must be one of camera, near, got 'far'"):
         reconstruct(stereo_capture, tmp_path / "out", shading="far")
+
+
+def test_the_shading_refinement_needs_a_shape(stereo_capture):
+    from ctjax.sfm import _shading
+
+    capture = load_capture(stereo_capture)
+    images_only = dataclasses.replace(
+        capture,
+        frames=tuple(dataclasses.replace(f, depth=None, pose=None) for f in capture.frames),
+    )
+    with pytest.raises(CaptureError, match="needs every frame's depth, normals and pose"):
+        _shading.refine_shape_by_shading(images_only)
+
+
+def test_a_refinement_that_bends_the_shape_is_not_kept(stereo_capture, monkeypatch):
+    """Normals turned by more than `MAX_NORMAL_CHANGE_DEG` (median): the model does not
+    explain the shading (12 real cholecystectomy frames: 45-53 degrees), the shape is kept."""
+    from ctjax.sfm import _shading
+
+    monkeypatch.setattr(_shading, "MAX_POINTS", 300)
+    monkeypatch.setattr(_shading, "ITERATIONS", 1)
+    monkeypatch.setattr(_shading, "MAX_NORMAL_CHANGE_DEG", 0.0)
+    capture = load_capture(stereo_capture)
+    kept, report = _shading.refine_shape_by_shading(capture)
+    assert kept is capture
+    assert "turned the normals by" in report["rejected"] and "shape kept" in report["rejected"]

@@ -427,6 +427,8 @@ def _refine_by_shading(out: Path, distorted: bool, progress, light: str = "camer
         refined, report = refine_shape_by_shading(capture, light=start, say=say)
     except CtjaxError as error:
         return {"refined": False, "reason": str(error)}
+    if "rejected" in report:
+        return {"refined": False, "reason": report["rejected"], **report}
     for frame in refined.frames:
         atomic_write_npy(out / "depth" / f"{frame.name}.npy", frame.depth.astype(np.float32))
         atomic_write_npy(out / "normals" / f"{frame.name}.npy", frame.normals.astype(np.float32))
@@ -489,6 +491,8 @@ def with_reconstructed_shape(
     if shading:
         try:
             capture, refined = refine_shape_by_shading(capture, say=progress or (lambda m: None))
+            if "rejected" in refined:
+                raise CtjaxError(refined["rejected"])
             report["surface"]["shading"] = {"refined": True, **refined}
         except CtjaxError as error:
             report["surface"]["shading"] = {"refined": False, "reason": str(error)}
