@@ -222,3 +222,19 @@ def test_identical_frames_are_one_line_and_status_2(tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "duplicate frames" in lines[0] and "f1 = f0, f2 = f0" in lines[0]
+
+
+@pytest.mark.parametrize("window", [5, 7, 11])
+@pytest.mark.parametrize("deriv", [0, 1])
+def test_savgol_coefficients_are_scipys(window, deriv):
+    """The normals' Savitzky-Golay coefficients, written out (scipy.signal costs 0.2 s to
+    import), against SciPy's."""
+    from scipy.signal import savgol_coeffs
+
+    from ctjax._geometry import savgol_coefficients
+
+    np.testing.assert_allclose(
+        savgol_coefficients(window, 3, deriv),
+        savgol_coeffs(window, 3, deriv=deriv, use="dot"),
+        atol=1e-13,
+    )
