@@ -32,13 +32,6 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# The traced programs too (`ctjax._programs`, as the command line keeps them): a fitter that
-# several test files run on captures of one size is traced and lowered once for the whole
-# session, not once per worker.
-from ctjax._programs import keep_programs  # noqa: E402  (after the flags above)
-
-keep_programs(_CACHE / "programs")
-
 # File order: CI runs `--dist loadfile`, one file per worker at a time, and pytest-xdist
 # (>= 3.6) hands out the files with the most tests first. Measured against the slowest
 # files first (worker-seconds: diagnostics, sfm, calibration, estimation, ...), alternating,

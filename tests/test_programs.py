@@ -26,15 +26,6 @@ from ctjax.lights import ColocatedLight
 from ctjax.lobes import Lambertian
 
 
-@pytest.fixture(autouse=True)
-def _suite_folder_restored():
-    """Each test here sets where programs are kept; the suite's own folder (conftest.py)
-    comes back after it."""
-    before = _programs._FOLDER[0]
-    yield
-    _programs.keep_programs(before)
-
-
 @pytest.fixture
 def kept(tmp_path, monkeypatch):
     folder = tmp_path / "programs"
