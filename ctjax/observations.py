@@ -184,6 +184,7 @@ class Observations:
 
     capture: Capture
     masks: object = None
+    _tracks: dict = dataclasses.field(default_factory=dict, init=False, repr=False)
 
     @classmethod
     def of(cls, capture: "Capture | Observations", masks=None) -> "Observations":
@@ -318,6 +319,21 @@ class Observations:
         from . import _tracks
 
         _tracks.require_poses(self.capture)
+        # Built once per request: the held-out split, the noise floor and the fits of one
+        # command ask for the same tracks of the same observations.
+        key = (radius_px, max_points, neighbours, tolerance, seed)
+        key += tuple(
+            None if f is None else tuple(int(i) for i in f) for f in (frames, anchor_frames)
+        )
+        if key not in self._tracks:
+            self._tracks[key] = self._follow(
+                radius_px, max_points, neighbours, tolerance, seed, frames, anchor_frames
+            )
+        return self._tracks[key]
+
+    def _follow(self, radius_px, max_points, neighbours, tolerance, seed, frames, anchor_frames):
+        from . import _tracks
+
         rng = np.random.default_rng(seed)
         anchors = []
         chosen_frames = range(len(self)) if frames is None else frames

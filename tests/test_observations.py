@@ -66,3 +66,16 @@ def test_tracked_points_are_spread_evenly_over_the_frame():
     assert len(kept) == 100 and np.all(np.diff(kept) > 0) and np.all(mask.reshape(-1)[kept])
     assert np.array_equal(_evenly(mask, 10**6, np.random.default_rng(1)), np.flatnonzero(mask))
     assert len(_evenly(mask, 0, np.random.default_rng(0))) == 0
+
+
+def test_tracks_are_built_once_per_request(capture):
+    """The held-out split, the noise floor and the fits of one command ask the same
+    observations for the same tracks: followed once, then handed out as built."""
+    obs = Observations.of(capture)
+    first = obs.tracks(max_points=200, frames=[0, 1])
+    assert obs.tracks(max_points=200, frames=(0, 1)) is first
+    assert obs.tracks(max_points=200, frames=[0, 1], seed=1) is not first
+    other = obs.tracks(max_points=200)
+    assert other is not first and len(other.observed[0]) == 3
+    # New observations of the same capture start afresh.
+    assert Observations(capture).tracks(max_points=200, frames=[0, 1]) is not first
