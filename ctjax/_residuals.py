@@ -29,7 +29,7 @@ def residual_map(capture: Capture, index: int, model, albedo: str = "uniform") -
     frame = capture.frames[index]
     if albedo == "map":
         from .estimation._dense_maps import map_residuals
-        from .fitting._albedo_map import diffuse_lobe
+        from .fitting._map_least_squares import diffuse_lobe
 
         (measured_minus_model,) = map_residuals(
             capture,

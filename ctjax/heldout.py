@@ -15,8 +15,8 @@ import numpy as np
 
 from ._errors import CtjaxError
 from ._result import Estimate
-from .fitting._albedo_map import TrackSamples, fit_model_map, heldout_map_rmse
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
+from .fitting._map_least_squares import TrackSamples, fit_model_map, heldout_map_rmse
 from .fitting._parameters import free_parameters
 from .io import Capture
 from .observations import Observations, PixelSamples
@@ -72,7 +72,7 @@ def noise_floor_map_levels(capture, frames: Sequence[int], model) -> float:
     give, `ctjax.estimation._dense_maps.map_residuals`), so that the texture is not counted
     as noise."""
     from .estimation._dense_maps import map_residuals
-    from .fitting._albedo_map import diffuse_lobe
+    from .fitting._map_least_squares import diffuse_lobe
 
     obs = Observations.of(capture)
     images = map_residuals(

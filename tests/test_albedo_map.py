@@ -13,7 +13,7 @@ from ctjax._tracks import views_first
 from ctjax.cli import main
 from ctjax.estimation import PAPER, fit_capture
 from ctjax.estimation._map_fit import summary_stride
-from ctjax.estimation._projection import project_weights
+from ctjax.estimation._variable_projection import project_weights
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
 
@@ -207,7 +207,7 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
 
 
 def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):
-    from ctjax.estimation._albedo_map import fit_brdf_map, track_shading
+    from ctjax.estimation._branch_and_bound_map import fit_brdf_map, track_shading
     from ctjax.fitting import fit_model_map, paper_model
     from ctjax.observations import Observations
 
@@ -228,14 +228,14 @@ def test_standard_errors_are_the_global_block_of_the_joint_covariance(textured):
     """The map fit's standard errors, with every albedo eliminated (the weights' Jacobian in
     closed form, sigma's by autodiff), are those of the joint Gauss-Newton covariance with
     every free albedo a parameter (a Schur complement), on real tracks."""
-    from ctjax.estimation._albedo_map import (
+    from ctjax.estimation._branch_and_bound_map import (
         _columns,
         _information,
         _standard_errors,
         fit_brdf_map,
         track_shading,
     )
-    from ctjax.estimation._projection import weighted_sums
+    from ctjax.estimation._variable_projection import weighted_sums
     from ctjax.observations import Observations
 
     tracks = Observations.of(load_capture(textured[(1, 1.0)])).tracks(max_points=150)

@@ -67,7 +67,7 @@ from ..fitting import (
     roughness_variants,
     strongly_typed,
 )
-from ..fitting._albedo_map import diffuse_lobe
+from ..fitting._map_least_squares import diffuse_lobe
 from ..heldout import (
     SIMPLEST_WITHIN,
     HeldOut,

@@ -10,9 +10,9 @@ from ..specular import WhiterThanTissue as WhiterThanTissue
 from ..specular import capture_sets as capture_sets
 from ..specular import specular_mask as specular_mask
 from ..specular import specular_sets as specular_sets
-from ._albedo_map import fit_brdf_map as fit_brdf_map
 from ._branch_and_bound import GridSearchResult as GridSearchResult
 from ._branch_and_bound import grid_search as grid_search
+from ._branch_and_bound_map import fit_brdf_map as fit_brdf_map
 from ._brdf import LAMBERTIAN as LAMBERTIAN
 from ._brdf import PAPER as PAPER
 from ._brdf import TWO_SCALES as TWO_SCALES
@@ -29,7 +29,7 @@ from ._closed_form import nnls as nnls
 from ._closed_form import nnls_columns as nnls_columns
 from ._closed_form import nnls_normal_equations as nnls_normal_equations
 from ._dense_maps import albedo_maps as albedo_maps
-from ._projection import project_weights as project_weights
 from ._samples import ShadingSamples as ShadingSamples
 from ._samples import colocated_samples as colocated_samples
 from ._samples import paper_coefficients as paper_coefficients
+from ._variable_projection import project_weights as project_weights

@@ -1,7 +1,7 @@
 """Every pixel's albedo given the fitted BRDF: the dense albedo maps, and the residual
 images the held-out protocol reads from them.
 
-The fit (`ctjax.estimation._albedo_map`) follows a few thousand surface points; once its
+The fit (`ctjax.estimation._branch_and_bound_map`) follows a few thousand surface points; once its
 global lobes are known, each pixel of each frame is a surface point whose albedo is the
 weighted least-squares one over the frames that see it, in closed form per channel. Each
 frame's lobes are rendered once at its pixel centres and sampled bilinearly where a point

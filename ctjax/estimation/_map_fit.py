@@ -24,7 +24,7 @@ from .._result import Estimate
 from .._tracks import DEFAULT_NEIGHBOURS, require_poses
 from ..lights import ColocatedLight
 from ..observations import Observations
-from ._albedo_map import fit_brdf_map, track_shading
+from ._branch_and_bound_map import fit_brdf_map, track_shading
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
 from ._dense_maps import albedo_maps, albedo_samples
 from ._sensitivity import specular_change

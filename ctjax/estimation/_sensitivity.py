@@ -21,7 +21,7 @@ from .._numerics import safe_normalize
 from .._programs import persistent_jit
 from .._vector import tangent_basis
 from ..observations import ShadingSamples
-from ._albedo_map import TrackShading, _columns
+from ._branch_and_bound_map import TrackShading, _columns
 
 # Observations whose global lobes are at least this share of the model count (the specular
 # is measured there).

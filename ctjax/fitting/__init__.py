@@ -5,9 +5,6 @@ from .._model import paper_model as paper_model
 from .._result import Estimate as Estimate
 from ..observations import PixelSamples as PixelSamples
 from ..observations import capture_samples as capture_samples
-from ._albedo_map import TrackSamples as TrackSamples
-from ._albedo_map import fit_model_map as fit_model_map
-from ._albedo_map import map_standard_errors as map_standard_errors
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns
@@ -15,6 +12,9 @@ from ._fit import pixel_predict as pixel_predict
 from ._fit import predictions as predictions
 from ._fit import rmse_levels as rmse_levels
 from ._fit import roughness_variants as roughness_variants
+from ._map_least_squares import TrackSamples as TrackSamples
+from ._map_least_squares import fit_model_map as fit_model_map
+from ._map_least_squares import map_standard_errors as map_standard_errors
 from ._measured import DirectionSamples as DirectionSamples
 from ._measured import brdf_columns as brdf_columns
 from ._measured import brdf_predict as brdf_predict

@@ -255,7 +255,7 @@ class _Problem(eqx.Module):
         """The observations' weighted residuals, each point's albedo and F_tilde eliminated
         (paper's model), then the penalty (second differences, and `ridge` times the
         coefficients); and F_tilde (3,)."""
-        from ..estimation._projection import projected_residuals
+        from ..estimation._variable_projection import projected_residuals
 
         c, g = self.split(theta)
         columns = self.columns(*self.slopes_of(c), g)
@@ -275,7 +275,7 @@ class _Problem(eqx.Module):
         products (A^T A's blocks, A^T U, A^T r), and U^T U, U^T r, W, and the cost:
         everything J^T J and J^T r need, in one pass of 5 + G tangents and 3 cotangents
         instead of a dense (R, n) Jacobian."""
-        from ..estimation._projection import projected_residuals, residuals_given_weights
+        from ..estimation._variable_projection import projected_residuals, residuals_given_weights
 
         c, g = self.split(theta)
         hx, hy = self.slopes_of(c)
@@ -484,7 +484,7 @@ def refine_shape_by_shading(
     iterations = ITERATIONS if iterations is None else iterations
     max_points = MAX_POINTS if max_points is None else max_points
     from .._units import length_unit_of
-    from ..estimation._albedo_map import fit_brdf_map, track_shading
+    from ..estimation._branch_and_bound_map import fit_brdf_map, track_shading
 
     started = time.perf_counter()
     missing = [f.name for f in capture.frames if f.depth is None or f.pose is None]

@@ -11,7 +11,7 @@ point p is
 
 For fixed sigma it is linear in (rho, w) >= 0, and each point's albedo appears only in its
 own observations, so it is eliminated in closed form (variable projection:
-`ctjax.estimation._projection`), which leaves a nonnegative least squares in the few
+`ctjax.estimation._variable_projection`), which leaves a nonnegative least squares in the few
 global weights. The sigma branch-and-bound is then the same batched grid of closed-form
 solves as the paper's, with 10^5 albedos eliminated instead of searched.
 
@@ -36,7 +36,7 @@ from ..lights import AbstractLight, ColocatedLight
 from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
 from ._brdf import PAPER, BRDFFamily, design_geometry
-from ._projection import over_views, project_weights, weighted_sums
+from ._variable_projection import over_views, project_weights, weighted_sums
 
 # Grid points evaluated at once by the BnB (each a pass over every observation's corners):
 # one, measured: 80 evaluations on 16k tracks x 8 views took 0.11 s one at a time, 0.22 s

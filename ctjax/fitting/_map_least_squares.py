@@ -24,7 +24,7 @@ from .._tracks import Tracks, views_first
 from .._vector import Vec3
 from ..effects import AbstractImageEffect
 from ..effects._effect import Site, apply_effects, undo_effects
-from ..estimation._projection import projected_residuals
+from ..estimation._variable_projection import projected_residuals
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
 from ._fit import LEVENBERG_MARQUARDT

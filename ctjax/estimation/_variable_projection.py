@@ -1,7 +1,9 @@
 """Variable projection: every surface point's albedo eliminated in closed form.
 
-For fixed nonlinear parameters (sigma) the model of a point's observations is linear in its
-albedo rho and the global weights w >= 0 (`ctjax.estimation._albedo_map`), and each point's
+Used by the branch-and-bound over sigma (`_branch_and_bound_map.py`), by the general LM
+fitter (`ctjax.fitting._map_least_squares`) and by the shading refinement
+(`ctjax.sfm._shading`). For fixed nonlinear parameters (sigma) the model of a point's
+observations is linear in its albedo rho and the global weights w >= 0, and each point's
 albedo appears only in its own observations, so it is eliminated in closed form (Golub &
 Pereyra):
 
