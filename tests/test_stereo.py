@@ -185,6 +185,7 @@ def test_the_near_light_fitted_with_the_shape(tmp_path, monkeypatch):
     refined, report = _shading.refine_shape_by_shading(capture, light=light)
     assert report["cost_after"] < report["cost_before"]
     assert "PointLight fitted jointly (position_mm)" in report["model"]
+    assert report["light"]["length_unit"] == "mm"
     position = np.asarray(report["light"]["position_mm"])
     assert np.linalg.norm(position - offset) < 1.0  # measured: 0.52 mm
     assert report["sigma_after"] == pytest.approx(0.2, rel=0.05)  # measured: 0.2004
