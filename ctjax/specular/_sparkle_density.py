@@ -35,7 +35,6 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy import optimize
 
 from .._errors import CtjaxError, ParameterError
 from ..io import Capture
@@ -126,6 +125,9 @@ def sparkle_density_of_angles(
     Raises `ParameterError` for shapes that disagree, non-finite or out-of-range angles, an
     empty S or an S that holds every pixel.
     """
+    # Here, not at the top: scipy.optimize would add to every ctjax command's start-up.
+    from scipy import optimize
+
     theta_h = np.asarray(theta_h, np.float64)
     specular = np.asarray(specular)
     if theta_h.ndim != 1 or specular.shape != theta_h.shape:
