@@ -11,7 +11,9 @@ from ._highlights import HLSThresholds as HLSThresholds
 from ._highlights import WhiterThanTissue as WhiterThanTissue
 from ._sparkle_density import SparkleDensity as SparkleDensity
 from ._sparkle_density import sparkle_density as sparkle_density
+from ._sparkle_density import sparkle_density_line as sparkle_density_line
 from ._sparkle_density import sparkle_density_of_angles as sparkle_density_of_angles
+from ._sparkle_density import sparkle_density_summary as sparkle_density_summary
 from ._specular_set import DEFAULT_MIN_SPECK_PX as DEFAULT_MIN_SPECK_PX
 from ._specular_set import DEFAULT_RING_PX as DEFAULT_RING_PX
 from ._specular_set import SpecularSets as SpecularSets

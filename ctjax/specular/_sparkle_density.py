@@ -125,9 +125,6 @@ def sparkle_density_of_angles(
     Raises `ParameterError` for shapes that disagree, non-finite or out-of-range angles, an
     empty S or an S that holds every pixel.
     """
-    # Here, not at the top: scipy.optimize would add to every ctjax command's start-up.
-    from scipy import optimize
-
     theta_h = np.asarray(theta_h, np.float64)
     specular = np.asarray(specular)
     if theta_h.ndim != 1 or specular.shape != theta_h.shape:
@@ -156,32 +153,50 @@ def sparkle_density_of_angles(
     total, hits = total[keep].astype(np.float64), hits[keep].astype(np.float64)
     lo, hi = np.log(SIGMA_RANGE)
 
-    def nll(x):
-        log_a, log_s = x
+    def nll(log_a, log_s):
+        """The negative log-likelihood at every (log a, log sigma) of two broadcast arrays."""
+        log_a, log_s = np.asarray(log_a)[..., None], np.asarray(log_s)[..., None]
         log_p = np.minimum(log_a + log_cos - tan2 * np.exp(-2 * log_s), -1e-12)
-        return -np.sum(hits * log_p + (total - hits) * np.log(-np.expm1(log_p)))
+        return -np.sum(hits * log_p + (total - hits) * np.log(-np.expm1(log_p)), axis=-1)
 
     # The rate `a` is at most 1 (a probability where N = H).
-    bounds = [(-40.0, 0.0), (lo, hi)]
-    best = min(
-        (
-            optimize.minimize(nll, [math.log(0.1), math.log(s0)], bounds=bounds, method="L-BFGS-B")
-            for s0 in (0.05, 0.15, 0.4, 1.0)
-        ),
-        key=lambda r: r.fun,
-    )
-    log_a, log_s = best.x
-    # Relative standard error: the likelihood's curvature in log sigma, `a` profiled out.
+    (log_a, log_s), _ = _grid_minimum(nll, [(-20.0, 0.0), (lo, hi)])
+    # Relative standard error: the likelihood's curvature in log sigma, `a` profiled out
+    # (nll is convex in log a at a fixed sigma: one minimum).
     step = 1e-3
 
     def profile(ls):
-        return optimize.minimize_scalar(
-            lambda la: nll([la, ls]), bounds=(-40.0, 0.0), method="bounded"
-        ).fun
+        return _grid_minimum(lambda la: nll(la, ls), [(-40.0, 0.0)])[1]
 
-    curvature = (profile(log_s + step) + profile(log_s - step) - 2 * nll(best.x)) / step**2
+    curvature = (profile(log_s + step) + profile(log_s - step) - 2 * profile(log_s)) / step**2
     rel = 1 / math.sqrt(curvature) if curvature > 0 else None
     return float(math.exp(log_s)), float(math.exp(log_a)), rel
+
+
+def _grid_minimum(cost, bounds, *, points: int = 41, tolerance: float = 1e-7):
+    """(argument, value) of the minimum of `cost` (a function of one array per axis, all
+    broadcast alike, giving the cost at each point) within `bounds` ((lo, hi) per axis): a
+    grid of `points` per axis, then finer grids of 11 points over two steps either side of
+    the last best point (the step shrinks 2.5-fold a round; where the best point is on
+    the window's edge, the window moves with the same step), until the step is
+    `tolerance` of the range. Array operations only: scipy.optimize, its import and the
+    threaded BLAS its L-BFGS-B calls, made this fit take up to a second."""
+    lo = np.array([b[0] for b in bounds], np.float64)
+    hi = np.array([b[1] for b in bounds], np.float64)
+    low, high, n = lo, hi, points
+    for _ in range(200):
+        axes = [np.linspace(a, b, n) for a, b in zip(low, high, strict=True)]
+        values = cost(*np.meshgrid(*axes, indexing="ij"))
+        index = np.unravel_index(int(np.argmin(values)), values.shape)
+        best = np.array([axis[i] for axis, i in zip(axes, index, strict=True)])
+        step = (high - low) / (n - 1)
+        if np.all(step <= tolerance * (hi - lo)):
+            break
+        i = np.array(index)
+        edge = ((i == 0) & (low > lo)) | ((i == n - 1) & (high < hi))
+        half = np.where(edge, 5 * step, 2 * step)
+        low, high, n = np.maximum(best - half, lo), np.minimum(best + half, hi), 11
+    return best, float(values[index])
 
 
 def peak_away(
@@ -337,3 +352,81 @@ def _status(fit: SparkleDensity, normal_error_deg: float | None) -> tuple[str, s
             "sqrt(sigma^2 - e^2), e the tan of their RMS error (normal_error_deg)"
         )
     return "successful", "sigma from the sparkles' density over theta_h"
+
+
+# The block's statuses where nothing was fitted (beside `SparkleDensity.status`'s).
+NO_NORMALS = "no_normals"
+EMPTY_S = "empty_specular_set"
+NOT_MEASURED = "not_measured"
+
+
+def sparkle_density_summary(capture: Capture, sets: list[SpecularSets]) -> dict:
+    """`ctjax fit`'s `sparkle_density` block: the fit of (*) on the sets the intensity fit
+    used (`sets`, one per frame), as JSON (sigma, its relative standard error, the rate,
+    the even and odd frames' sigma, the counts and the median theta_h, status and reason).
+    Never raises for the capture's content: without normals (`no_normals`), with an empty S
+    among the pixels with a normal (`empty_specular_set`) or where the fit cannot be made
+    (`not_measured`), the block says so in `status` and `reason`, its numbers None."""
+    try:
+        fit = sparkle_density(capture, sets=sets)
+    except ParameterError as error:
+        empty = "S is empty" in str(error)
+        status = EMPTY_S if empty else NOT_MEASURED
+        return _unmeasured(status, str(error), sets)
+    except CtjaxError as error:
+        status = NO_NORMALS if not capture.has_geometry else NOT_MEASURED
+        return _unmeasured(status, str(error), sets)
+    out = fit.to_json()
+    del out["sigma_corrected"]  # no normal_error_deg in `ctjax fit`
+    halves = fit.halves
+    out["halves"] = (
+        None
+        if halves is None
+        else {
+            "even_frames": _finite(halves[0]),
+            "odd_frames": _finite(halves[1]),
+        }
+    )
+    return {
+        "method": "sigma from where the highlights are over theta_h "
+        "(ctjax.specular.sparkle_density; sparkles, not solid highlights)",
+        **out,
+    }
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def _unmeasured(status: str, reason: str, sets: list[SpecularSets]) -> dict:
+    return {
+        "method": "sigma from where the highlights are over theta_h "
+        "(ctjax.specular.sparkle_density)",
+        "sigma": None,
+        "sigma_rel_stderr": None,
+        "rate": None,
+        "halves": None,
+        "n_pixels": None,
+        "n_specular": sum(int(s.specular.sum()) for s in sets),
+        "theta_h_median_deg": None,
+        "theta_h_median_specular_deg": None,
+        "status": status,
+        "reason": reason,
+    }
+
+
+def sparkle_density_line(block: dict) -> str:
+    """One line of `ctjax fit`'s output for its `sparkle_density` block."""
+    if block["sigma"] is None:
+        return f"sparkle density: not measured ({block['status']}): {block['reason']}"
+    halves = block["halves"]
+    split = ""
+    if halves is not None:
+        even, odd = (
+            "n/a" if v is None else f"{v:.2f}"
+            for v in (halves["even_frames"], halves["odd_frames"])
+        )
+        split = f" (even {even} / odd {odd})"
+    return (
+        f"sparkle density: sigma {block['sigma']:.2f}{split}, {block['status']}: {block['reason']}"
+    )
