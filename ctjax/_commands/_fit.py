@@ -64,6 +64,8 @@ def run_fit(args: argparse.Namespace) -> int:
     from ..estimation import PAPER, TWO_SCALES
     from ..estimation._capture_fit import fit_capture
     from ..io._atomic import atomic_write_json, atomic_write_npy
+    from ..observations import Observations
+    from ..specular import sparkle_density_line, sparkle_density_summary
 
     capture = load_capture(args)
     shape = None
@@ -84,8 +86,11 @@ def run_fit(args: argparse.Namespace) -> int:
         raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")
     if args.max_tracks is not None and args.albedo == "uniform":
         raise CtjaxError("--max-tracks is for the albedo map (--albedo map)")
+    masks = mask_options(args)
+    # The sets S and S~ found once: the intensity fit's, then the sparkle density's.
+    observations = Observations.of(capture, masks)
     estimate = fit_capture(
-        capture, mask_options(args), family, albedo=args.albedo, max_points=args.max_tracks
+        observations, masks, family, albedo=args.albedo, max_points=args.max_tracks
     )
     if args.albedo_maps is not None:
         if "albedo" not in estimate.details or estimate.details["albedo"] != "map":
@@ -98,6 +103,7 @@ def run_fit(args: argparse.Namespace) -> int:
                 name = key.removeprefix("albedo/")
                 atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
     result = estimate.to_json()
+    result["sparkle_density"] = sparkle_density_summary(capture, observations.sets)
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
@@ -123,6 +129,7 @@ def run_fit(args: argparse.Namespace) -> int:
                 for n in names
             )
         )
+    print(sparkle_density_line(result["sparkle_density"]))
     for warning in result["warnings"]:
         print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     return 0

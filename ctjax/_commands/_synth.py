@@ -12,6 +12,13 @@ def add_synth_parser(commands) -> None:
     synth = commands.add_parser("synth", help="generate a synthetic laparoscope capture")
     synth.add_argument("out", type=Path, help="output capture folder")
     _add_synth_arguments(synth, frames=5, texture=True)
+    synth.add_argument(
+        "--sparkles",
+        action="store_true",
+        help="highlights as sparkles: each pixel a facet tilted from the surface by a Beckmann "
+        "slope of roughness --sigma, lit by a sharp lobe; truth.json's sigma is the effective "
+        "roughness of both (what a pixel-averaged model sees)",
+    )
     synth.set_defaults(run=run_synth)
 
 
@@ -84,6 +91,7 @@ def _synth_options_from(args: argparse.Namespace):
         sigma=args.sigma,
         effects=effects,
         stereo_mm=getattr(args, "stereo", None),
+        sparkles=getattr(args, "sparkles", False),
     )
 
 

@@ -1,6 +1,7 @@
 """The specular set S and its ring S~ (paper section 4, step 2): which pixels are
 highlights (`WhiterThanTissue`, the paper's `HLSThresholds`), the sets of one image
-(`specular_sets`) and of every frame of a capture (`capture_sets`). Below the observations
+(`specular_sets`) and of every frame of a capture (`capture_sets`); sigma from the density of
+the highlights over the half angle (`sparkle_density`). Below the observations
 and the estimators, which both use them."""
 
 from ._capture_sets import MaskOptions as MaskOptions
@@ -8,6 +9,11 @@ from ._capture_sets import capture_sets as capture_sets
 from ._highlights import HighlightRule as HighlightRule
 from ._highlights import HLSThresholds as HLSThresholds
 from ._highlights import WhiterThanTissue as WhiterThanTissue
+from ._sparkle_density import SparkleDensity as SparkleDensity
+from ._sparkle_density import sparkle_density as sparkle_density
+from ._sparkle_density import sparkle_density_line as sparkle_density_line
+from ._sparkle_density import sparkle_density_of_angles as sparkle_density_of_angles
+from ._sparkle_density import sparkle_density_summary as sparkle_density_summary
 from ._specular_set import DEFAULT_MIN_SPECK_PX as DEFAULT_MIN_SPECK_PX
 from ._specular_set import DEFAULT_RING_PX as DEFAULT_RING_PX
 from ._specular_set import SpecularSets as SpecularSets

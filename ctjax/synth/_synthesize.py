@@ -37,6 +37,11 @@ DEFAULT_RHO_TILDE = (2.4, 1.1, 0.85)
 DEFAULT_F_TILDE = (0.3, 0.3, 0.3)
 DEFAULT_SIGMA = 0.2
 WORKING_DISTANCE_MM = 70.0
+# Sparkles (`SynthOptions.sparkles`): each facet's own sharp lobe, and the scale (px) over
+# which a facet's tilt is correlated (a sparkle spans a few pixels), as in
+# benchmarks/lobe_ideas.py's `sparkly_capture`.
+SPARKLE_MICRO_SIGMA = 0.06
+SPARKLE_CORRELATION_PX = 1.5
 
 
 def synth_effects() -> dict:
@@ -61,6 +66,13 @@ class SynthOptions:
     (cos^k), `camera_gamma`, `ambient` (R, G, B), `fresnel_schlick` (F0, or (F0, "half" |
     "normal")), `geometric_attenuation`, `ggx` (alpha = sigma), `second_lobe`
     (sigma_2, fraction of F_tilde); `synth_effects()` lists them.
+
+    `sparkles`: highlights as sparkles, as wet tissue shows them: every pixel sees one
+    facet, its normal the surface's tilted by a Beckmann slope of roughness `sigma`
+    (correlated over `SPARKLE_CORRELATION_PX`, drawn anew each frame), lit by a sharp lobe
+    (`SPARKLE_MICRO_SIGMA`, the specular lobes' roughness); the stored normals stay the
+    surface's. The lobe a pixel-averaged model sees has the effective roughness
+    `effective_sigma` (truth.json's `sigma`).
     """
 
     width: int = 320
@@ -79,6 +91,7 @@ class SynthOptions:
     # A stereo laparoscope: the right camera this far right of the left one (mm), parallel,
     # the same intrinsics; the light stays at the left lens. None: one camera.
     stereo_mm: float | None = None
+    sparkles: bool = False
 
     def __post_init__(self):
         problems = []
@@ -110,9 +123,19 @@ class SynthOptions:
             raise ParameterError("synth: invalid " + "; ".join(problems))
 
 
-def _paper_scene(options: SynthOptions) -> ShadingModel:
+def effective_sigma(options: SynthOptions) -> float:
+    """The roughness of the lobe the scene shows a pixel-averaged model: `sigma`, or with
+    `sparkles` the facets' and their own lobe's combined, hypot(sigma, SPARKLE_MICRO_SIGMA)
+    (Beckmann slopes add in variance)."""
+    if options.sparkles:
+        return float(np.hypot(options.sigma, SPARKLE_MICRO_SIGMA))
+    return float(options.sigma)
+
+
+def _paper_scene(options: SynthOptions, sigma: float | None = None) -> ShadingModel:
+    sigma = effective_sigma(options) if sigma is None else sigma
     return ShadingModel(
-        cook_torrance_brdf(options.rho_tilde, options.F_tilde, options.sigma), ColocatedLight()
+        cook_torrance_brdf(options.rho_tilde, options.F_tilde, sigma), ColocatedLight()
     )
 
 
@@ -128,10 +151,12 @@ def _context(options: SynthOptions) -> dict:
     }
 
 
-def scene_model(options: SynthOptions) -> ShadingModel:
+def scene_model(options: SynthOptions, *, sigma: float | None = None) -> ShadingModel:
     """The synthetic scene's model: the paper's, with each effect added at its true value
-    (in the order of their names, which puts a falloff before the light that keeps it)."""
-    model = _paper_scene(options)
+    (in the order of their names, which puts a falloff before the light that keeps it).
+    Its roughness is `effective_sigma` (or `sigma`: the facets' own lobe, which renders
+    the sparkles)."""
+    model = _paper_scene(options, sigma)
     known = synth_effects()
     context = _context(options)
     for name in sorted(options.effects):
@@ -176,16 +201,38 @@ def _with_effects(effects, rgb, frame: int):
     return jax.vmap(jax.vmap(one))(rgb, u, v)
 
 
-def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map, frame: int):
+def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map, frame: int, facets=None):
     """Linear RGB of frame `frame`: the diffuse lobes' weights are multiplied by the
-    texture."""
+    texture; with `facets` (H, W, 3), the other lobes are lit on them (sparkles)."""
     brdf = model.brdf
     columns = render_columns(brdf, model.light, camera, jnp.asarray(normals), jnp.asarray(depth))
     weights = brdf.weights  # (K, 3)
     diffuse = jnp.array([isinstance(lobe, Lambertian) for lobe in brdf.lobes])
+    if facets is not None:
+        lit = render_columns(brdf, model.light, camera, jnp.asarray(facets), jnp.asarray(depth))
+        columns = jnp.where(diffuse, columns, lit)
     texture = jnp.where(diffuse[:, None, None, None], jnp.asarray(albedo_map)[None], 1.0)
     rgb = jnp.einsum("hwk,khwc,kc->hwc", columns, texture, weights)
     return _with_effects(model.effects, rgb, frame)
+
+
+def _facet_normals(normals: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W, 3) float32: each pixel's facet, the surface's normal tilted by a Beckmann
+    slope of roughness `sigma` (each tangent slope Gaussian of variance sigma^2 / 2),
+    correlated over `SPARKLE_CORRELATION_PX`; NaN where the normal is."""
+    import cv2
+
+    n = normals.astype(np.float64)
+    h, w = n.shape[:2]
+    slopes = []
+    for _ in range(2):
+        z = cv2.GaussianBlur(rng.normal(size=(h, w)), (0, 0), SPARKLE_CORRELATION_PX)
+        slopes.append(z / z.std() * sigma / np.sqrt(2))
+    t1 = np.cross(n, np.array([0.0, 1.0, 0.0]))
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    t2 = np.cross(n, t1)
+    facet = n - slopes[0][..., None] * t1 - slopes[1][..., None] * t2
+    return (facet / np.linalg.norm(facet, axis=-1, keepdims=True)).astype(np.float32)
 
 
 def _stereo_rig(options: SynthOptions, camera: Camera) -> StereoRig | None:
@@ -229,6 +276,10 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     model = scene_model(options)
     rng = np.random.default_rng(options.seed)
     surface_rng, texture_rng, path_rng, noise_rng = rng.spawn(4)
+    # Spawned only for sparkles: the other streams, and the default capture, stay as they were.
+    sparkle_rng = rng.spawn(1)[0] if options.sparkles else None
+    # Sparkles: the specular lobes are the facets' own (sharp) ones, lit on the facets.
+    lit_model = scene_model(options, sigma=SPARKLE_MICRO_SIGMA) if options.sparkles else model
     surface = OrganSurface.random(surface_rng, WORKING_DISTANCE_MM)
     camera = synthetic_camera(options)
     # The tissue a pixel covers at the working distance (the prefilter's scale).
@@ -240,7 +291,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     saturated = []
     true_albedo = {}
     rig = _stereo_rig(options, camera)
-    right_model = None if rig is None else _seen_from_the_right(model, rig)
+    right_model = None if rig is None else _seen_from_the_right(lit_model, rig)
     right_images = {}
     top = 255 if options.bits == 8 else 65535
 
@@ -257,14 +308,17 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         )
         if options.texture_contrast != 1:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
-        linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map, index))
+        facets = None
+        if sparkle_rng is not None:
+            facets = _facet_normals(normals, options.sigma, sparkle_rng)
+        linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map, index, facets))
         noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
         quantised = np.round(np.clip(noisy, 0, 1) * top) / top
         return quantised.astype(np.float32), depth, normals, albedo_map
 
     for index, pose in enumerate(poses):
         name = f"frame_{index:03d}"
-        image, depth, normals, albedo_map = view(model, pose, index)
+        image, depth, normals, albedo_map = view(lit_model, pose, index)
         true_albedo[name] = np.where(
             np.isfinite(depth)[..., None],
             albedo_map * np.asarray(options.rho_tilde, np.float32),
@@ -277,7 +331,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     truth = {
         "rho_tilde": list(map(float, options.rho_tilde)),
         "F_tilde": list(map(float, options.F_tilde)),
-        "sigma": float(options.sigma),
+        "sigma": effective_sigma(options),
         "units": "linear intensity, 1.0 = 8-bit level 255 (light intensity folded in)",
         "model": "paper eq. (1)-(2): rho_tilde/pi (N.L) + F_tilde D / (pi (N.L)(N.V)), "
         "Beckmann D = exp(-tan^2 a / sigma^2) / (sigma^2 cos^4 a)",
@@ -302,6 +356,16 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         "organ": {"base_mm": surface.base_mm, "radius_mm": surface.radius_mm},
         "poses": {frame.name: frame.pose.tolist() for frame in frames},
     }
+    if options.sparkles:
+        truth["sparkles"] = {
+            "facet_sigma": float(options.sigma),
+            "micro_sigma": SPARKLE_MICRO_SIGMA,
+            "correlation_px": SPARKLE_CORRELATION_PX,
+            "note": "every pixel one facet, the surface's normal (normals/) tilted by a "
+            "Beckmann slope of roughness facet_sigma, drawn anew each frame, lit by a lobe of "
+            "roughness micro_sigma; sigma is the effective roughness, "
+            "hypot(facet_sigma, micro_sigma), of the lobe a pixel-averaged model sees",
+        }
     if rig is not None:
         truth["stereo"] = {"baseline_mm": rig.baseline_mm, "light": "at the left lens"}
     root = write_capture(
