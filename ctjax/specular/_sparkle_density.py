@@ -116,11 +116,17 @@ def half_angles(capture: Capture, sets: list[SpecularSets]) -> list[tuple[np.nda
 
 
 def sparkle_density_of_angles(
-    theta_h: np.ndarray, specular: np.ndarray, *, bins: int = 400, max_theta_deg: float = 80.0
+    theta_h: np.ndarray,
+    specular: np.ndarray,
+    *,
+    bins: int = 400,
+    max_theta_deg: float = 80.0,
+    standard_error: bool = True,
 ) -> tuple[float, float, float | None]:
     """(sigma, a, relative standard error of sigma) of (*) fitted to pixels at half angles
     `theta_h` (radians, 1-D), `specular` saying which are in S, binned in `bins` bins of
-    theta_h up to `max_theta_deg` (pixels beyond are left out).
+    theta_h up to `max_theta_deg` (pixels beyond are left out); without `standard_error`
+    the third is None (the halves' check needs only sigma).
 
     Raises `ParameterError` for shapes that disagree, non-finite or out-of-range angles, an
     empty S or an S that holds every pixel.
@@ -160,7 +166,9 @@ def sparkle_density_of_angles(
         return -np.sum(hits * log_p + (total - hits) * np.log(-np.expm1(log_p)), axis=-1)
 
     # The rate `a` is at most 1 (a probability where N = H).
-    (log_a, log_s), _ = _grid_minimum(nll, [(-20.0, 0.0), (lo, hi)])
+    (log_a, log_s), _ = _grid_minimum(nll, [(-20.0, 0.0), (lo, hi)], points=21)
+    if not standard_error:
+        return float(math.exp(log_s)), float(math.exp(log_a)), None
     # Relative standard error: the likelihood's curvature in log sigma, `a` profiled out
     # (nll is convex in log a at a fixed sigma: one minimum).
     step = 1e-3
@@ -280,7 +288,11 @@ def sparkle_density(
         for parity in (0, 1):
             t = np.concatenate([a for a, _ in angles[parity::2]])
             s = np.concatenate([s for _, s in angles[parity::2]])
-            parts.append(sparkle_density_of_angles(t, s, **fit)[0] if s.any() else math.nan)
+            parts.append(
+                sparkle_density_of_angles(t, s, **fit, standard_error=False)[0]
+                if s.any()
+                else math.nan
+            )
         halves = (parts[0], parts[1])
     corrected = None
     if normal_error_deg is not None:
