@@ -60,8 +60,8 @@ def add_fit_parser(commands) -> None:
         help="fit the linear images averaged over K x K pixels (S and S~ found on the "
         "originals): sparkles (one facet a pixel) become the average lobe the model "
         "describes; 9 gave sigma within -7..+6%% on 5 of 6 synthetic sparkle captures "
-        "(-22%% on the 6th), F_tilde only as a lower bound where sparkles clip "
-        "(default 1: no averaging)",
+        "(-22%% on the 6th), F_tilde only as a lower bound where sparkles clip; "
+        "for sparkles only: it widens a solid highlight's lobe (default 1: no averaging)",
     )
     fit.add_argument(
         "--patch-kernel",
