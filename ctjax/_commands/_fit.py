@@ -52,6 +52,23 @@ def add_fit_parser(commands) -> None:
         help="images only: keep SfM's shape (refined by the texture) without refining it by "
         "the shading (faster; sigma and F_tilde then off by up to tens of percent)",
     )
+    fit.add_argument(
+        "--patch",
+        type=positive_int,
+        default=1,
+        metavar="K",
+        help="fit the linear images averaged over K x K pixels (S and S~ found on the "
+        "originals): sparkles (one facet a pixel) become the average lobe the model "
+        "describes; 9 gave sigma within -7..+6%% on 5 of 6 synthetic sparkle captures "
+        "(-22%% on the 6th), F_tilde only as a lower bound where sparkles clip; "
+        "for sparkles only: it widens a solid highlight's lobe (default 1: no averaging)",
+    )
+    fit.add_argument(
+        "--patch-kernel",
+        choices=("box", "gaussian"),
+        default="box",
+        help="--patch: a K x K box, or a Gaussian of the box's spread (default box)",
+    )
     add_mask_arguments(fit)
     fit.set_defaults(run=run_fit)
 
@@ -89,6 +106,10 @@ def run_fit(args: argparse.Namespace) -> int:
     masks = mask_options(args)
     # The sets S and S~ found once: the intensity fit's, then the sparkle density's.
     observations = Observations.of(capture, masks)
+    if args.patch > 1:
+        from ..estimation._patches import patch_observations
+
+        observations = patch_observations(capture, masks, args.patch, kernel=args.patch_kernel)
     estimate = fit_capture(
         observations, masks, family, albedo=args.albedo, max_points=args.max_tracks
     )
@@ -104,6 +125,11 @@ def run_fit(args: argparse.Namespace) -> int:
                 atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
     result = estimate.to_json()
     result["sparkle_density"] = sparkle_density_summary(capture, observations.sets)
+    if args.patch > 1:
+        from ..estimation._patches import patch_summary
+
+        result["patch"] = patch_summary(capture, observations.sets, args.patch, args.patch_kernel)
+        result["warnings"] = [*result["warnings"], *result["patch"]["warnings"]]
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
