@@ -239,9 +239,10 @@ def _base_model(heldout, add, candidates, context, max_steps, say, fitted=None) 
             "candidate, as fitted there"
         )
         model = fitted.model  # its per-frame parameters already fitted on the held-out frames
+        floor = fitted.details.get("noise_floor")  # computed when it was the best candidate
         return dataclasses.replace(
             fitted,
-            noise_floor=heldout.noise_floor(model),
+            noise_floor=heldout.noise_floor(model) if floor is None else floor,
             details={"albedo": context["albedo"]},
             warnings=list(fitted.warnings),
         )
@@ -430,7 +431,9 @@ def diagnose(
         if best.details["effect"] == "albedo_texture":
             noise = min(noise, noise_floor_map_levels(capture, heldout.heldout, best.model))
         else:
-            noise = min(noise, heldout.noise_floor(best.model))
+            # Kept: the floor of the next step's base when this is the verdict (`next_base`).
+            best.details["noise_floor"] = heldout.noise_floor(best.model)
+            noise = min(noise, best.details["noise_floor"])
     verdict = "none"
     if results and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT:
         verdict = results[0].details["effect"]
