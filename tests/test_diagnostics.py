@@ -105,7 +105,15 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
     assert result["candidates"][0]["heldout_rmse"] <= 1.15 * result["noise_floor"]
     assert result["candidates"][0]["improvement"] > 0
     for entry in result["candidates"]:
-        assert list(entry) == ["effect", "heldout_rmse", "improvement", "params"]
+        assert list(entry) == [
+            "effect",
+            "heldout_rmse",
+            "improvement",
+            "params",
+            "seconds",
+            "steps",
+        ]
+        assert entry["seconds"] > 0 and entry["steps"] >= 0
     rmses = [c["heldout_rmse"] for c in result["candidates"]]
     assert rmses == sorted(rmses)
     offset = result["candidates"][0]["params"]["light.position_mm"]
