@@ -105,7 +105,15 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
     assert result["candidates"][0]["heldout_rmse"] <= 1.15 * result["noise_floor"]
     assert result["candidates"][0]["improvement"] > 0
     for entry in result["candidates"]:
-        assert list(entry) == ["effect", "heldout_rmse", "improvement", "params"]
+        assert list(entry) == [
+            "effect",
+            "heldout_rmse",
+            "improvement",
+            "params",
+            "seconds",
+            "steps",
+        ]
+        assert entry["seconds"] > 0 and entry["steps"] >= 0
     rmses = [c["heldout_rmse"] for c in result["candidates"]]
     assert rmses == sorted(rmses)
     offset = result["candidates"][0]["params"]["light.position_mm"]
@@ -243,3 +251,37 @@ def test_the_loop_command_prints_each_step_and_writes_it(captures, monkeypatch, 
     assert "step 2 (paper + spot_falloff): held-out RMSE 2.20 levels" in printed
     loop = json.loads(out.read_text())["loop"]
     assert loop["added"] == ["spot_falloff"] and loop["final_verdict"] == "none"
+
+
+def test_the_loops_next_base_is_the_verdicts_candidate(tmp_path):
+    """Step 2's base model is step 1's verdict candidate (not fitted again), and it is what
+    fitting the base with the verdict added gives; the capture is prepared once."""
+    from ctjax.diagnostics import _diagnose, diagnose_loop
+
+    capture = load_capture(
+        synthesize(tmp_path / "gamma", SynthOptions(**SMALL, **HIDDEN["camera_gamma"]))
+    )
+    few = tuple(c for c in CANDIDATES if c.name in ("camera_gamma", "ambient"))
+    messages = []
+    loop = diagnose_loop(
+        capture, albedo="uniform", candidates=few, max_rounds=2, progress=messages.append, **SAMPLES
+    )
+    first, second = loop.steps
+    assert first.verdict == "camera_gamma", first.to_json()
+    assert second.base.model is first.best_model  # reused, not refitted
+    assert second.base_rmse == first.candidates[0].heldout_rmse
+    assert second.base.noise_floor is not None and second.base.details["albedo"] == "uniform"
+    assert sum("fitting the base model" in m for m in messages) == 1, messages
+    assert any(" s" in m and "+ camera_gamma" in m for m in messages), messages
+    assert all(c["seconds"] > 0 for c in first.to_json()["candidates"])
+    # The same model as a refit of the base with the verdict added.
+    refit = diagnose(
+        capture, add=("camera_gamma",), albedo="uniform", candidates=few[:0], **SAMPLES
+    )
+    assert np.isclose(refit.base_rmse, second.base_rmse, rtol=1e-3)
+    assert np.isclose(refit.noise_floor, second.base.noise_floor, rtol=1e-3)
+    # A verdict whose candidate held per-frame parameters, or that ended as its base, is
+    # fitted again.
+    verdict = next(c for c in first.candidates if c.details["effect"] == "camera_gamma")
+    verdict.details["frozen"] = ["effects.0.exposure"]
+    assert _diagnose.next_base(first) is None

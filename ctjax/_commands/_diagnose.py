@@ -58,8 +58,11 @@ def add_diagnose_parser(commands) -> None:
 def run_diagnose(args: argparse.Namespace) -> int:
     from ..diagnostics import diagnose, diagnose_loop, diagnosis_plots, plot_loop
     from ..io._atomic import atomic_write_json
+    from ..observations import Observations
 
     capture = load_capture(args)
+    # Decoded once: the diagnoses (every step of a loop) and the plots share them.
+    observations = Observations.of(capture)
     options = dict(
         calibration=args.calib,
         add=tuple(args.add),
@@ -69,16 +72,16 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     loop = None
     if args.loop:
-        loop = diagnose_loop(capture, max_rounds=args.max_rounds, **options)
+        loop = diagnose_loop(observations, max_rounds=args.max_rounds, **options)
         diagnosis = loop.final
     else:
-        diagnosis = diagnose(capture, **options)
+        diagnosis = diagnose(observations, **options)
     summary = diagnosis.to_json()
     if loop is not None:
         summary["loop"] = loop.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.plots:
-        for path in diagnosis_plots(capture, diagnosis, args.plots):
+        for path in diagnosis_plots(observations, diagnosis, args.plots):
             print(f"wrote {path}")
         if loop is not None:
             print(f"wrote {plot_loop(loop, Path(args.plots) / 'loop.png')}")

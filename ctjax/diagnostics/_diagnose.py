@@ -9,6 +9,7 @@ model explains everything there is to explain.
 """
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
@@ -28,7 +29,7 @@ from ..fitting import (
     roughness_variants,
 )
 from ..fitting._parameters import per_frame_names
-from ..heldout import HeldOutTracks, median_depth_mm, noise_floor_map_levels, split_for
+from ..heldout import HeldOut, HeldOutTracks, median_depth_mm, noise_floor_map_levels, split_for
 from ..io import Capture
 from ..observations import Observations
 from ._candidates import CANDIDATES, AbstractCandidate, candidate
@@ -44,12 +45,90 @@ from ._candidates import CANDIDATES, AbstractCandidate, candidate
 MATERIAL_IMPROVEMENT = 0.03
 
 
+class Prepared:
+    """A capture made ready for diagnoses: its observations (decoded once), the candidates'
+    context and the held-out split of each albedo choice (`split_for`), each built when
+    first needed and then shared by every diagnosis of these settings: the uniform and the
+    map diagnosis of a first step, the `albedo_texture` candidate's tracks (the map's
+    split), a loop's steps. `diagnose` takes one in place of a capture."""
+
+    def __init__(
+        self,
+        capture: "Capture | Observations",
+        calibration: int | None = None,
+        max_samples: int = 12_000,
+        heldout_samples: int = 40_000,
+        seed: int = 0,
+    ):
+        self.capture = capture
+        self.settings = (calibration, max_samples, heldout_samples, seed)
+        self._splits = {}
+
+    @classmethod
+    def of(cls, capture, calibration, max_samples, heldout_samples, seed) -> "Prepared":
+        """`capture` itself when it is prepared with these settings; else a new one (on the
+        same observations)."""
+        settings = (calibration, max_samples, heldout_samples, seed)
+        if isinstance(capture, Prepared):
+            if capture.settings == settings:
+                return capture
+            capture = capture.observations
+        return cls(capture, *settings)
+
+    @functools.cached_property
+    def observations(self) -> Observations:
+        obs = Observations.of(self.capture)
+        if not obs.capture.has_geometry or any(f.depth is None for f in obs.frames):
+            raise CtjaxError(f"{obs.root}: diagnose needs depth for every frame (depth/NAME.npy)")
+        return obs
+
+    @functools.cached_property
+    def _context(self) -> dict:
+        obs = self.observations
+        return {
+            "median_depth_mm": median_depth_mm(obs),
+            "length_unit": length_unit_of(obs),
+            "frames": len(obs),
+            "principal_point": (float(obs.camera.cx), float(obs.camera.cy)),
+            "focal_px": (float(obs.camera.fx), float(obs.camera.fy)),
+            "albedo_map_possible": default_albedo(obs) == "map",
+        }
+
+    def context(self, albedo: str) -> dict:
+        """What a candidate needs to know of the capture (`AbstractCandidate.__call__`)."""
+        return {**self._context, "albedo": albedo}
+
+    def split(self, albedo: str) -> "HeldOut | HeldOutTracks":
+        """The held-out split for `albedo` (`split_for`), built once; its `CtjaxError` (too
+        few calibration frames for a map) raised again at every call."""
+        if albedo not in self._splits:
+            calibration, max_samples, heldout_samples, seed = self.settings
+            try:
+                self._splits[albedo] = split_for(
+                    self.observations,
+                    calibration,
+                    albedo=albedo,
+                    max_samples=max_samples,
+                    heldout_samples=heldout_samples,
+                    seed=seed,
+                )
+            except CtjaxError as error:
+                self._splits[albedo] = error
+        split = self._splits[albedo]
+        if isinstance(split, CtjaxError):
+            raise CtjaxError(str(split))
+        return split
+
+
 @dataclasses.dataclass
 class Diagnosis:
     """The base model and every candidate, each an `Estimate` judged on held-out frames.
 
     A candidate's `details` hold its `effect` (name), its `improvement` (fraction of the
-    base's held-out RMSE) and the `params` it introduced; candidates are sorted best first.
+    base's held-out RMSE), the `params` it introduced, the per-frame parameters it held at
+    the base's values (`frozen`), the LM `steps` of its best start and the `seconds` its fit
+    and judgement took; candidates
+    are sorted best first.
     """
 
     base: Estimate
@@ -80,6 +159,8 @@ class Diagnosis:
                     "heldout_rmse": c.heldout_rmse,
                     "improvement": c.details["improvement"],
                     "params": c.details["params"],
+                    "seconds": c.details.get("seconds"),
+                    "steps": c.details.get("steps"),
                 }
                 for c in self.candidates
             ],
@@ -147,7 +228,24 @@ def _training_size(heldout) -> str:
     return f"{len(heldout.train.values)} pixels"
 
 
-def _base_model(heldout, add, candidates, context, max_steps, say) -> Estimate:
+def _base_model(heldout, add, candidates, context, max_steps, say, fitted=None) -> Estimate:
+    """The paper's model with every effect of `add` added in turn, each fitted from the
+    previous one's solution, judged on the held-out frames (with the noise floor). `fitted`:
+    that model already fitted and judged without the floor (`next_base`), reused."""
+    if fitted is not None:
+        grown = " + ".join(["paper", *map(_name, add)])
+        say(
+            f"the base model ({context['albedo']} albedo, {grown}): the previous step's "
+            "candidate, as fitted there"
+        )
+        model = fitted.model  # its per-frame parameters already fitted on the held-out frames
+        floor = fitted.details.get("noise_floor")  # computed when it was the best candidate
+        return dataclasses.replace(
+            fitted,
+            noise_floor=heldout.noise_floor(model) if floor is None else floor,
+            details={"albedo": context["albedo"]},
+            warnings=list(fitted.warnings),
+        )
     say(
         f"fitting the base model ({context['albedo']} albedo) on frames {heldout.calibration} "
         f"({_training_size(heldout)})"
@@ -164,28 +262,31 @@ def _base_model(heldout, add, candidates, context, max_steps, say) -> Estimate:
     return heldout.judge(base)
 
 
-def _candidate_fit(effect, starts, base, heldout, capture, settings) -> Estimate | None:
+def _name(effect) -> str:
+    return effect if isinstance(effect, str) else effect.name
+
+
+def _candidate_fit(effect, starts, base, heldout, prepared, max_steps) -> Estimate | None:
     """The candidate's fit, judged on held-out frames; None when it failed. A candidate
-    fitted with the albedo map (`albedo = "map"`) gets its own tracks (the base has one
+    fitted with the albedo map (`albedo = "map"`) gets the map's split (the base has one
     albedo); one that ends worse than the base it contains on the same calibration data
     is reported as the base (its starts include the base's solution: a worse end is the
     solver's, not the effect's)."""
-    calibration, max_points, heldout_points, max_steps, seed = settings
+    freeze = _base_per_frame(starts, base)
     if getattr(effect, "albedo", None) == "map":
         try:
-            tracks = HeldOutTracks.split(
-                capture,
-                calibration,
-                max_points=max_points,
-                heldout_points=heldout_points,
-                seed=seed,
-            )
+            tracks = prepared.split("map")
         except CtjaxError:  # e.g. too few calibration frames for a map
             return None
-        fit = _fit(starts, tracks, max_steps, _base_per_frame(starts, base))
-        return tracks.judge(fit, noise_floor=False) if np.isfinite(fit.cost) else None
+        fit = _fit(starts, tracks, max_steps, freeze)
+        if not np.isfinite(fit.cost):
+            return None
+        steps = fit.details.get("steps")
+        fit = tracks.judge(fit, noise_floor=False)
+        fit.details = {"frozen": list(freeze), "steps": steps}
+        return fit
     try:
-        fit = _fit(starts, heldout, max_steps, _base_per_frame(starts, base))
+        fit = _fit(starts, heldout, max_steps, freeze)
     except ParameterError:  # e.g. an image effect the albedo map cannot undo
         return None
     if not np.isfinite(fit.cost):
@@ -195,40 +296,73 @@ def _candidate_fit(effect, starts, base, heldout, capture, settings) -> Estimate
             fit,
             model=base.model,
             cost=base.cost,
-            warnings=[*fit.warnings, "no better than the base"],
+            warnings=[*fit.warnings, NO_BETTER],
         )
-    return heldout.judge(fit, noise_floor=False)
+    steps = fit.details.get("steps")
+    fit = heldout.judge(fit, noise_floor=False)
+    fit.details = {"frozen": list(freeze), "steps": steps}
+    return fit
 
 
-def _candidates(base, add, candidates, context, heldout, capture, settings, say) -> list:
+# The warning of a candidate reported as its base (`_candidate_fit`).
+NO_BETTER = "no better than the base"
+
+
+def _candidates(base, add, candidates, context, heldout, prepared, max_steps, say) -> list:
     """Every candidate effect not in `add`, fitted on top of `base` and judged."""
-    added = {e if isinstance(e, str) else e.name for e in add}
+    added = {_name(e) for e in add}
     results = []
     for effect in candidates:
         if effect.name in added:
             continue
+        started = time.perf_counter()
         starts = effect(base.model, context)
         if not starts:
             continue
-        fit = _candidate_fit(effect, starts, base, heldout, capture, settings)
+        fit = _candidate_fit(effect, starts, base, heldout, prepared, max_steps)
         if fit is None:
             continue
+        seconds = time.perf_counter() - started
         improvement = (base.heldout_rmse - fit.heldout_rmse) / base.heldout_rmse
         fit.details = {
             "effect": effect.name,
             "improvement": improvement,
             "params": _new_parameters(base.model, fit.model),
+            "frozen": fit.details["frozen"],
+            "steps": fit.details["steps"],
+            "seconds": round(seconds, 2),
         }
         results.append(fit)
         say(
             f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
-            f"({100 * improvement:+.1f}%)" + ("" if fit.converged else f" [{fit.status.name}]")
+            f"({100 * improvement:+.1f}%) {seconds:4.0f} s"
+            + ("" if fit.converged else f" [{fit.status.name}]")
         )
     return results
 
 
+def next_base(diagnosis: Diagnosis) -> Estimate | None:
+    """The base model of the next step of a loop (this base plus the verdict), when this
+    diagnosis has already fitted it: the verdict's candidate, fitted on the same calibration
+    data from the same starts as the base model with the verdict in `add` would be (the
+    effects are added in the same order, each from the previous solution), and judged on
+    the same held-out data (`diagnose` adds the noise floor). None (fit it again) when the
+    candidate is not that fit: the verdict is "none" or `albedo_texture` (the map's base is
+    fitted from the paper's starts), the candidate ended no better than its base (it is
+    reported as the base), or it held per-frame parameters at the base's values (the base
+    model refits them with the rest)."""
+    if diagnosis.verdict in ("none", "albedo_texture"):
+        return None
+    for c in diagnosis.candidates:
+        if c.details["effect"] == diagnosis.verdict:
+            if NO_BETTER in c.warnings or c.details.get("frozen"):
+                return None
+            return c
+    return None
+
+
 def diagnose(
-    capture: "Capture | Observations",
+    capture: "Capture | Observations | Prepared",
     *,
     calibration: int | None = None,
     add: tuple[str | AbstractCandidate, ...] = (),
@@ -239,6 +373,7 @@ def diagnose(
     max_steps: int = 80,
     seed: int = 0,
     progress=None,
+    base: Estimate | None = None,
 ) -> Diagnosis:
     """Fit the paper's model (plus `add`) and rank every candidate effect by held-out RMSE.
 
@@ -249,14 +384,19 @@ def diagnose(
     diagnosed with the map, untextured with the paper's model (and its faster fits). With the
     map, `max_samples` bounds the calibration frames' tracked points and half of
     `heldout_samples` the held-out frames' (see `HeldOutTracks`).
+
+    `capture` may be `Prepared` (its observations and splits are then reused when its
+    settings are these). `base`: the base model (the paper's plus `add`, with `albedo`)
+    already fitted and judged on this split, as `next_base` gives it; fitted here when None.
     """
     started = time.perf_counter()
     say = progress or (lambda message: None)
-    capture = Observations.of(capture)
-    if not capture.capture.has_geometry or any(f.depth is None for f in capture.frames):
-        raise CtjaxError(f"{capture.root}: diagnose needs depth for every frame (depth/NAME.npy)")
     if albedo is not None and albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
+    if base is not None and albedo is None:
+        raise ParameterError("a fitted base model needs its albedo choice (albedo=...)")
+    prepared = Prepared.of(capture, calibration, max_samples, heldout_samples, seed)
+    capture = prepared.observations
     options = dict(
         calibration=calibration,
         add=add,
@@ -269,36 +409,20 @@ def diagnose(
     )
     if albedo is None:
         # The paper's model first; the map when texture is what it misses most.
-        uniform = diagnose(capture, albedo="uniform", **options)
+        uniform = diagnose(prepared, albedo="uniform", **options)
         if uniform.verdict != "albedo_texture":
             return uniform
         say("the albedo texture is what the paper's model misses most: diagnosing with the map")
-        mapped = diagnose(capture, albedo="map", **options)
+        mapped = diagnose(prepared, albedo="map", **options)
         return dataclasses.replace(mapped, seconds=time.perf_counter() - started)
-    settings = (calibration, max_samples, heldout_samples // 2, max_steps, seed)
-    context = {
-        "median_depth_mm": median_depth_mm(capture),
-        "length_unit": length_unit_of(capture),
-        "frames": len(capture),
-        "principal_point": (float(capture.camera.cx), float(capture.camera.cy)),
-        "focal_px": (float(capture.camera.fx), float(capture.camera.fy)),
-        "albedo": albedo,
-        "albedo_map_possible": default_albedo(capture) == "map",
-    }
-    heldout = split_for(
-        capture,
-        calibration,
-        albedo=albedo,
-        max_samples=max_samples,
-        heldout_samples=heldout_samples,
-        seed=seed,
-    )
-    base = _base_model(heldout, add, candidates, context, max_steps, say)
+    context = prepared.context(albedo)
+    heldout = prepared.split(albedo)
+    base = _base_model(heldout, add, candidates, context, max_steps, say, base)
     base.details["albedo"] = albedo
     noise = base.noise_floor
     say(f"base model: held-out RMSE {base.heldout_rmse:.2f} levels, noise floor {noise:.2f}")
 
-    results = _candidates(base, add, candidates, context, heldout, capture, settings, say)
+    results = _candidates(base, add, candidates, context, heldout, prepared, max_steps, say)
     results.sort(key=lambda c: c.heldout_rmse)
     if results and results[0].heldout_rmse < base.heldout_rmse:
         # Every estimate of the noise is biased up by what the model misses: the best
@@ -307,7 +431,9 @@ def diagnose(
         if best.details["effect"] == "albedo_texture":
             noise = min(noise, noise_floor_map_levels(capture, heldout.heldout, best.model))
         else:
-            noise = min(noise, heldout.noise_floor(best.model))
+            # Kept: the floor of the next step's base when this is the verdict (`next_base`).
+            best.details["noise_floor"] = heldout.noise_floor(best.model)
+            noise = min(noise, best.details["noise_floor"])
     verdict = "none"
     if results and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT:
         verdict = results[0].details["effect"]

@@ -5,13 +5,19 @@ and watch the error fall", run to its end: each step is a `diagnose` of the base
 with every verdict so far added (`add`), so its base held-out RMSE is the error of the
 model grown so far. The loop stops at the verdict "none", at a verdict it has already
 added (no progress left to make), or after `max_rounds` steps.
+
+The capture is prepared once (`Prepared`: its observations and held-out splits, the same
+in every step), and step k+1's base model is step k's verdict candidate (`next_base`: the
+base with the verdict added, fitted on the same calibration data from the same starts as a
+refit would be, then judged on the same held-out data; refitted where the candidate held
+per-frame parameters at its base's values or was reported as its base).
 """
 
 import dataclasses
 import time
 from pathlib import Path
 
-from ._diagnose import Diagnosis, diagnose
+from ._diagnose import Diagnosis, Prepared, diagnose, next_base
 
 
 @dataclasses.dataclass
@@ -64,10 +70,16 @@ def diagnose_loop(capture, *, max_rounds: int = 5, progress=None, **options) -> 
     started = time.perf_counter()
     effects = list(options.pop("add", ()))  # passed to diagnose's `add`
     added = []  # every verdict taken, in order (albedo_texture: the map, not an `add`)
-    steps, stopped = [], ""
+    steps, stopped, base = [], "", None
+    settings = {
+        k: options[k]
+        for k in ("calibration", "max_samples", "heldout_samples", "seed")
+        if k in options
+    }
+    prepared = Prepared(capture, **settings)
     while len(steps) < max_rounds:
         say(f"step {len(steps) + 1}: diagnosing with {', '.join(added) or 'nothing'} added")
-        step = diagnose(capture, add=tuple(effects), progress=progress, **options)
+        step = diagnose(prepared, add=tuple(effects), progress=progress, base=base, **options)
         steps.append(step)
         say(
             f"step {len(steps)}: base held-out RMSE {step.base_rmse:.2f} levels "
@@ -82,6 +94,7 @@ def diagnose_loop(capture, *, max_rounds: int = 5, progress=None, **options) -> 
             stopped = f"verdict {step.verdict} again (already added)"
             break
         added.append(step.verdict)
+        base = next_base(step)
         if step.verdict == "albedo_texture":
             options["albedo"] = "map"  # the texture is the albedo map itself
         else:
