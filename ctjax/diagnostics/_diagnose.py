@@ -44,6 +44,10 @@ from ._candidates import CANDIDATES, AbstractCandidate, candidate
 # earlier rule (the base at least 5% above the floor) said "none".
 MATERIAL_IMPROVEMENT = 0.03
 
+# LM runs from this many of a model's starts (with their roughness variants), those of
+# lowest projected cost: each LM run is most of a candidate's time.
+REFINE = 2
+
 
 class Prepared:
     """A capture made ready for diagnoses: its observations (decoded once), the candidates'
@@ -187,7 +191,7 @@ def _new_parameters(base: ShadingModel, fitted: ShadingModel) -> dict:
 
 
 def _fit(starts, heldout, max_steps, freeze=()) -> Estimate:
-    """LM from the 3 best of `starts` and their roughness variants: with one albedo per
+    """LM from the `REFINE` best of `starts` and their roughness variants: with one albedo per
     surface point on tracks (`HeldOutTracks`), or one albedo on pixels (`HeldOut`);
     `freeze` names parameters held at their start."""
     starts = [variant for start in starts for variant in roughness_variants(start)]
@@ -197,7 +201,7 @@ def _fit(starts, heldout, max_steps, freeze=()) -> Estimate:
             heldout.train,
             freeze=freeze,
             max_steps=max_steps,
-            refine=3,
+            refine=REFINE,
             standard_errors=False,
         )
     return fit_model(
@@ -207,7 +211,7 @@ def _fit(starts, heldout, max_steps, freeze=()) -> Estimate:
         columns=pixel_columns,
         freeze=freeze,
         max_steps=max_steps,
-        refine=3,
+        refine=REFINE,
     )
 
 
