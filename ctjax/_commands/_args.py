@@ -29,6 +29,14 @@ def load_capture(args: argparse.Namespace):
     return capture
 
 
+def load_observations(args: argparse.Namespace):
+    """`args.capture` loaded (`load_capture`) and made into observations, once for the whole
+    command: every estimator and figure of the command is given these."""
+    from ..observations import Observations
+
+    return Observations.of(load_capture(args))
+
+
 def add_mask_arguments(parser: argparse.ArgumentParser) -> None:
     from ..specular import DEFAULT_MIN_SPECK_PX, DEFAULT_RING_PX, HLSThresholds, WhiterThanTissue
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .._units import in_length_unit, label
-from ._args import add_falloff_argument, field_solver, load_capture
+from ._args import add_falloff_argument, field_solver, load_observations
 
 
 def add_calibrate_light_parser(commands) -> None:
@@ -50,10 +50,11 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
 
     if args.model == "field":
         return _calibrate_light_field(args)
-    capture = load_capture(args)
-    falloff = named_falloff(args.falloff, capture)
+    observations = load_observations(args)
+    capture = observations.capture
+    falloff = named_falloff(args.falloff, observations)
     result = calibrate_near_light(
-        capture,
+        observations,
         calibration=args.calib,
         falloff=falloff,
         albedo=args.albedo,
@@ -85,9 +86,10 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_light_field
     from ..io._atomic import atomic_write_bytes, atomic_write_json
 
-    capture = load_capture(args)
+    observations = load_observations(args)
+    capture = observations.capture
     result = calibrate_light_field(
-        capture,
+        observations,
         calibration=args.calib,
         solver=field_solver(args.engine),
         albedo=args.albedo,

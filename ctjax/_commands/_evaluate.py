@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .._units import in_length_unit, label
-from ._args import cook_torrance_estimator, load_capture
+from ._args import cook_torrance_estimator, load_observations
 
 
 def add_evaluate_parser(commands) -> None:
@@ -49,9 +49,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from ..evaluation import evaluate, evaluation_plots
     from ..io._atomic import atomic_write_json
 
-    capture = load_capture(args)
+    observations = load_observations(args)
+    capture = observations.capture
     evaluation = evaluate(
-        capture,
+        observations,
         calibration=args.calib,
         cook_torrance=cook_torrance_estimator(args.light),
         albedo=args.albedo,
@@ -62,7 +63,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     summary = evaluation.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.plots:
-        for path in evaluation_plots(capture, evaluation, args.plots).values():
+        for path in evaluation_plots(observations, evaluation, args.plots).values():
             print(f"wrote {path}")
     print(
         "RGB RMSE (levels), calibration / test: Lambertian "

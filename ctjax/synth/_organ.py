@@ -46,7 +46,9 @@ class OrganSurface(eqx.Module):
     def intersect(self, origin, direction, iterations: int = 40):
         """First hit of the ray `origin + t direction` (world, mm); NaN where Newton fails.
 
-        Returns the world point and the unit world normal facing the ray's origin.
+        Newton's steps until they are a few ulps of t (6-8 here: it converges
+        quadratically from the dome's base plane), at most `iterations`. Returns the world
+        point and the unit world normal facing the ray's origin.
         """
         gradient = jax.grad(self.depth, argnums=(0, 1))
 
@@ -54,12 +56,19 @@ class OrganSurface(eqx.Module):
             p = origin + t * direction
             return p[2] - self.depth(p[0], p[1])
 
-        def newton(t, _):
+        def unconverged(state):
+            t, step, count = state
+            return (jnp.abs(step) > 4 * jnp.finfo(t.dtype).eps * jnp.abs(t)) & (count < iterations)
+
+        def newton(state):
+            t, _, count = state
             r, slope = jax.value_and_grad(residual)(t)
-            return t - r / slope, None
+            return t - r / slope, r / slope, count + 1
 
         t0 = (self.base_mm - origin[2]) / direction[2]
-        t, _ = jax.lax.scan(newton, t0, None, length=iterations)
+        # Under `vmap` every ray steps until the slowest has converged: a fixed count
+        # (40 before) cost 4x the time for the same depths to 1e-12 mm.
+        t, _, _ = jax.lax.while_loop(unconverged, newton, (t0, jnp.full_like(t0, jnp.inf), 0))
         point = origin + t * direction
         ok = (jnp.abs(residual(t)) < 1e-4) & (t > 0)
         zx, zy = gradient(point[0], point[1])
