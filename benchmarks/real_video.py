@@ -1,7 +1,7 @@
 """The whole chain on real endoscopic video, one table per sequence.
 
     .venv/bin/python benchmarks/real_video.py [SOURCE ...] [--frames 12] [--width 640]
-        [--work DIR] [--skip-diagnose] [--skip-evaluate] [--max-rounds 4]
+        [--work DIR] [--skip-diagnose] [--skip-evaluate] [--max-rounds 4] [--focal refine]
 
 Each SOURCE is a capture folder (images/ and camera.json) or a video (imported with
 `ctjax import`, a guessed pinhole camera: fx = fy = 0.8 width, the principal point at the
@@ -161,8 +161,9 @@ def run_sequence(source: Path, work: Path, args) -> dict:
     recon = out / "reconstructed"
     if recon.is_dir():
         shutil.rmtree(recon)
+    reconstruct = ["reconstruct", capture, "--out", recon]
     steps = [
-        ("reconstruct", ["reconstruct", capture, "--out", recon, "--json", out / "recon.json"]),
+        ("reconstruct", [*reconstruct, "--json", out / "recon.json", "--focal", args.focal]),
         ("masks", ["masks", recon, "--out", out / "masks"]),
         ("fit", ["fit", recon, "--json", out / "fit.json"]),
         ("light", ["calibrate-light", recon, "--model", "near", "--json", out / "light.json"]),
@@ -308,6 +309,12 @@ def main(argv=None):
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--work", type=Path, default=Path("/tmp/ctjax-real-video"))
+    parser.add_argument(
+        "--focal",
+        choices=("fixed", "refine"),
+        default="fixed",
+        help="reconstruct's --focal (refine: the guessed camera's focal length from the frames)",
+    )
     parser.add_argument("--max-rounds", type=int, default=4)
     parser.add_argument("--skip-diagnose", action="store_true")
     parser.add_argument("--skip-evaluate", action="store_true")

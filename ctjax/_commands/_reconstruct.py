@@ -49,6 +49,14 @@ def add_reconstruct_parser(commands) -> None:
         "gives the scale in mm (scale), and also dense points for the surfaces (surface; "
         "noisier normals on the synthetic captures), or is not used (none)",
     )
+    recon.add_argument(
+        "--focal",
+        choices=("fixed", "refine"),
+        default="fixed",
+        help="the camera's focal length: 'fixed' (default) or 'refine'd by bundle adjustment "
+        "from two starts and kept where they agree (a video without calibration, read with "
+        "a guessed camera); the refined one is written into the output's camera.json",
+    )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")
     recon.set_defaults(run=run_reconstruct)
@@ -67,6 +75,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         photometric=not args.no_photometric,
         shading=args.shading,
         stereo=args.stereo,
+        focal=args.focal,
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
         verbose=args.verbose,
     )
@@ -82,6 +91,15 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         f"{report['mean_reprojection_error_px']:.2f} px, coverage {report['coverage']:.1%}; "
         f"depth {unit}; wrote {report['out']}"
     )
+    focal = report["focal"]
+    if focal["status"] == "refined":
+        given, refined = focal["given_fx_fy_px"], focal["fx_fy_px"]
+        print(
+            f"focal length refined: fx, fy {given[0]:.1f}, {given[1]:.1f} -> {refined[0]:.1f}, "
+            f"{refined[1]:.1f} px (two starts within {focal['relative_difference']:.1%})"
+        )
+    elif focal["status"] == "undetermined":
+        print(f"ctjax reconstruct: warning: {focal['note']}", file=sys.stderr)
     shading = report["surface"].get("shading")
     if shading and shading["refined"]:
         print(

@@ -49,6 +49,8 @@ class SparseModel:
     keypoints: dict[str, int]  # SIFT keypoints per frame (after masking)
     matching: str  # "exhaustive" or "sequential"
     mean_reprojection_error: float
+    # (fx, fy) in px after bundle adjustment: the given ones unless `refine_focal`.
+    focal_px: tuple[float, float] | None = None
 
     @property
     def unregistered(self) -> tuple[str, ...]:
@@ -145,10 +147,13 @@ def sparse_reconstruction(
     highlight_dilate_px: int = 1,
     init_min_tri_angle: float = 4.0,
     seed: int = 0,
+    refine_focal: bool = False,
     verbose: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> SparseModel:
-    """SIFT features (highlights masked), matching, incremental mapping with fixed intrinsics.
+    """SIFT features (highlights masked), matching, incremental mapping with fixed intrinsics
+    (`refine_focal`: the focal lengths refined by bundle adjustment from the camera's,
+    the principal point held; `SparseModel.focal_px`).
 
     `camera` is the undistorted pinhole camera of `frames` (as `load_capture` returns them).
     SIFT runs with a low peak threshold (`peak_threshold`, COLMAP's default is 1/150) so that
@@ -178,7 +183,8 @@ def sparse_reconstruction(
         matching = "exhaustive" if len(frames) <= EXHAUSTIVE_MAX_FRAMES else "sequential"
         say(f"{matching} matching")
         _match(database, matching, seed)
-        say("incremental mapping (intrinsics fixed)")
+        held = "the focal length refined" if refine_focal else "intrinsics fixed"
+        say(f"incremental mapping ({held})")
         models = {}
         for attempt in range(MAPPING_ATTEMPTS):
             # The initial pair decides much: on real frames (a sinus video at 640x360) one
@@ -192,7 +198,7 @@ def sparse_reconstruction(
                 database,
                 folder / "images",
                 folder / f"sparse{attempt}",
-                _mapping_options(seed + attempt, init_min_tri_angle),
+                _mapping_options(seed + attempt, init_min_tri_angle, refine_focal),
             )
             if _registered(tried) > _registered(models):
                 models = tried
@@ -233,6 +239,8 @@ def _keypoint_counts(database: Path) -> dict[str, int]:
 
 
 def _sparse_model(model, names, keypoints, matching) -> SparseModel:
+    (camera,) = model.cameras.values()  # one camera (`CameraMode.SINGLE`), PINHOLE
+    focal = (float(camera.params[0]), float(camera.params[1]))
     cam_from_world = {}
     for image in model.images.values():
         if not image.has_pose:
@@ -254,6 +262,7 @@ def _sparse_model(model, names, keypoints, matching) -> SparseModel:
         keypoints=keypoints,
         matching=matching,
         mean_reprojection_error=float(model.compute_mean_reprojection_error()),
+        focal_px=focal,
     )
 
 
@@ -331,12 +340,13 @@ def _match(database: Path, matching: str, seed: int) -> None:
     )
 
 
-def _mapping_options(seed: int, init_min_tri_angle: float):
-    """Incremental mapping with the intrinsics held fixed, deterministic for a seed."""
+def _mapping_options(seed: int, init_min_tri_angle: float, refine_focal: bool = False):
+    """Incremental mapping with the intrinsics held fixed (but the focal lengths with
+    `refine_focal`), deterministic for a seed."""
     import pycolmap
 
     options = pycolmap.IncrementalPipelineOptions()
-    options.ba_refine_focal_length = False
+    options.ba_refine_focal_length = refine_focal
     options.ba_refine_principal_point = False
     options.ba_refine_extra_params = False
     options.multiple_models = False

@@ -12,6 +12,7 @@ reference view (its median depth is 1) and the report says so.
 """
 
 import dataclasses
+import json
 import math
 import shutil
 from collections.abc import Callable
@@ -21,13 +22,14 @@ import cv2
 import numpy as np
 
 from .._camera import Camera
-from .._errors import CaptureError, ParameterError, ReconstructionError
+from .._errors import CaptureError, ParameterError
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
-from ._colmap import SparseModel, sparse_reconstruction
+from ._colmap import SparseModel
+from ._focal import sparse_with_focal, with_focal
 from ._photometric import POINTS_WEIGHT, SMOOTHING, refine_views
-from ._stereo import stereo_points
+from ._stereo import stereo_points, stereo_report, stereo_scale
 from ._surface import DepthSurface, fit_depth_surface
 
 # Fraction kept along each axis for the bounding box of `volume_mm3` (robust to stray points).
@@ -111,6 +113,7 @@ def reconstruct_capture(
     knot_spacing_px: float | None = None,
     photometric: bool = True,
     stereo: str = "scale",
+    focal: str = "fixed",
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> Reconstruction:
@@ -131,13 +134,16 @@ def reconstruct_capture(
     (`_photometric.py`; on by default: SfM's points alone leave the normals 2-3 degrees off
     where the BRDF is measured).
 
+    `focal`: `"fixed"` (the camera's, default) or `"refine"`: refined by bundle adjustment
+    from two starts and kept where they agree (`_focal.py`; an uncalibrated video's guessed
+    camera); the report's `focal` says which, and `Reconstruction.camera` is the one used.
+
     Raises `ReconstructionError` (too few features, no initial pair); frames that do not
     register are listed in the report and get no geometry.
     """
     _check_scale(scale_mm, volume_mm3)
     say = progress or (lambda message: None)
-    camera = capture.camera
-    sparse = sparse_reconstruction(camera, capture.frames, progress=progress, verbose=verbose)
+    sparse, camera, focal_report = sparse_with_focal(capture, focal, progress, verbose)
     reference = sparse.registered[0]
     ref_from_world = sparse.cam_from_world[reference]
     points = _to_camera(ref_from_world, sparse.points)
@@ -161,7 +167,7 @@ def reconstruct_capture(
         pairs = {name: stereo_points(capture, index[name]) for name in surfaces}
         say(f"stereo: {sum(map(len, pairs.values()))} points from {len(pairs)} pairs")
         if scale_mm is None and volume_mm3 is None:
-            scale = _stereo_scale(surfaces, hulls, pairs, scale_info, capture.stereo)
+            scale = stereo_scale(surfaces, hulls, pairs, scale_info, capture.stereo)
     if scale_mm is not None:
         scale = scale_mm / scale_info["median_reference_depth"]
         scale_info.update(metric=True, method="scale_mm", value=scale_mm)
@@ -198,56 +204,13 @@ def reconstruct_capture(
 
     report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
     if pairs:
-        report["stereo"] = _stereo_report(pairs, capture.stereo, stereo)
+        report["stereo"] = stereo_report(pairs, capture.stereo, stereo)
     report["surface"]["photometric"] = _photometric_report(refinements)
+    report["focal"] = focal_report
     return Reconstruction(camera, views, sparse, report)
 
 
 STEREO_USES = ("scale", "surface", "none")
-
-
-def _stereo_scale(surfaces, hulls, pairs, scale_info, rig) -> float:
-    """SfM's scale from the stereo pairs: per frame the median ratio of the pair's depth to
-    SfM's surface at the same pixels (inside its hull), then the median over frames; the
-    frames' spread says how well the two agree."""
-    ratios = {}
-    for name, pair in pairs.items():
-        surface, hull = surfaces[name], hulls[name]
-        rows = np.clip(np.round(pair.v).astype(int), 0, hull.shape[0] - 1)
-        cols = np.clip(np.round(pair.u).astype(int), 0, hull.shape[1] - 1)
-        inside = hull[rows, cols]
-        if inside.sum() < 16:
-            continue
-        sfm = surface.depth_and_gradient(pair.u[inside], pair.v[inside])[0]
-        ratio = pair.z[inside] / sfm
-        ratios[name] = float(np.median(ratio[np.isfinite(ratio) & (ratio > 0)]))
-    if not ratios:
-        raise ReconstructionError(
-            "stereo: no pair matched SfM's surface (too few stereo points inside the frames' "
-            "hulls); check camera.json's stereo block (R, T in mm, X_right = R X_left + T)"
-        )
-    scale = float(np.median(list(ratios.values())))
-    spread = [abs(r / scale - 1) for r in ratios.values()]
-    scale_info.update(
-        metric=True,
-        method="stereo",
-        value=rig.baseline_mm,
-        stereo_scale_per_frame=ratios,
-        stereo_scale_max_deviation=float(max(spread)),
-    )
-    return scale
-
-
-def _stereo_report(pairs, rig, use: str) -> dict:
-    return {
-        "baseline_mm": rig.baseline_mm,
-        "matcher": "OpenCV StereoSGBM on the rectified pairs (cv2.stereoRectify)",
-        "points_per_frame": {name: len(pair) for name, pair in pairs.items()},
-        "matched_per_frame": {name: pair.matched for name, pair in pairs.items()},
-        "surface": "each view's surface fitted to SfM's points and its pair's together (mm)"
-        if use == "surface"
-        else "SfM's points alone (the pairs give the scale)",
-    }
 
 
 def _photometric_report(refinements) -> dict:
@@ -310,6 +273,7 @@ def reconstruct(
     photometric: bool = True,
     shading: bool | str = False,
     stereo: str = "scale",
+    focal: str = "fixed",
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> dict:
@@ -327,7 +291,9 @@ def reconstruct(
     "near" jointly with a point light's position (inverse-square falloff, from the lens:
     `SHADING_LIGHTS`); the report's `surface.shading` says what it did (with "near", the
     light's fitted `position_mm` in the capture's length unit), or why it was skipped. `stereo`: see
-    `reconstruct_capture` (a stereo capture is in mm without a size given).
+    `reconstruct_capture` (a stereo capture is in mm without a size given). `focal`: see
+    `reconstruct_capture`; a refined focal length is written into `out`'s camera.json (in
+    place only with `force`), the given one kept in the report.
 
     Returns the report (see `reconstruct_capture`).
     """
@@ -347,6 +313,8 @@ def reconstruct(
         if (root / "truth.json").is_file():
             copies.append(root / "truth.json")
     targets = [out / p.relative_to(root) for p in copies] + _geometry_files(out, names)
+    if focal == "refine" and not copies:  # in place: the refined focal length goes there
+        targets.append(out / "camera.json")
     if not force:
         for target in targets:
             if target.exists():
@@ -357,6 +325,7 @@ def reconstruct(
         volume_mm3=volume_mm3,
         photometric=photometric,
         stereo=stereo,
+        focal=focal,
         progress=progress,
         verbose=verbose,
     )
@@ -364,6 +333,9 @@ def reconstruct(
         target = out / source.relative_to(root)
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source, target)
+    if result.report["focal"]["status"] == "refined":
+        camera_json = json.loads((root / "camera.json").read_text())
+        atomic_write_json(out / "camera.json", with_focal(camera_json, result.report["focal"]))
     distorted = _distorted_pixels(root, capture.camera)
     for name in names:
         view = result.views.get(name)
@@ -374,7 +346,7 @@ def reconstruct(
             normals_path.unlink(missing_ok=True)
             continue
         if distorted is None:
-            depth, normals = view.depth_and_normals(capture.camera)
+            depth, normals = view.depth_and_normals(result.camera)
         else:
             depth, normals = _on_distorted_grid(view, capture.camera, *distorted)
         atomic_write_npy(depth_path, depth)

@@ -17,7 +17,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from .._errors import CaptureError
+from .._errors import CaptureError, ReconstructionError
 from ..io import Capture
 from ..io._encoding import encode
 
@@ -123,3 +123,48 @@ def stereo_points(
     v = k1[1, 1] * left[:, 1] / left[:, 2] + k1[1, 2]
     seen = (u > -0.5) & (u < size[0] - 0.5) & (v > -0.5) & (v < size[1] - 0.5)
     return StereoPoints(u[seen], v[seen], left[seen, 2], float(matched[inside].mean()))
+
+
+def stereo_scale(surfaces, hulls, pairs, scale_info, rig) -> float:
+    """SfM's scale from the stereo pairs: per frame the median ratio of the pair's depth to
+    SfM's surface at the same pixels (inside its hull), then the median over frames; the
+    frames' spread says how well the two agree."""
+    ratios = {}
+    for name, pair in pairs.items():
+        surface, hull = surfaces[name], hulls[name]
+        rows = np.clip(np.round(pair.v).astype(int), 0, hull.shape[0] - 1)
+        cols = np.clip(np.round(pair.u).astype(int), 0, hull.shape[1] - 1)
+        inside = hull[rows, cols]
+        if inside.sum() < 16:
+            continue
+        sfm = surface.depth_and_gradient(pair.u[inside], pair.v[inside])[0]
+        ratio = pair.z[inside] / sfm
+        ratios[name] = float(np.median(ratio[np.isfinite(ratio) & (ratio > 0)]))
+    if not ratios:
+        raise ReconstructionError(
+            "stereo: no pair matched SfM's surface (too few stereo points inside the frames' "
+            "hulls); check camera.json's stereo block (R, T in mm, X_right = R X_left + T)"
+        )
+    scale = float(np.median(list(ratios.values())))
+    spread = [abs(r / scale - 1) for r in ratios.values()]
+    scale_info.update(
+        metric=True,
+        method="stereo",
+        value=rig.baseline_mm,
+        stereo_scale_per_frame=ratios,
+        stereo_scale_max_deviation=float(max(spread)),
+    )
+    return scale
+
+
+def stereo_report(pairs, rig, use: str) -> dict:
+    """`ctjax reconstruct`'s report on the pairs: how many points each gave, and their use."""
+    return {
+        "baseline_mm": rig.baseline_mm,
+        "matcher": "OpenCV StereoSGBM on the rectified pairs (cv2.stereoRectify)",
+        "points_per_frame": {name: len(pair) for name, pair in pairs.items()},
+        "matched_per_frame": {name: pair.matched for name, pair in pairs.items()},
+        "surface": "each view's surface fitted to SfM's points and its pair's together (mm)"
+        if use == "surface"
+        else "SfM's points alone (the pairs give the scale)",
+    }
