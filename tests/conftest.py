@@ -32,6 +32,12 @@ jax.config.update(
 # the suite took 483 s, as at level 0 (413-487 s). Compiling is 60% of the suite's CPU time
 # (backend 464 s, tracing 115 s, lowering 94 s of 1109 s, jax.monitoring per file), in
 # hundreds of distinct programs; the persistent cache saved 22 s.
+# Measured again at 6257313 (633 tests, cold, 2 cores, one run each): level 0 431.05 s (803
+# CPU-s), level 1 431.04 s (812 CPU-s); XLA's default level with
+# --xla_llvm_disable_expensive_passes 444 s at 76298e0 (level 0 there: 453.7 s). Kept at 0.
+# A whole-suite profile (one process, cProfile) put 2815 compiled programs at 149 s of XLA
+# compiling, 149 s of tracing and 78 s of lowering (both inflated by the profiler), ~167 s of
+# running them; synthesising the test captures 104 s (ray casting 64 s of it, cut 4x since).
 _TEST_FLAGS = {"--xla_cpu_use_fusion_emitters": "false", "--xla_backend_optimization_level": "0"}
 for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
