@@ -125,3 +125,16 @@ def test_options_are_checked():
         ImportOptions(max_frames=1)
     with pytest.raises(Exception, match="--width must be an integer >= 16"):
         ImportOptions(width=5)
+
+
+def test_a_video_without_calibration_gets_a_guessed_camera(tmp_path, capsys):
+    _, image = _one_view(tmp_path / "t")
+    path = _write_video(tmp_path / "v.mp4", [image], held=3)
+    assert main(["import", str(path), "--camera", "guess", "--out", str(tmp_path / "c")]) == 0
+    camera = json.loads((tmp_path / "c" / "camera.json").read_text())
+    height, width = image.shape[:2]
+    assert (camera["width"], camera["height"]) == (width, height)
+    assert camera["fx"] == camera["fy"] == pytest.approx(0.8 * width)
+    assert (camera["cx"], camera["cy"]) == ((width - 1) / 2, (height - 1) / 2)
+    assert camera["encoding"] == "srgb"
+    assert "--focal refine" in capsys.readouterr().err

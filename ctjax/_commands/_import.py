@@ -21,7 +21,14 @@ def add_import_parser(commands) -> None:
         "OUT/camera.json.",
     )
     video.add_argument("video", type=Path, help="any video file OpenCV reads (MP4, AVI, MKV...)")
-    video.add_argument("--camera", type=Path, required=True, help="the endoscope's camera.json")
+    video.add_argument(
+        "--camera",
+        type=Path,
+        required=True,
+        help="the endoscope's camera.json, or 'guess' for a video without a calibration "
+        "(fx = fy = 0.8 width, the principal point at the centre; then `ctjax reconstruct "
+        "--focal refine`)",
+    )
     video.add_argument("--out", type=Path, required=True, help="the capture folder to write")
     video.add_argument(
         "--every", type=int, default=default.every, help="consider every N-th frame (default 1)"
@@ -66,8 +73,23 @@ def add_import_parser(commands) -> None:
 
 
 def run_import(args: argparse.Namespace) -> int:
+    import json
+    import tempfile
+
     from ..io._atomic import atomic_write_json
-    from ..io._video import ImportOptions, import_video
+    from ..io._video import ImportOptions, guessed_camera, import_video
+
+    if str(args.camera) == "guess":
+        guess = guessed_camera(args.video, args.side_by_side)
+        folder = tempfile.TemporaryDirectory(prefix="ctjax-camera-")
+        args.camera = Path(folder.name) / "camera.json"
+        args.camera.write_text(json.dumps(guess))
+        print(
+            f"ctjax import: note: no calibration: a guessed camera, fx = fy = "
+            f"{guess['fx']:.1f} px (0.8 width), the principal point at the centre; `ctjax "
+            "reconstruct OUT --out DIR --focal refine` refines the focal length from the frames",
+            file=sys.stderr,
+        )
 
     options = ImportOptions(
         every=args.every,

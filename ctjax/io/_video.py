@@ -94,6 +94,34 @@ def _open(path: Path) -> cv2.VideoCapture:
     return video
 
 
+# A video without a calibration (`ctjax import --camera guess`): a pinhole camera with this
+# focal length in widths (fx = fy), the principal point at the centre, no distortion.
+GUESSED_FOCAL = 0.8
+
+
+def guessed_camera(path: Path, side_by_side: bool = False) -> dict:
+    """camera.json's content for a video without a calibration: its frame size (the left
+    half's for a side-by-side stereo video), fx = fy = `GUESSED_FOCAL` width, the principal
+    point at the centre. The focal length is a guess: `ctjax reconstruct --focal refine`
+    refines it from the frames where they determine it."""
+    video = _open(Path(path))
+    width = int(video.get(cv2.CAP_PROP_FRAME_WIDTH)) // (2 if side_by_side else 1)
+    height = int(video.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    video.release()
+    if width <= 0 or height <= 0:
+        raise CaptureError(f"{path}: the video does not say its frame size")
+    focal = GUESSED_FOCAL * width
+    return {
+        "width": width,
+        "height": height,
+        "fx": focal,
+        "fy": focal,
+        "cx": (width - 1) / 2,
+        "cy": (height - 1) / 2,
+        "encoding": "srgb",
+    }
+
+
 def _frames(path: Path, options: ImportOptions, fps: float):
     """(frame number, BGR uint8 image) of the considered frames, decoding only those."""
     video = _open(path)

@@ -1,7 +1,7 @@
 """The focal length from the frames themselves, for videos without a calibration.
 
 A video without a calibration is read with a guessed pinhole camera (`ctjax import
---camera`; `benchmarks/real_video.py` guesses fx = fy = 0.8 width): a wrong focal length
+--camera guess`: fx = fy = 0.8 width): a wrong focal length
 tilts every view ray, and with it every angle the BRDF is read at.
 Bundle adjustment can refine it (COLMAP's `ba_refine_focal_length`, the principal point
 held), but whether the frames determine it depends on the camera's motion and the scene's
