@@ -86,7 +86,7 @@ def sparse_with_focal(
     why = (
         f"the focal length refined from two starts ended {spread:.1%} apart (fx {first[0]:.1f} "
         f"and {second[0]:.1f} px) and changed the pixels' aspect fx / fy by {aspect:.1%} "
-        f"(either must stay within {AGREEMENT:.0%})"
+        f"(both must stay within {AGREEMENT:.0%})"
     )
     say(f"  {why}: the given focal length is kept")
     sparse = sparse_reconstruction(camera, capture.frames, progress=progress, verbose=verbose)
