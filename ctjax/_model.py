@@ -18,9 +18,10 @@ class ShadingModel(eqx.Module):
     light: AbstractLight
     effects: tuple[AbstractImageEffect, ...] = ()
 
-    def __call__(self, point: Vec3, normal: Vec3, pixel, frame=0) -> RGB:
-        """The predicted RGB of one pixel of capture frame `frame` (the renderer's `shade`)."""
-        return shade(self.brdf, self.light, point, normal, pixel, self.effects, frame)
+    def __call__(self, point: Vec3, normal: Vec3, pixel, frame=0, eye=None) -> RGB:
+        """The predicted RGB of one pixel of capture frame `frame` (the renderer's `shade`;
+        `eye`: a viewer away from the light's lens, e.g. a stereo scope's right camera)."""
+        return shade(self.brdf, self.light, point, normal, pixel, self.effects, frame, eye)
 
     def render(self, camera, normals, depth, frame: int = 0):
         """The model's image of a surface, as frame `frame` of its capture (see
@@ -29,9 +30,9 @@ class ShadingModel(eqx.Module):
             self.brdf, self.light, camera, normals, depth, effects=self.effects, frame=frame
         )
 
-    def columns(self, point: Vec3, normal: Vec3, pixel):
+    def columns(self, point: Vec3, normal: Vec3, pixel, eye=None):
         """Per-lobe radiance for unit weights (no effects): the linear design row."""
-        return shade_columns(self.brdf, self.light, point, normal, pixel)
+        return shade_columns(self.brdf, self.light, point, normal, pixel, eye)
 
 
 def paper_model(rho_tilde=1.0, F_tilde=0.3, sigma=0.2) -> ShadingModel:

@@ -26,19 +26,35 @@ __all__ = ["Site", "apply_effects", "render", "render_columns", "shade", "shade_
 
 
 def shade_columns(
-    brdf: BRDF, light: AbstractLight, point: Vec3, normal: Vec3, pixel: Pixel
+    brdf: BRDF,
+    light: AbstractLight,
+    point: Vec3,
+    normal: Vec3,
+    pixel: Pixel,
+    eye: Vec3 | None = None,
 ) -> Float[Array, " K"]:
     """One pixel's radiance per lobe for unit weights: the linear design-matrix row.
 
-    `point` is the surface point and `normal` its unit normal, camera frame (mm).
+    `point` is the surface point and `normal` its unit normal, camera frame (mm); `eye`
+    as in `shade`.
     """
-    return jnp.stack(_lobe_radiances(brdf, light, point, normal, pixel))
+    return jnp.stack(_lobe_radiances(brdf, light, point, normal, pixel, eye))
 
 
-def _lobe_radiances(brdf: BRDF, light: AbstractLight, point: Vec3, normal: Vec3, pixel: Pixel):
+def _directions(point: Vec3, eye: Vec3 | None) -> tuple[Vec3, Vec3]:
+    """The unit directions from `point` to the lens the light is mounted on (the frame's
+    origin: what the light is given) and to the viewer (the same vector object where the
+    viewer is that lens, so that lobes know L = V exactly)."""
+    to_lens = safe_normalize(-point)
+    return to_lens, (to_lens if eye is None else safe_normalize(eye - point))
+
+
+def _lobe_radiances(
+    brdf: BRDF, light: AbstractLight, point: Vec3, normal: Vec3, pixel: Pixel, eye=None
+):
     """`shade_columns` as a tuple of scalars (stacked, they are one XLA concatenation)."""
-    view = safe_normalize(-point)
-    sources = light.sources(point, view, pixel)
+    to_lens, view = _directions(point, eye)
+    sources = light.sources(point, to_lens, pixel)
     return tuple(
         sum(
             irradiance * lobe.radiance(normal, direction, view) for direction, irradiance in sources
@@ -55,17 +71,21 @@ def shade(
     pixel: Pixel,
     effects: tuple[AbstractImageEffect, ...] = (),
     frame=0,
+    eye: Vec3 | None = None,
 ) -> RGB:
     """One pixel's RGB value (linear units, 1.0 = 8-bit level 255): the physics of ctjax.
 
     `point` is the surface point and `normal` its unit normal, camera frame (mm); `pixel`
     the (u, v) it is seen at, in the capture's frame `frame` (for effects that depend on
-    it: an exposure per frame).
+    it: an exposure per frame). `eye`: where the camera that sees the point is, in the
+    same frame, when it is not the lens the light is mounted on (the origin, default): a
+    stereo laparoscope's right camera sees the surface from `-R^T T` while the light stays
+    beside the left lens (`ctjax.io._stereo`).
     """
-    view = safe_normalize(-point)
+    to_lens, view = _directions(point, eye)
     radiance = sum(
         irradiance * brdf.radiance(normal, direction, view)
-        for direction, irradiance in light.sources(point, view, pixel)
+        for direction, irradiance in light.sources(point, to_lens, pixel)
     )
     return apply_effects(effects, radiance, Site(pixel, jnp.asarray(frame)))
 

@@ -58,7 +58,9 @@ class Tracks:
     (u, v) and bilinear weights; per observation (P, M): the sampled linear RGB, whether it
     counts (`observed`), its least-squares weight (`weight`, 0 where not observed) and the
     frame's index (`frame`, -1 where not observed). Per point (P,): the anchor frame, row
-    and column.
+    and column. `corner_eye` (P, M, 4, 3), where some views are from a camera away from
+    the light's lens (a stereo scope's right camera, `ctjax._right_views`): that camera's
+    centre in the observation's frame (0 for the lens's own views); None where all are.
     """
 
     corner_point: np.ndarray  # (P, M, 4, 3)
@@ -72,6 +74,7 @@ class Tracks:
     anchor_frame: np.ndarray  # (P,)
     anchor_row: np.ndarray  # (P,)
     anchor_col: np.ndarray  # (P,)
+    corner_eye: np.ndarray | None = None  # (P, M, 4, 3)
 
     def __len__(self) -> int:
         return self.observed.shape[0]
@@ -83,7 +86,8 @@ class Tracks:
 
     def select(self, keep: np.ndarray) -> "Tracks":
         """The tracks at index or mask `keep`."""
-        return Tracks(*(getattr(self, f.name)[keep] for f in dataclasses.fields(self)))
+        parts = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return Tracks(**{k: None if a is None else a[keep] for k, a in parts.items()})
 
     def padded(self, size: int) -> "Tracks":
         """These tracks with unobserved points appended up to `size` points (ahead of the
@@ -96,6 +100,9 @@ class Tracks:
         parts = {}
         for field in dataclasses.fields(self):
             array = getattr(self, field.name)
+            if array is None:
+                parts[field.name] = None
+                continue
             pad = np.zeros((extra, *array.shape[1:]), array.dtype)
             pad[...] = fill.get(field.name, 0)
             parts[field.name] = np.concatenate([array, pad])

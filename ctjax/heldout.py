@@ -15,10 +15,12 @@ import numpy as np
 
 from ._errors import CtjaxError
 from ._result import Estimate
+from ._right_views import require_stereo, with_right_views
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
 from .fitting._map_least_squares import TrackSamples, fit_model_map, heldout_map_rmse
 from .fitting._parameters import free_parameters
 from .io import Capture
+from .lights import LightField
 from .observations import Observations, PixelSamples
 
 # Among models within this fraction of the lowest held-out RMSE, the simplest is kept: a
@@ -358,3 +360,67 @@ def simplest_within(
         raise CtjaxError("no model produced a finite held-out error")
     within = [i for i, value in enumerate(heldout_rmse) if value <= (1 + tolerance) * lowest]
     return min(within, key=lambda i: len(choices[i]))
+
+
+@dataclasses.dataclass(frozen=True)
+class RightViews:
+    """A stereo capture's right images as held-out views (`ctjax._right_views`): surface
+    points of the left frames `frames`, followed across them, and looked for in the right
+    image of each. A model is judged on the right views with every point's albedo (a
+    nuisance) fitted to its other views, as on held-out frames (`heldout_map_rmse`); and,
+    for comparison, on the left views of the same points the same way. The right image
+    is taken at the same instant (no tissue motion between the two) from a viewpoint a
+    baseline away with the light where it was: it moves V and keeps L."""
+
+    frames: list[int]
+    samples: TrackSamples  # the left and right views
+    right: np.ndarray  # (M, P) as `samples.weight`: the right views
+    left: TrackSamples  # the left views alone
+
+    @classmethod
+    def of(
+        cls,
+        capture: "Capture | Observations",
+        frames: Sequence[int] | None = None,
+        *,
+        max_points: int | None = 12_000,
+        seed: int = 0,
+    ) -> "RightViews":
+        """The right views of `frames` (default: all) of a stereo capture with depth in mm."""
+        obs = Observations.of(capture)
+        require_stereo(obs.capture)
+        frames = list(range(len(obs))) if frames is None else sorted(int(f) for f in frames)
+        if len(frames) < 2:
+            raise CtjaxError(
+                f"{obs.root}: right views are judged with each point's albedo from its other "
+                f"views: at least 2 frames, got {len(frames)}"
+            )
+        tracks = obs.tracks(frames=frames, max_points=max_points, seed=seed)
+        left = TrackSamples.of(tracks)
+        tracks, right = with_right_views(obs.capture, tracks, frames)
+        samples = TrackSamples.of(tracks)
+        judged_right = np.zeros(samples.weight.shape, bool)
+        judged_right[:, : len(tracks)] = right.T
+        if not judged_right.any():
+            raise CtjaxError(
+                f"{obs.root}: no tracked point is seen in a right image (check camera.json's "
+                "stereo block: R, T in mm, X_right = R X_left + T)"
+            )
+        return cls(frames, samples, judged_right, left)
+
+    def rmse(self, model) -> dict[str, float]:
+        """RMSE (8-bit levels) of `model` on the right views (each predicted from the
+        albedo of the point's other views, left and right) and on the left views of the
+        same points (from the albedo of the point's other left views: the right images
+        play no part);
+        `views`: how many right views were judged."""
+        if isinstance(getattr(model, "light", None), LightField):
+            raise CtjaxError(
+                "a per-pixel light field is a left-camera quantity (one direction per left "
+                "pixel): it cannot predict the right camera's views"
+            )
+        return {
+            "right": heldout_map_rmse(model, self.samples, self.right),
+            "left": heldout_map_rmse(model, self.left),
+            "views": int(self.right.sum()),
+        }

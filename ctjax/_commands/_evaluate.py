@@ -81,6 +81,22 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"(Lambertian under the same light: {same:.2f}) + {gain['lobe_levels']:.2f} from "
             "the lobe"
         )
+    right = summary.get("right_views")
+    if right is not None:
+        figures = ", ".join(
+            f"{name} {right[f'{key}_rgb_rmse']['right']:.2f} / "
+            f"{right[f'{key}_rgb_rmse']['left']:.2f}"
+            for name, key in (
+                ("Lambertian", "lambertian"),
+                ("Lambertian (same light)", "lambertian_same_light"),
+                ("Cook-Torrance", "cook_torrance"),
+            )
+            if f"{key}_rgb_rmse" in right
+        )
+        print(
+            f"RGB RMSE (levels) on the right camera's views / the left views of the same "
+            f"points, calibration frames ({right['views']} views): {figures}"
+        )
     fitted = summary["models"]["cook_torrance"]
     for flagged in fitted["undetermined"]:
         print(

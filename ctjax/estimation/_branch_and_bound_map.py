@@ -117,6 +117,11 @@ def _track_shading(light, point, normal, pixel, corner_weight, values, weight) -
 
 def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=None):
     """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading`."""
+    if tracks.corner_eye is not None:
+        raise CtjaxError(
+            "the branch and bound takes views from the light's own lens only; views from a "
+            "stereo scope's right camera are judged (`ctjax.heldout.right_view_rmse`), not fitted"
+        )
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     as_host = lambda a: np.asarray(a, dtype)  # noqa: E731
     return _track_shading(

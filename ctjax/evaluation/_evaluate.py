@@ -30,9 +30,9 @@ from ..fitting import (
     rmse_levels,
 )
 from ..fitting._parameters import free_parameters
-from ..heldout import HeldOutTracks, split_frames
+from ..heldout import HeldOutTracks, RightViews, split_frames
 from ..io import Capture
-from ..lights import AbstractLight, ColocatedLight
+from ..lights import AbstractLight, ColocatedLight, LightField
 from ..lobes import BRDF, Lambertian
 from ..observations import Observations
 from ._pyramid import block_reduce, reduced
@@ -98,6 +98,9 @@ class Evaluation:
     # Lambertian under Cook-Torrance's fitted light (held): the two differ by the lobe alone.
     lambertian_same_light: Estimate | None = None
     length_unit: str = METRIC
+    # A stereo capture's right views of the calibration frames (`ctjax.heldout.RightViews`):
+    # per model, its RMSE on them and on the left views of the same points.
+    right_views: dict | None = None
 
     @property
     def light(self) -> str:
@@ -151,6 +154,8 @@ class Evaluation:
             out[f"{model}_rgb_rmse_calibration"] = rmse["calibration"]
             out[f"{model}_rgb_rmse_test"] = rmse["test"]
         out["gain"] = self.gain()
+        if self.right_views is not None:
+            out["right_views"] = self.right_views
         for model in ("lambertian", "cook_torrance", "per_pixel"):
             if model == "per_pixel" and not any(s.per_pixel for s in self.shapes):
                 continue
@@ -364,7 +369,7 @@ def evaluate(
         for index in test:
             _check_sfs_reference((reference or capture).frames[index], capture.camera)
     tracks = HeldOutTracks.split(capture, len(calib)) if albedo == "map" else None
-    timings = {}
+    timings, notes = {}, []
     tic = time.perf_counter()
     progress(f"fitting the Lambertian model on frames {calib} (albedo {albedo})...")
     lambertian = fit_lambertian(capture, calib, tracks=tracks)
@@ -384,6 +389,14 @@ def evaluate(
     if same_light is not None:
         same_light = _judged(capture, same_light, calib, test, tracks)
     timings["rgb_error"] = time.perf_counter() - tic
+    right_views = None
+    if albedo == "map" and capture.capture.stereo is not None:
+        tic = time.perf_counter()
+        progress(f"both models on the right camera's views of frames {calib}...")
+        fits = {"lambertian": lambertian, "lambertian_same_light": same_light}
+        right_views, note = _on_right_views(capture, calib, {**fits, "cook_torrance": fitted})
+        notes += [note] if note else []
+        timings["right_views"] = time.perf_counter() - tic
     shapes = []
     if sfs:
         tic = time.perf_counter()
@@ -400,7 +413,7 @@ def evaluate(
                 )
             )
         timings["sfs"] = time.perf_counter() - tic
-    notes = [
+    notes += [
         f"{name} fit: {e.status.message}"
         for name, e in (("Lambertian", lambertian), ("Cook-Torrance", fitted))
         if not e.converged
@@ -412,8 +425,46 @@ def evaluate(
         )
     unit = length_unit_of(capture)
     return Evaluation(
-        calib, test, lambertian, fitted, shapes, timings, notes, albedo, same_light, unit
+        calib,
+        test,
+        lambertian,
+        fitted,
+        shapes,
+        timings,
+        notes,
+        albedo,
+        same_light,
+        unit,
+        right_views,
     )
+
+
+def _on_right_views(capture: Observations, calib, fits: dict) -> tuple[dict | None, str | None]:
+    """Each fit's RMSE on the right camera's views of the calibration frames (the same
+    instants the models were fitted on, another viewpoint, the light where it was), and on
+    the left views of the same points; or None and why not."""
+    if capture.capture.length_unit != METRIC:
+        return None, (
+            "right views not judged: the depth is not in mm (reconstruct the stereo capture)"
+        )
+    if isinstance(fits["cook_torrance"].model.light, LightField):
+        return None, (
+            "right views not judged: a per-pixel light field is the left camera's "
+            "(one direction per left pixel)"
+        )
+    views = RightViews.of(capture, calib)
+    out = {name: views.rmse(fit.model) for name, fit in fits.items() if fit is not None}
+    return {
+        "frames": calib,
+        "views": next(iter(out.values()))["views"],
+        **{f"{name}_rgb_rmse": {k: v[k] for k in ("right", "left")} for name, v in out.items()},
+        "note": (
+            "8-bit levels on the right camera's images of the calibration frames (the same "
+            "instants, a baseline away, the light beside the left lens: V moves, L does not), "
+            "each view predicted with the model fixed and the point's albedo fitted to its "
+            "other views; left: the same points' left views the same way"
+        ),
+    }, None
 
 
 def _judged(capture: Observations, fit: Estimate, calib, test, tracks) -> Estimate:

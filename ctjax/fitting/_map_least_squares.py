@@ -36,7 +36,8 @@ class TrackSamples(eqx.Module):
     (`ctjax._tracks.views_first`): every observation's four corners flattened (4 M P:
     camera-frame point, normal, pixel), their bilinear weights (4, M, P), the measured RGB
     (3, M, P), each observation's least-squares weight (M, P) and where it was recorded
-    (`site`: its sub-pixel position and frame, (M, P) each; -1 where unobserved)."""
+    (`site`: its sub-pixel position and frame, (M, P) each; -1 where unobserved); `eye`
+    (4 M P) where some views are from a camera away from the light's lens (`Tracks`)."""
 
     point: Vec3
     normal: Vec3
@@ -45,6 +46,7 @@ class TrackSamples(eqx.Module):
     values: jax.Array
     weight: jax.Array
     site: Site
+    eye: Vec3 | None = None
 
     @classmethod
     def of(cls, tracks: Tracks, dtype=None, *, pad: bool = True) -> "TrackSamples":
@@ -65,6 +67,7 @@ class TrackSamples(eqx.Module):
             as_jax(tracks.values),
             as_jax(tracks.weight),
             Site((at[0], at[1]), jnp.asarray(views_first(tracks.frame), jnp.int32)),
+            None if tracks.corner_eye is None else Vec3.from_array(as_jax(tracks.corner_eye)),
         )
 
     @property
@@ -84,7 +87,9 @@ def _columns(model, samples: TrackSamples):
     """Each lobe's value for unit weight at every observation (M, P): at the corners,
     bilinearly combined like the image."""
     corners = samples.corner_weight
-    columns = jax.vmap(model.columns)(samples.point, samples.normal, samples.pixel)
+    where = (samples.point, samples.normal, samples.pixel)
+    where += () if samples.eye is None else (samples.eye,)
+    columns = jax.vmap(model.columns)(*where)
     return tuple(
         jnp.sum(columns[:, k].reshape(corners.shape) * corners, axis=0)
         for k in range(columns.shape[-1])

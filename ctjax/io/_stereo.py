@@ -36,6 +36,14 @@ class StereoRig:
         """The distance between the two cameras' centres (mm)."""
         return float(np.linalg.norm(self.T))
 
+    def left_from_right(self) -> np.ndarray:
+        """The right camera's pose in the left camera's frame (4x4, right-to-left):
+        `X_left = R^T (X_right - T)`."""
+        pose = np.eye(4)
+        pose[:3, :3] = self.R.T
+        pose[:3, 3] = -self.R.T @ self.T
+        return pose
+
     def to_json(self) -> dict:
         return {"right": self.right.to_json(), "R": self.R.tolist(), "T": self.T.tolist()}
 

@@ -14,7 +14,8 @@ class AbstractLight(eqx.Module):
     def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
         """Unit direction from `point` towards the light, and the irradiance factor there.
 
-        `view` is the unit direction from `point` to the camera centre; `pixel` the (u, v)
+        `view` is the unit direction from `point` to the lens the light is mounted on (the
+        camera centre; a stereo scope's right camera sees from elsewhere); `pixel` the (u, v)
         pixel the point is seen at (used by per-pixel light fields). The irradiance factor
         multiplies every lobe; 1 for the paper's light. A light of several sources (light
         guides around the lens) gives its single-direction summary here (the estimators

@@ -242,14 +242,6 @@ def _stereo_rig(options: SynthOptions, camera: Camera) -> StereoRig | None:
     return StereoRig(camera, np.eye(3), np.array([-options.stereo_mm, 0.0, 0.0]))
 
 
-def _left_from_right(rig: StereoRig) -> np.ndarray:
-    """The right camera's pose in the left camera's frame (4x4, right-to-left)."""
-    pose = np.eye(4)
-    pose[:3, :3] = rig.R.T
-    pose[:3, 3] = -rig.R.T @ rig.T
-    return pose
-
-
 def _seen_from_the_right(model: ShadingModel, rig: StereoRig) -> ShadingModel:
     """The scene's model in the right camera's frame: the light where it is, at the left
     lens (or at its offset from it), with its falloffs."""
@@ -327,7 +319,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         saturated.append(float(np.mean(np.any(image >= 1, axis=-1))))
         frames.append(Frame(name, image, depth, normals, pose))
         if rig is not None:
-            right_images[name] = view(right_model, pose @ _left_from_right(rig), index)[0]
+            right_images[name] = view(right_model, pose @ rig.left_from_right(), index)[0]
     truth = {
         "rho_tilde": list(map(float, options.rho_tilde)),
         "F_tilde": list(map(float, options.F_tilde)),

@@ -1,0 +1,114 @@
+"""A stereo laparoscope's right camera as held-out views: the viewer away from the light's
+lens (`shade`'s `eye`), the right views of tracked points (`ctjax.heldout.RightViews`), and
+`evaluate`'s report of them."""
+
+import dataclasses
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ctjax import CtjaxError, Vec3, shade
+from ctjax.evaluation import evaluate
+from ctjax.heldout import RightViews
+from ctjax.io import load_capture
+from ctjax.lights import InverseSquare, LightField, PointLight
+from ctjax.lobes import BRDF
+from ctjax.synth import SynthOptions, synthesize
+from ctjax.synth._synthesize import scene_model
+
+OPTIONS = SynthOptions(width=160, height=128, frames=4, seed=3, stereo_mm=5.0)
+
+
+@pytest.fixture(scope="module")
+def stereo(tmp_path_factory):
+    root = synthesize(tmp_path_factory.mktemp("right") / "c", OPTIONS)
+    capture = load_capture(root)
+    return capture, RightViews.of(capture)
+
+
+def _rotation(angles):
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(angles, float))[0]
+
+
+def test_a_viewer_away_from_the_lens_is_the_scene_seen_from_there():
+    """Shading in the left camera's frame with the right camera as `eye` is the shading
+    in the right camera's frame with the light moved there (synth's right images)."""
+    rng = np.random.default_rng(0)
+    rotation, translation = _rotation([0.02, -0.05, 0.01]), np.array([-5.0, 0.3, 0.2])
+    brdf = scene_model(OPTIONS).brdf
+    light = PointLight(jnp.asarray([2.0, -1.0, 0.5]), 1.0, (InverseSquare(70.0),))
+    moved = PointLight(jnp.asarray(rotation @ np.asarray(light.position_mm) + translation), 1.0)
+    moved = eqx.tree_at(lambda m: m.falloff, moved, light.falloff)
+    eye = Vec3.from_array(jnp.asarray(-rotation.T @ translation))
+    for _ in range(20):
+        point = np.array([*rng.uniform(-15, 15, 2), rng.uniform(50, 90)])
+        normal = -point / np.linalg.norm(point) + rng.normal(0, 0.3, 3)
+        normal /= np.linalg.norm(normal)
+        left = shade(
+            brdf, light, Vec3.from_array(point), Vec3.from_array(normal), (0.0, 0.0), eye=eye
+        )
+        right = shade(
+            brdf,
+            moved,
+            Vec3.from_array(rotation @ point + translation),
+            Vec3.from_array(rotation @ normal),
+            (0.0, 0.0),
+        )
+        np.testing.assert_allclose(left, right, rtol=1e-12)
+    # The viewer at the lens is the default.
+    at_lens = shade(brdf, light, Vec3.from_array(point), Vec3.from_array(normal), (0.0, 0.0))
+    origin = Vec3.from_array(jnp.zeros(3))
+    np.testing.assert_allclose(
+        shade(brdf, light, Vec3.from_array(point), Vec3.from_array(normal), (0.0, 0.0), eye=origin),
+        at_lens,
+        rtol=1e-14,
+    )
+
+
+def test_the_right_views_judge_the_lobe_by_its_view_direction(stereo):
+    """The true model predicts the right views to about the noise; the same model seen from
+    the left lens (the right camera's viewpoint ignored), a wrong roughness and no lobe do
+    not: the right view moves V and keeps L."""
+    _, views = stereo
+    model = scene_model(OPTIONS)
+    true = views.rmse(model)
+    assert true["views"] > 5000 and true["right"] < 2.0 and true["left"] < 2.5
+    at_lens = dataclasses.replace(
+        views,
+        samples=eqx.tree_at(lambda s: s.eye, views.samples, None, is_leaf=lambda x: x is None),
+    )
+    assert at_lens.rmse(model)["right"] > 1.5 * true["right"]
+    rough = eqx.tree_at(lambda m: m.brdf.lobes[1].distribution.sigma, model, jnp.asarray(0.35))
+    assert views.rmse(rough)["right"] > 2 * true["right"]
+    diffuse = eqx.tree_at(lambda m: m.brdf, model, BRDF(model.brdf.lobes[0]))
+    assert views.rmse(diffuse)["right"] > 2 * true["right"]
+
+
+def test_evaluate_reports_both_models_on_the_right_views(stereo):
+    capture, _ = stereo
+    evaluation = evaluate(capture, calibration=3, cook_torrance=scene_model(OPTIONS), sfs=False)
+    right = evaluation.to_json()["right_views"]
+    assert right["frames"] == [0, 1, 2] and right["views"] > 5000
+    cook_torrance, lambertian = right["cook_torrance_rgb_rmse"], right["lambertian_rgb_rmse"]
+    assert cook_torrance["right"] < 2.0 < 2 * cook_torrance["right"] < lambertian["right"]
+    assert "right camera" in right["note"]
+
+
+def test_right_views_need_a_stereo_capture_in_millimetres(stereo, tmp_path):
+    capture, views = stereo
+    mono = dataclasses.replace(capture, stereo=None)
+    with pytest.raises(CtjaxError, match="no right camera"):
+        RightViews.of(mono)
+    scaled = dataclasses.replace(capture, length_unit="median_depth")
+    with pytest.raises(CtjaxError, match="reconstruct the stereo capture"):
+        RightViews.of(scaled)
+    with pytest.raises(CtjaxError, match="at least 2 frames"):
+        RightViews.of(capture, [0])
+    field = LightField(jnp.zeros((capture.camera.height, capture.camera.width, 3)))
+    model = eqx.tree_at(lambda m: m.light, scene_model(OPTIONS), field)
+    with pytest.raises(CtjaxError, match="light field"):
+        views.rmse(model)
