@@ -6,7 +6,9 @@ not a measurement of each parameter. On real frames three things happen that a r
 
 - `no_lobe`: a specular lobe whose weight F_tilde cannot be told from 0 (its chi-square
   over the channels within the 95% quantile, or at the nonnegativity bound), or that lowers
-  the RMSE by under 0.5% against the model without it, or whose colour is not the light's
+  the RMSE by under 0.5% against the model without it where it shows (predicts at least
+  one 8-bit level; over every observation a well-determined lobe can bring less: few
+  highlights, mostly clipped), or whose colour is not the light's
   (its least channel under a quarter of its greatest: a highlight reflects the light's
   colour; on a real sinus video a fit put F_tilde at [0, 0.033, 0.035]). The data are
   explained without a highlight lobe, and its roughness sigma is not determined.
@@ -43,7 +45,8 @@ TREND = 1.0 - EDGE
 # over the channels, is at most this: the 95% quantile of chi-square with 3 degrees of
 # freedom (each channel within 2 standard errors would pass one channel in 7 by chance).
 CHI2_3_95 = 7.815
-# ... nor when it lowers the RMSE by less than this share against the model without it.
+# ... nor when it lowers the RMSE by less than this share against the model without it,
+# where it shows (`ctjax.fitting.lobe_gain_where_it_shows`).
 MIN_LOBE_GAIN = 0.005
 # A specular reflection has the light's colour (the dichromatic model; tissue's Fresnel
 # coefficient barely changes over the visible range): a lobe whose least channel is under
@@ -129,8 +132,9 @@ def _absent_lobes(
             continue
         if small and not zero:
             why = (
-                f"nearly 0: the lobe lowers the RMSE by {100 * lobe_gain:.2f}% against the "
-                f"model without it (under {100 * MIN_LOBE_GAIN:g}%)"
+                f"not seen in the data: where it predicts at least one 8-bit level, the lobe "
+                f"lowers the RMSE by {100 * lobe_gain:.2f}% against the model without it "
+                f"(under {100 * MIN_LOBE_GAIN:g}%)"
             )
         elif coloured and not zero:
             why = (

@@ -250,10 +250,12 @@ class HeldOutTracks:
         max_points: int | None = 12_000,
         heldout_points: int | None = 20_000,
         seed: int = 0,
+        right_views: bool = False,
     ) -> "HeldOutTracks":
         """Split `capture` (`calibration`: the number of calibration frames, default 60%);
         at most `max_points` and `heldout_points` tracked points (anchored near S and as
-        many elsewhere, see `Observations.tracks`)."""
+        many elsewhere, see `Observations.tracks`). `right_views`: `train` also holds the
+        calibration frames' right views of a stereo capture (`ctjax._right_views`)."""
         obs = Observations.of(capture)
         calib, heldout = split_frames(len(obs), calibration, source=obs.root)
         if len(calib) < 2:
@@ -262,6 +264,8 @@ class HeldOutTracks:
                 f"point's albedo is one unknown for its views); got {len(calib)}"
             )
         train = obs.tracks(frames=calib, max_points=max_points, seed=seed)
+        if right_views:
+            train, _ = with_right_views(obs.capture, train, calib)
         test = obs.tracks(max_points=heldout_points, seed=seed + 1, anchor_frames=heldout)
         samples = TrackSamples.of(test)  # padded: the rows past the tracks are not judged
         judged = np.zeros(samples.weight.shape, bool)  # (M, P) as the samples

@@ -3,6 +3,8 @@ lens (`shade`'s `eye`), the right views of tracked points (`ctjax.heldout.RightV
 `evaluate`'s report of them."""
 
 import dataclasses
+import json
+import shutil
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -10,6 +12,7 @@ import numpy as np
 import pytest
 
 from ctjax import CtjaxError, Vec3, shade
+from ctjax.cli import main
 from ctjax.evaluation import evaluate
 from ctjax.heldout import RightViews
 from ctjax.io import load_capture
@@ -112,3 +115,40 @@ def test_right_views_need_a_stereo_capture_in_millimetres(stereo, tmp_path):
     model = eqx.tree_at(lambda m: m.light, scene_model(OPTIONS), field)
     with pytest.raises(CtjaxError, match="light field"):
         views.rmse(model)
+
+
+def test_fit_with_the_right_views_uses_them(stereo, tmp_path):
+    """`ctjax fit --right-views`: the right views join the albedo map's tracks (the BnB
+    with V towards the right camera and L to the left lens) and the lobe stays the true one."""
+    capture, _ = stereo
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(capture.root), "--right-views", "--json", str(out)]) == 0
+    fit = json.loads(out.read_text())
+    assert fit["n_right_views"] > 5000 and "right camera" in fit["model"]
+    assert fit["sigma"] == pytest.approx(OPTIONS.sigma, rel=0.03)
+    np.testing.assert_allclose(fit["F_tilde"], scene_model(OPTIONS).brdf.weights[1], rtol=0.05)
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [(["--albedo", "uniform"], "albedo map"), ([], "no right camera")],
+)
+def test_fit_right_views_refused_where_there_are_none(stereo, tmp_path, capsys, extra, message):
+    capture, _ = stereo
+    root = capture.root
+    if not extra:  # a mono copy of the capture
+        root = tmp_path / "mono"
+        shutil.copytree(capture.root, root, ignore=shutil.ignore_patterns("right"))
+        described = json.loads((root / "camera.json").read_text())
+        del described["stereo"]
+        (root / "camera.json").write_text(json.dumps(described))
+    argv = ["fit", str(root), "--right-views", "--json", str(tmp_path / "f.json"), *extra]
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_the_light_field_has_no_right_views(stereo, tmp_path, capsys):
+    capture, _ = stereo
+    argv = ["calibrate-light", str(capture.root), "--model", "field", "--right-views"]
+    assert main([*argv, "--json", str(tmp_path / "l.json")]) == 2
+    assert "near light" in capsys.readouterr().err

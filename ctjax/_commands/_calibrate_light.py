@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from .._errors import CtjaxError
 from .._units import in_length_unit, label
 from ._args import add_falloff_argument, field_solver, load_observations
 
@@ -41,6 +42,12 @@ def add_calibrate_light_parser(commands) -> None:
         "a pose) or one for the capture (uniform, the paper's)",
     )
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    light.add_argument(
+        "--right-views",
+        action="store_true",
+        help="near, a stereo capture (depth in mm): also fit each surface point's views from "
+        "the right camera, which move V and keep L (a falloff cannot mimic them)",
+    )
     light.set_defaults(run=run_calibrate_light)
 
 
@@ -49,6 +56,10 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     from ..io._atomic import atomic_write_json
 
     if args.model == "field":
+        if args.right_views:
+            raise CtjaxError(
+                "--right-views is for the near light (a per-pixel light field is the left camera's)"
+            )
         return _calibrate_light_field(args)
     observations = load_observations(args)
     capture = observations.capture
@@ -59,6 +70,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         falloff=falloff,
         albedo=args.albedo,
         progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
+        right_views=args.right_views,
     )
     summary = result.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))

@@ -47,6 +47,12 @@ def add_fit_parser(commands) -> None:
         "slower)",
     )
     fit.add_argument(
+        "--right-views",
+        action="store_true",
+        help="a stereo capture (depth in mm): also fit each surface point's views from the "
+        "right camera, which move V and keep L (the left frames' light moves with them)",
+    )
+    fit.add_argument(
         "--no-shading",
         action="store_true",
         help="images only: keep SfM's shape (refined by the texture) without refining it by "
@@ -103,6 +109,8 @@ def run_fit(args: argparse.Namespace) -> int:
         raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")
     if args.max_tracks is not None and args.albedo == "uniform":
         raise CtjaxError("--max-tracks is for the albedo map (--albedo map)")
+    if args.right_views and args.albedo == "uniform":
+        raise CtjaxError("--right-views is for the albedo map (--albedo map)")
     masks = mask_options(args)
     # The sets S and S~ found once: the intensity fit's, then the sparkle density's.
     observations = Observations.of(capture, masks)
@@ -111,7 +119,12 @@ def run_fit(args: argparse.Namespace) -> int:
 
         observations = patch_observations(capture, masks, args.patch, kernel=args.patch_kernel)
     estimate = fit_capture(
-        observations, masks, family, albedo=args.albedo, max_points=args.max_tracks
+        observations,
+        masks,
+        family,
+        albedo=args.albedo,
+        max_points=args.max_tracks,
+        right_views=args.right_views,
     )
     if args.albedo_maps is not None:
         if "albedo" not in estimate.details or estimate.details["albedo"] != "map":

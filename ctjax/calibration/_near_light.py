@@ -20,6 +20,7 @@ from .._determined import flag_model
 from .._errors import CtjaxError
 from .._json import falloff_json
 from .._result import Estimate
+from .._right_views import with_right_views
 from .._units import length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
@@ -28,6 +29,7 @@ from ..fitting import (
     fit_model,
     fit_model_map,
     free_parameters,
+    lobe_gain_where_it_shows,
     map_standard_errors,
     paper_model,
     pixel_columns,
@@ -110,6 +112,7 @@ def calibrate_near_light(
     max_steps: int = 100,
     seed: int = 0,
     progress=None,
+    right_views: bool = False,
 ) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
@@ -124,6 +127,7 @@ def calibrate_near_light(
     Returns an `Estimate` of the `ShadingModel` with its `PointLight`; `details` holds the
     chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
     RMSE of every falloff set tried. `progress`: called with a line per step.
+    `right_views`: with the map, a stereo capture's right images too (`near_light_map`).
     """
     say = progress or (lambda message: None)
     capture = Observations.of(capture)
@@ -143,7 +147,10 @@ def calibrate_near_light(
             max_steps=max_steps,
             seed=seed,
             progress=progress,
+            right_views=right_views,
         )
+    if right_views:
+        raise CtjaxError("the right views are fitted with the albedo map (albedo='map')")
     started = time.perf_counter()
     heldout = HeldOut.split(
         capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
@@ -233,6 +240,7 @@ def near_light_map(
     refine: int = 2,
     seed: int = 0,
     progress=None,
+    right_views: bool = False,
 ) -> Estimate:
     """The near-light model on textured tissue: one albedo per surface point.
 
@@ -245,6 +253,9 @@ def near_light_map(
     The falloff set is chosen on held-out frames (`heldout_map_rmse`); the chosen model is
     then refitted on the surface points of every frame, so its parameters use all the data
     (on the default demo capture sigma +6.2% from the calibration frames, +4.x% from all).
+    `right_views`: a stereo capture's right images too, in the fits (calibration frames,
+    then every frame; `ctjax._right_views`): V moved with L kept, which a falloff cannot
+    mimic. The falloff is still chosen on the held-out frames' left views.
 
     Whether the data show an offset at all is decided twice: the offset's standard error
     (from the Jacobian of the projected residuals at the solution, in the capture's length
@@ -259,7 +270,12 @@ def near_light_map(
     capture = Observations.of(capture)
     say("tracking surface points across the frames (albedo map)")
     heldout = HeldOutTracks.split(
-        capture, calibration, max_points=max_points, heldout_points=heldout_points, seed=seed
+        capture,
+        calibration,
+        max_points=max_points,
+        heldout_points=heldout_points,
+        seed=seed,
+        right_views=right_views,
     )
     choices = _choices(capture, falloff)
 
@@ -301,6 +317,8 @@ def near_light_map(
     result.noise_floor = heldout.noise_floor(result.model)
     say("the chosen model refitted on every frame's surface points")
     tracks = capture.tracks(max_points=max_points, seed=seed)
+    if right_views:
+        tracks, _ = with_right_views(capture.capture, tracks)
     # Frozen, not held: other tracks, another program anyway, and fewer Jacobian columns.
     every = fit([result.model], tracks, freeze=() if detected else ("light.position_mm",))
     reported = _take_refit(result, every, tracks, detected, reported)
@@ -321,9 +339,10 @@ def near_light_map(
 
 
 def _lobe_gain(result, every, tracks) -> float | None:
-    """What the lobes bring under the fitted light: 1 - RMSE / RMSE of the Lambertian model
-    under the same light (held) on the same tracks, each point's albedo eliminated; None
-    where the refit on every frame did not give a finite cost."""
+    """What the lobes bring under the fitted light where they show (at least one 8-bit
+    level): 1 - RMSE / RMSE of the Lambertian model under the same light (held) on the same
+    tracks, each point's albedo eliminated (`lobe_gain_where_it_shows`); None where the
+    refit on every frame did not give a finite cost."""
     if not np.isfinite(every.cost):
         return None
     light = result.model.light
@@ -332,8 +351,10 @@ def _lobe_gain(result, every, tracks) -> float | None:
     plain = fit_model_map(lambertian, tracks, freeze=held, standard_errors=False)
     if not np.isfinite(plain.cost) or plain.cost <= 0:
         return None
-    gain = 1 - math.sqrt(every.cost / plain.cost)
+    gain, shows = lobe_gain_where_it_shows(every.model, plain.model, tracks)
     result.details["lobe_gain"] = gain
+    result.details["lobe_gain_all_observations"] = 1 - math.sqrt(every.cost / plain.cost)
+    result.details["lobe_shows_observations"] = shows
     result.details["lambertian_same_light_rmse_all_frames"] = plain.rmse["calibration"]
     return gain
 

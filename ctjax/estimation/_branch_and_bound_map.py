@@ -20,6 +20,8 @@ sigma and w, and counts for nothing in their fit. Given the fit, its albedo is s
 determined by its one observation (every pixel's albedo: `ctjax.estimation._dense_maps`).
 """
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -35,8 +37,13 @@ from .._vector import Vec3
 from ..lights import AbstractLight, ColocatedLight
 from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
-from ._brdf import PAPER, BRDFFamily, design_geometry
-from ._variable_projection import over_views, project_weights, weighted_sums
+from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, design_geometry
+from ._variable_projection import (
+    over_views,
+    project_weights,
+    projected_residuals,
+    weighted_sums,
+)
 
 # Grid points evaluated at once by the BnB (each a pass over every observation's corners):
 # one, measured: 80 evaluations on 16k tracks x 8 views took 0.11 s one at a time, 0.22 s
@@ -86,9 +93,12 @@ class TrackShading(eqx.Module):
         )
 
 
-def _shade(light: AbstractLight, point: Vec3, normal: Vec3, pixel):
-    view = safe_normalize(-point)
-    direction, irradiance = light.illuminate(point, view, pixel)
+def _shade(light: AbstractLight, point: Vec3, normal: Vec3, pixel, eye=None):
+    """(N, L, V, irradiance) at one corner; `eye`: the viewer where it is not the light's
+    lens (a stereo scope's right camera, as in `shade`)."""
+    to_lens = safe_normalize(-point)
+    view = to_lens if eye is None else safe_normalize(eye - point)
+    direction, irradiance = light.illuminate(point, to_lens, pixel)
     return normal, direction, view, irradiance
 
 
@@ -102,13 +112,15 @@ def _views_first(array):
 
 
 @persistent_jit
-def _track_shading(light, point, normal, pixel, corner_weight, values, weight) -> TrackShading:
+def _track_shading(
+    light, point, normal, pixel, corner_weight, values, weight, eye=None
+) -> TrackShading:
     # Compiled (and kept between processes): op by op, a new process spent 0.2 s lowering
     # each operation of the light's model.
     point, normal, pixel = (_views_first(a) for a in (point, normal, pixel))
-    n, l, v, e = jax.vmap(lambda p, q, x: _shade(light, p, q, x))(
-        Vec3.from_array(point), Vec3.from_array(normal), (pixel[:, 0], pixel[:, 1])
-    )
+    where = [Vec3.from_array(point), Vec3.from_array(normal), (pixel[:, 0], pixel[:, 1])]
+    where += [] if eye is None else [Vec3.from_array(_views_first(eye))]
+    n, l, v, e = jax.vmap(lambda *x: _shade(light, *x))(*where)
     samples = ShadingSamples(n, l, v, e, jnp.zeros((len(point), 3), point.dtype))
     return TrackShading(
         samples, _views_first(corner_weight), _views_first(values), _views_first(weight)
@@ -116,12 +128,8 @@ def _track_shading(light, point, normal, pixel, corner_weight, values, weight) -
 
 
 def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=None):
-    """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading`."""
-    if tracks.corner_eye is not None:
-        raise CtjaxError(
-            "the branch and bound takes views from the light's own lens only; views from a "
-            "stereo scope's right camera are judged (`ctjax.heldout.right_view_rmse`), not fitted"
-        )
+    """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading` (views
+    from a stereo scope's right camera, `Tracks.corner_eye`, with their own V)."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     as_host = lambda a: np.asarray(a, dtype)  # noqa: E731
     return _track_shading(
@@ -137,6 +145,7 @@ def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=Non
                 tracks.weight,
             )
         ),
+        None if tracks.corner_eye is None else as_host(tracks.corner_eye),
     )
 
 
@@ -406,3 +415,49 @@ def fit_brdf_map(
     return AlbedoMapFit(
         params, weights, albedo, cost, rmse, p_err, w_err, half, int(observed.sum()), family
     )
+
+
+# A lobe "shows" at an observation where it predicts at least this (linear units: one
+# 8-bit level), in some channel.
+LOBE_SHOWS = 1 / 255
+
+
+@persistent_jit
+def _where_lobes_show(family, params, plain, shading: TrackShading, per_point: int):
+    """Sums of squared weighted residuals of `family` at `params` and of `plain` (a family
+    without lobes), every albedo and global weight projected out, over the observations
+    where `family`'s lobes other than the per-point one predict at least `LOBE_SHOWS`; and
+    their number."""
+    columns = _columns(family, params, shading)
+    _, weights, residual = projected_residuals(columns, shading.values, shading.weight, per_point)
+    lobes = sum(
+        c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point
+    )
+    shows = (jnp.max(lobes, axis=0) >= LOBE_SHOWS) & (shading.weight > 0)
+    empty = jnp.zeros((0,), params.dtype)
+    _, _, plain_residual = projected_residuals(
+        _columns(plain, empty, shading), shading.values, shading.weight, 0
+    )
+    ssr = lambda r: jnp.sum(jnp.where(shows[None], r * r, 0))  # noqa: E731
+    return ssr(residual), ssr(plain_residual), jnp.sum(shows)
+
+
+def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[float, int]:
+    """What `fit`'s specular lobes bring where they show: 1 - RMSE / RMSE of the Lambertian
+    model alone (`LAMBERTIAN`) over the observations where the lobes predict at least one
+    8-bit level, every point's albedo eliminated; and how many observations that is (0:
+    the lobes show nowhere, gain 0).
+
+    Over every observation a lobe that the data determine well can bring under 0.5%: a
+    laparoscope's highlights are few and mostly clipped (measured with the near light: a
+    light 7 mm off the lens with inverse-square and spot falloff, F_tilde 0.3 and sigma 0.2
+    recovered within 7% and 4%, lowered the RMSE of every observation by 0.26% and that of
+    the 70 observations where the lobe shows by 30%)."""
+    per_point = fit.family.weight_names.index("rho_tilde")
+    fit_ssr, plain_ssr, count = _where_lobes_show(
+        fit.family, jnp.asarray(fit.params), LAMBERTIAN, shading, per_point
+    )
+    count, fit_ssr, plain_ssr = int(count), float(fit_ssr), float(plain_ssr)
+    if count == 0 or not plain_ssr > 0 or not np.isfinite(fit_ssr):
+        return 0.0, count
+    return 1 - math.sqrt(fit_ssr / plain_ssr), count

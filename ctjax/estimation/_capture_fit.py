@@ -30,6 +30,7 @@ def fit_capture(
     tolerance: float = 1e-3,
     albedo: str | None = None,
     max_points: int | None = None,
+    right_views: bool = False,
 ) -> Estimate:
     """Estimate the BRDF of a capture: the paper's light (co-located with the camera,
     L = V) and its model (`family`) by default.
@@ -38,10 +39,20 @@ def fit_capture(
     one rho_tilde per surface point and channel, with F_tilde and sigma shared, from all
     frames (`fit_albedo_map`): the estimate for textured tissue. `albedo="uniform"`: the
     paper's model, one rho_tilde, fitted on the ring S~ of every frame (below).
+    `right_views`: with the map, a stereo capture's right images too (`fit_albedo_map`).
     """
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     if albedo == "map":
-        return fit_albedo_map(capture, masks, family, tolerance=tolerance, max_points=max_points)
+        return fit_albedo_map(
+            capture,
+            masks,
+            family,
+            tolerance=tolerance,
+            max_points=max_points,
+            right_views=right_views,
+        )
+    if right_views:
+        raise CtjaxError("the right views are fitted with the albedo map (--albedo map)")
     return fit_uniform(capture, masks, family, tolerance=tolerance)

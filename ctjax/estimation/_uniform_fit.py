@@ -236,6 +236,7 @@ def flag_brdf_fit(
     per_point: int | None = None,
     lambertian: BRDFFit | None = None,
     halves: dict[str, BRDFFit] | None = None,
+    gain: float | None = None,
 ) -> Estimate:
     """`estimate` flagged with what `fit` (the BnB's) does not determine
     (`ctjax._determined`): a lobe weight that cannot be told from 0, a roughness at the end
@@ -243,7 +244,8 @@ def flag_brdf_fit(
     weight estimated per surface point (the albedo map's), whose errors are not checked;
     `lambertian`: the same data's fit without the lobes, against which their gain counts;
     `halves`: the same fit on two halves of the frames ({"even_frames": fit, ...}), which a
-    determined lobe's roughness must agree between."""
+    determined lobe's roughness must agree between. `gain`: the lobes' gain where measured
+    otherwise (the albedo map's: where they show, `lobe_gain_where_it_shows`)."""
     family = fit.family
     weights, weights_stderr = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
     params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
@@ -254,8 +256,7 @@ def flag_brdf_fit(
     }
     stderrs |= {name: float(params_stderr[d]) for d, name in enumerate(family.names)}
     ranges = {name: (family.lo[d], family.hi[d]) for d, name in enumerate(family.names)}
-    gain = None
-    if lambertian is not None and float(lambertian.rgb_rmse) > 0:
+    if gain is None and lambertian is not None and float(lambertian.rgb_rmse) > 0:
         gain = 1 - float(fit.rgb_rmse) / float(lambertian.rgb_rmse)
     split = {
         name: tuple(float(np.asarray(h.params)[d]) for h in (halves or {}).values())

@@ -14,6 +14,7 @@ from ._fit import rmse_levels as rmse_levels
 from ._fit import roughness_variants as roughness_variants
 from ._map_least_squares import TrackSamples as TrackSamples
 from ._map_least_squares import fit_model_map as fit_model_map
+from ._map_least_squares import lobe_gain_where_it_shows as lobe_gain_where_it_shows
 from ._map_least_squares import map_standard_errors as map_standard_errors
 from ._measured import DirectionSamples as DirectionSamples
 from ._measured import brdf_columns as brdf_columns

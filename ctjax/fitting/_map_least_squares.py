@@ -180,6 +180,55 @@ def projected_cost(model, samples: TrackSamples, per_point: int):
     return jnp.sum(residual * residual)
 
 
+# A lobe "shows" at an observation where it predicts at least this (linear units: one
+# 8-bit level), in some channel.
+LOBE_SHOWS = 1 / 255
+
+
+@persistent_jit
+def _where_lobes_show(model, plain, samples: TrackSamples, per_point: int, plain_point: int):
+    """Sums of squared (weighted) residuals of `model` and of `plain` (the same light,
+    without the lobes), each with every point's albedo eliminated, over the observations
+    where `model`'s lobes other than the per-point one predict at least `LOBE_SHOWS`; and
+    their number."""
+    columns = _columns(model, samples)
+    weights = model.brdf.weights
+    lobes = sum(
+        c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point
+    )
+    shows = (jnp.max(lobes, axis=0) >= LOBE_SHOWS) & (samples.weight > 0)
+    ssr = lambda r: jnp.sum(jnp.where(shows[None], r * r, 0))  # noqa: E731
+    return (
+        ssr(_projected(model, samples, per_point)[2]),
+        ssr(_projected(plain, samples, plain_point)[2]),
+        jnp.sum(shows),
+    )
+
+
+def lobe_gain_where_it_shows(model, plain, tracks: "Tracks | TrackSamples") -> tuple[float, int]:
+    """What `model`'s specular lobes bring where they show: 1 - RMSE / RMSE of `plain` (the
+    same light and effects, a Lambertian BRDF: fitted on the same tracks) over the
+    observations where the lobes predict at least one 8-bit level, every point's albedo
+    eliminated; and how many observations that is (0: the lobes show nowhere, gain 0).
+
+    Over every observation a lobe that the data determine well can bring under 0.5%: a
+    laparoscope's highlights are few and mostly clipped (measured: a light 7 mm off the
+    lens with inverse-square and spot falloff, F_tilde 0.3 and sigma 0.2 recovered within
+    7% and 4%, lowered the RMSE of every observation by 0.26%)."""
+    samples = tracks if isinstance(tracks, TrackSamples) else TrackSamples.of(tracks)
+    fit_ssr, plain_ssr, count = _where_lobes_show(
+        strongly_typed(model),
+        strongly_typed(plain),
+        samples,
+        diffuse_lobe(model),
+        diffuse_lobe(plain),
+    )
+    count, fit_ssr, plain_ssr = int(count), float(fit_ssr), float(plain_ssr)
+    if count == 0 or not plain_ssr > 0 or not np.isfinite(fit_ssr):
+        return 0.0, count
+    return 1 - math.sqrt(fit_ssr / plain_ssr), count
+
+
 @persistent_jit
 def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     """Weighted sum of squared residuals and sum of weights of the `judged` observations
