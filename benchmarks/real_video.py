@@ -17,10 +17,11 @@ is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate`
   those cores dilated by 7x7 pixels (the goal: recall >= 95%, area <= 3x);
 - SfM: registered frames, points, reprojection error, coverage, frames whose texture
   refinement was kept;
-- fit: sigma, F_tilde, their standard errors and the status, on all, even and odd frames;
+- fit: sigma, F_tilde, their standard errors and the status, on all, even and odd frames
+  (and, on a stereo capture, with the right camera's views: `fit --right-views`);
 - the near light: falloff, offset (with its unit), status;
 - evaluate: Cook-Torrance against Lambertian on the held-out frames, the gain split into
-  the light's and the lobe's;
+  the light's and the lobe's (and on a stereo capture both on the right camera's views);
 - diagnose --loop: the held-out RMSE step by step against the noise floor.
 
 Slow (minutes per sequence on 2 cores): a benchmark, not a test.
@@ -82,21 +83,35 @@ def prepare(source: Path, out: Path, frames: int, width: int) -> Path:
     step = max(1, len(names) // frames)
     camera = json.loads((source / "camera.json").read_text())
     scale = width / camera["width"]
+    stereo = camera.get("stereo")
     (capture / "images").mkdir(parents=True)
+    if stereo is not None:  # a stereo capture: its right images too, scaled alike
+        (capture / "right").mkdir()
     for path in names[::step][:frames]:
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
         cv2.imwrite(str(capture / "images" / f"{path.stem}.png"), image)
-    camera |= {
-        "width": image.shape[1],
-        "height": image.shape[0],
+        if stereo is not None:
+            right = cv2.imread(str(next((source / "right").glob(f"{path.stem}.*"))))
+            right = cv2.resize(right, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            cv2.imwrite(str(capture / "right" / f"{path.stem}.png"), right)
+    camera |= _scaled(camera, scale) | {"width": image.shape[1], "height": image.shape[0]}
+    if stereo is not None:
+        right = stereo["right"]
+        size = {k: round(right[k] * scale) for k in ("width", "height") if k in right}
+        camera["stereo"] = stereo | {"right": right | _scaled(right, scale) | size}
+    (capture / "camera.json").write_text(json.dumps(camera))
+    return capture
+
+
+def _scaled(camera: dict, scale: float) -> dict:
+    """A pinhole camera's intrinsics for images resized by `scale` (pixel centres kept)."""
+    return {
         "fx": camera["fx"] * scale,
         "fy": camera["fy"] * scale,
         "cx": (camera["cx"] + 0.5) * scale - 0.5,
         "cy": (camera["cy"] + 0.5) * scale - 0.5,
     }
-    (capture / "camera.json").write_text(json.dumps(camera))
-    return capture
 
 
 def subset(capture: Path, out: Path, parity: int) -> Path:
@@ -168,6 +183,9 @@ def run_sequence(source: Path, work: Path, args) -> dict:
         ("fit", ["fit", recon, "--json", out / "fit.json"]),
         ("light", ["calibrate-light", recon, "--model", "near", "--json", out / "light.json"]),
     ]
+    if (capture / "right").is_dir():  # stereo: the right views fitted too
+        right = ["fit", recon, "--right-views", "--json", out / "fit_right.json"]
+        steps.insert(3, ("fit_right", right))
     if not args.skip_evaluate:
         steps.append(("evaluate", ["evaluate", recon, "--json", out / "evaluate.json", "--no-sfs"]))
     if not args.skip_diagnose:
@@ -212,6 +230,7 @@ def _table(source, out, capture, seconds, failed) -> dict:
         "fit": _lobe(_json(out / "fit.json")),
         "fit_even": _lobe(_json(out / "fit_even.json")),
         "fit_odd": _lobe(_json(out / "fit_odd.json")),
+        "fit_right": _lobe(_json(out / "fit_right.json")),
         "near_light": {
             "falloff": "+".join(light.get("falloff", {})) or "none",
             "offset": light.get("offset_mm", light.get("offset")),
@@ -229,6 +248,7 @@ def _table(source, out, capture, seconds, failed) -> dict:
                 "lambertian_same_light_rgb_rmse_test",
                 "cook_torrance_rgb_rmse_test",
                 "gain",
+                "right_views",
             )
         },
         "diagnose": [
@@ -268,8 +288,10 @@ def _print(row: dict) -> None:
         f"texture refinement kept in {s['texture_refinement_kept']} frames, unit "
         f"{s['length_unit']}"
     )
-    for key in ("fit", "fit_even", "fit_odd"):
+    for key in ("fit", "fit_even", "fit_odd", "fit_right"):
         f = row[key]
+        if key == "fit_right" and f["sigma"] is None:
+            continue  # not a stereo sequence
         print(
             f"{key:<10} sigma {_fmt(f['sigma'], 4)} +- {_fmt(f['sigma_stderr'], 2)}, F_tilde "
             f"{_fmt(f['F_tilde'])} +- {_fmt(f['F_tilde_stderr'], 2)}, status {f['status']}; "
@@ -289,6 +311,14 @@ def _print(row: dict) -> None:
         f"{_fmt(e['cook_torrance_rgb_rmse_test'])} levels (light {_fmt(gain.get('light_levels'))}"
         f", lobe {_fmt(gain.get('lobe_levels'))})"
     )
+    right = e.get("right_views")
+    if right:
+        figures = ", ".join(
+            f"{name} {_fmt(value['right'])} / {_fmt(value['left'])}"
+            for name, value in right.items()
+            if name.endswith("_rgb_rmse")
+        )
+        print(f"right views {right['views']} views, right / left RMSE: {figures}")
     for k, step in enumerate(row["diagnose"]):
         added = " + ".join(["paper", *step["added_before"]])
         print(

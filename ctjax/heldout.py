@@ -394,11 +394,8 @@ class RightViews:
         obs = Observations.of(capture)
         require_stereo(obs.capture)
         frames = list(range(len(obs))) if frames is None else sorted(int(f) for f in frames)
-        if len(frames) < 2:
-            raise CtjaxError(
-                f"{obs.root}: right views are judged with each point's albedo from its other "
-                f"views: at least 2 frames, got {len(frames)}"
-            )
+        if not frames:
+            raise CtjaxError(f"{obs.root}: right views of which frames? none given")
         tracks = obs.tracks(frames=frames, max_points=max_points, seed=seed)
         left = TrackSamples.of(tracks)
         tracks, right = with_right_views(obs.capture, tracks, frames)

@@ -1,0 +1,120 @@
+"""Right views of a stereo capture on real tissue, each frame alone.
+
+    .venv/bin/python benchmarks/stereo_right_views.py CAPTURE [--width 640] [--frames 10]
+        [--work DIR] [--fit-frame 0] [--knot-px 12]
+
+Each frame's depth and normals come from its own pair (OpenCV's StereoSGBM points,
+`ctjax.sfm._stereo.stereo_points`, under a smoothing B-spline, `fit_depth_surface`): no
+structure-from-motion, which a scope that barely moves gives no parallax. Each frame is then
+a capture of its own. The paper's BRDF is fitted on one frame's left and right views
+(`fit_albedo_map(..., right_views=True)`: V moves between the two eyes, L does not), and
+every frame's right view is predicted from its left view (each point's albedo from its left
+view, `ctjax.heldout.RightViews`) by that fit and by the Lambertian model.
+
+Under the paper's light (at the left lens) a Lambertian point's right and left values are
+the same: L and its distance do not change between the two eyes, only V. So the Lambertian
+model's right-view error is the view dependence the frames show, plus noise, registration
+and depth errors; a lobe that is there lowers it, one that is not does not.
+
+Prints, per frame, the number of right views judged and the right-view RMSE of each model
+(8-bit levels), and the fit (sigma, F_tilde, status). Slow (a minute or two): a benchmark.
+"""
+
+import argparse
+import json
+import shutil
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from _results import emit
+from real_video import prepare
+
+from ctjax import ShadingModel
+from ctjax.estimation._map_fit import fit_albedo_map
+from ctjax.heldout import RightViews
+from ctjax.io import load_capture
+from ctjax.lights import ColocatedLight
+from ctjax.lobes import BRDF, Lambertian
+from ctjax.sfm._stereo import stereo_points
+from ctjax.sfm._surface import fit_depth_surface
+
+
+def frame_capture(capture, index: int, out: Path, knot_px: float) -> Path:
+    """Frame `index` of a stereo capture as a one-frame capture with depth and normals
+    from its own pair (mm), geometry within 2 knots of a matched point, identity pose."""
+    frame, camera = capture.frames[index], capture.camera
+    points = stereo_points(capture, index)
+    bounds = (0.0, camera.width - 1.0, 0.0, camera.height - 1.0)
+    surface = fit_depth_surface(points.u, points.v, points.z, bounds, knot_spacing_px=knot_px)
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(float)
+    depth, normals = surface.geometry(camera, u, v)
+    near = np.zeros((camera.height, camera.width), np.uint8)
+    cols = np.clip(np.round(points.u).astype(int), 0, camera.width - 1)
+    rows = np.clip(np.round(points.v).astype(int), 0, camera.height - 1)
+    near[rows, cols] = 1
+    kernel = np.ones((int(4 * knot_px) + 1,) * 2, np.uint8)
+    covered = cv2.dilate(near, kernel) > 0
+    depth[~covered] = np.nan
+    normals[~covered] = np.nan
+    if out.is_dir():
+        shutil.rmtree(out)
+    for folder in ("images", "right", "depth", "normals"):
+        (out / folder).mkdir(parents=True)
+    for folder in ("images", "right"):
+        source = next((capture.root / folder).glob(f"{frame.name}.*"))
+        shutil.copy(source, out / folder / source.name)
+    np.save(out / "depth" / f"{frame.name}.npy", depth.astype(np.float32))
+    np.save(out / "normals" / f"{frame.name}.npy", normals.astype(np.float32))
+    (out / "poses.json").write_text(json.dumps({frame.name: np.eye(4).tolist()}))
+    shutil.copy(capture.root / "camera.json", out / "camera.json")
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("capture", type=Path)
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--work", type=Path, default=Path("/tmp/ctjax-stereo-right-views"))
+    parser.add_argument("--fit-frame", type=int, default=0)
+    parser.add_argument("--knot-px", type=float, default=12.0)
+    args = parser.parse_args(argv)
+    args.work.mkdir(parents=True, exist_ok=True)
+    scaled = load_capture(prepare(args.capture, args.work, args.frames, args.width))
+    started = time.perf_counter()
+    frames = [
+        load_capture(frame_capture(scaled, i, args.work / "frames" / f.name, args.knot_px))
+        for i, f in enumerate(scaled.frames)
+    ]
+    print(f"depth from the pairs: {time.perf_counter() - started:.1f} s, {len(frames)} frames")
+    fit = fit_albedo_map(frames[args.fit_frame], right_views=True)
+    found = fit.to_json()
+    print(
+        f"fit on {scaled.frames[args.fit_frame].name} (left and right views): sigma "
+        f"{found['sigma']:.4g}, F_tilde {np.round(found['F_tilde'], 4).tolist()}, status "
+        f"{found['status']}, {found.get('n_right_views')} right views; RMSE "
+        f"{found['rgb_rmse']:.2f} vs Lambertian {found['lambertian']['rgb_rmse']:.2f} levels"
+    )
+    lambertian = ShadingModel(BRDF(Lambertian(np.ones(3))), ColocatedLight())
+    rows = []
+    for capture in frames:
+        views = RightViews.of(capture)
+        judged = {"lambertian": views.rmse(lambertian), "fit": views.rmse(fit.model)}
+        row = {"frame": capture.frames[0].name, "views": judged["fit"]["views"]}
+        row |= {name: value["right"] for name, value in judged.items()}
+        rows.append(row)
+        print(
+            f"{row['frame']}: {row['views']} right views, RMSE Lambertian "
+            f"{row['lambertian']:.2f}, the fit {row['fit']:.2f} levels"
+        )
+    held = [r for i, r in enumerate(rows) if i != args.fit_frame]
+    if held:
+        lam, cook = (np.mean([r[k] for r in held]) for k in ("lambertian", "fit"))
+        print(f"other frames, mean: Lambertian {lam:.2f}, the fit {cook:.2f} levels")
+    emit({"capture": str(args.capture), "fit": found, "frames": rows})
+
+
+if __name__ == "__main__":
+    main()
