@@ -119,7 +119,9 @@ def subset(capture: Path, out: Path, parity: int) -> Path:
     if out.is_dir():
         shutil.rmtree(out)
     names = sorted(p.stem for p in (capture / "images").iterdir())[parity::2]
-    for folder in ("images", "depth", "normals"):
+    for folder in ("images", "depth", "normals", "right"):
+        if not (capture / folder).is_dir():
+            continue  # "right": a stereo capture's only
         (out / folder).mkdir(parents=True)
         for path in (capture / folder).iterdir():
             if path.stem in names:

@@ -17,7 +17,9 @@ model's right-view error is the view dependence the frames show, plus noise, reg
 and depth errors; a lobe that is there lowers it, one that is not does not.
 
 Prints, per frame, the number of right views judged and the right-view RMSE of each model
-(8-bit levels), and the fit (sigma, F_tilde, status). Slow (a minute or two): a benchmark.
+(8-bit levels; Lambertian's also by where the points are anchored: inside the highlight set
+S, within 12 px of it, elsewhere), and the fit (sigma, F_tilde, status). Slow (a minute or
+two): a benchmark.
 """
 
 import argparse
@@ -32,11 +34,15 @@ from _results import emit
 from real_video import prepare
 
 from ctjax import ShadingModel
+from ctjax._right_views import with_right_views
 from ctjax.estimation._map_fit import fit_albedo_map
+from ctjax.fitting import TrackSamples
+from ctjax.fitting._map_least_squares import heldout_map_rmse
 from ctjax.heldout import RightViews
 from ctjax.io import load_capture
 from ctjax.lights import ColocatedLight
 from ctjax.lobes import BRDF, Lambertian
+from ctjax.observations import Observations
 from ctjax.sfm._stereo import stereo_points
 from ctjax.sfm._surface import fit_depth_surface
 
@@ -72,6 +78,26 @@ def frame_capture(capture, index: int, out: Path, knot_px: float) -> Path:
     return out
 
 
+def by_distance_to_s(capture, model) -> dict:
+    """`model`'s right-view RMSE (levels) by where the points are anchored: inside S (its
+    unclipped channels), within 12 px of it, elsewhere; with the number of views."""
+    obs = Observations.of(capture)
+    tracks = obs.tracks(frames=[0], max_points=12_000, seed=0)  # as `RightViews.of`
+    joined, right = with_right_views(capture, tracks, [0])
+    samples = TrackSamples.of(joined)
+    distance = obs.specular_distance(0)[tracks.anchor_row, tracks.anchor_col]
+    out = {}
+    for part, where in (
+        ("in_S", distance <= 0),
+        ("near_S", (distance > 0) & (distance <= 12)),
+        ("elsewhere", distance > 12),
+    ):
+        judged = np.zeros(samples.weight.shape, bool)
+        judged[:, : len(joined)] = (right & where[:, None]).T
+        out[part] = (heldout_map_rmse(model, samples, judged), int(judged.sum()))
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("capture", type=Path)
@@ -104,10 +130,13 @@ def main(argv=None):
         judged = {"lambertian": views.rmse(lambertian), "fit": views.rmse(fit.model)}
         row = {"frame": capture.frames[0].name, "views": judged["fit"]["views"]}
         row |= {name: value["right"] for name, value in judged.items()}
+        parts = by_distance_to_s(capture, lambertian)
+        row["lambertian_by_anchor"] = parts
         rows.append(row)
+        where = ", ".join(f"{k} {v:.2f} ({n})" for k, (v, n) in parts.items())
         print(
             f"{row['frame']}: {row['views']} right views, RMSE Lambertian "
-            f"{row['lambertian']:.2f}, the fit {row['fit']:.2f} levels"
+            f"{row['lambertian']:.2f} ({where}), the fit {row['fit']:.2f} levels"
         )
     held = [r for i, r in enumerate(rows) if i != args.fit_frame]
     if held:
