@@ -152,3 +152,17 @@ def test_the_light_field_has_no_right_views(stereo, tmp_path, capsys):
     argv = ["calibrate-light", str(capture.root), "--model", "field", "--right-views"]
     assert main([*argv, "--json", str(tmp_path / "l.json")]) == 2
     assert "near light" in capsys.readouterr().err
+
+
+def test_the_near_light_fitted_with_the_right_views(stereo):
+    """`calibrate-light --right-views`: the right views join the near light's fits (the
+    light at the lens, as synthesised: no offset, the true lobe)."""
+    from ctjax.calibration import calibrate_near_light
+
+    capture, _ = stereo
+    fit = calibrate_near_light(
+        capture, calibration=3, falloff=(), max_samples=4000, heldout_samples=8000, right_views=True
+    ).to_json()
+    assert fit["n_right_views"] > 5000 and fit["status"] == "successful"
+    assert np.linalg.norm(fit["offset_mm"]) < 1.0
+    assert fit["sigma"] == pytest.approx(OPTIONS.sigma, rel=0.03)

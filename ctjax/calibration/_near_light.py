@@ -318,7 +318,7 @@ def near_light_map(
     say("the chosen model refitted on every frame's surface points")
     tracks = capture.tracks(max_points=max_points, seed=seed)
     if right_views:
-        tracks, _ = with_right_views(capture.capture, tracks)
+        tracks, right = with_right_views(capture.capture, tracks)
     # Frozen, not held: other tracks, another program anyway, and fewer Jacobian columns.
     every = fit([result.model], tracks, freeze=() if detected else ("light.position_mm",))
     reported = _take_refit(result, every, tracks, detected, reported)
@@ -327,6 +327,8 @@ def near_light_map(
         "offset_heldout_rmse": offset_fit.heldout_rmse,
         "lens_heldout_rmse": lens_fit.heldout_rmse,
     }
+    if right_views:  # the right views the refit on every frame used
+        result.details["n_right_views"] = int(right.sum())
     if not detected:
         _no_offset(result, offset, stderr, offset_fit, lens_fit, length_unit_of(capture))
     result.seconds = {"total": time.perf_counter() - started}
