@@ -16,6 +16,10 @@ the same: L and its distance do not change between the two eyes, only V. So the 
 model's right-view error is the view dependence the frames show, plus noise, registration
 and depth errors; a lobe that is there lowers it, one that is not does not.
 
+Then the frames are registered to the first by PnP (SIFT matches against the first frame's
+pair depth) and the paper's BRDF is fitted across the first `--fitted` frames, with their
+left views alone and with their right views too, and judged on the other frames' right views.
+
 Prints, per frame, the number of right views judged and the right-view RMSE of each model
 (8-bit levels; Lambertian's also by where the points are anchored: inside the highlight set
 S, within 12 px of it, elsewhere), and the fit (sigma, F_tilde, status). Slow (a minute or
@@ -98,6 +102,89 @@ def by_distance_to_s(capture, model) -> dict:
     return out
 
 
+def registered(frames: list, out: Path) -> Path:
+    """The one-frame captures as one capture, each frame's pose from PnP against the first
+    (SIFT matches, the first frame's pair depth at its keypoints, RANSAC): structure-from-
+    motion has too little parallax here, and the pairs give the depth it would have given."""
+    camera, names = frames[0].camera, [c.frames[0].name for c in frames]
+    k = np.asarray(camera.intrinsic_matrix, np.float64)
+    sift, matcher = cv2.SIFT_create(4000), cv2.BFMatcher()
+
+    def features(capture):
+        encoded = np.clip(capture.frames[0].image ** (1 / 2.2) * 255, 0, 255).astype(np.uint8)
+        return sift.detectAndCompute(cv2.cvtColor(encoded, cv2.COLOR_RGB2GRAY), None)
+
+    first, first_descriptors = features(frames[0])
+    depth = frames[0].frames[0].depth
+    poses = {names[0]: np.eye(4)}
+    for name, capture in zip(names[1:], frames[1:], strict=True):
+        keypoints, descriptors = features(capture)
+        pairs = matcher.knnMatch(first_descriptors, descriptors, k=2)
+        good = [m for m, second in pairs if m.distance < 0.75 * second.distance]
+        p0 = np.array([first[m.queryIdx].pt for m in good])
+        p1 = np.array([keypoints[m.trainIdx].pt for m in good])
+        z = depth[np.round(p0[:, 1]).astype(int), np.round(p0[:, 0]).astype(int)]
+        ok = np.isfinite(z)
+        x = (p0[ok, 0] - float(camera.cx)) / float(camera.fx) * z[ok]
+        y = (p0[ok, 1] - float(camera.cy)) / float(camera.fy) * z[ok]
+        points = np.stack([x, y, z[ok]], -1)
+        _, rvec, tvec, inliers = cv2.solvePnPRansac(
+            points, p1[ok], k, None, reprojectionError=1.5, iterationsCount=2000
+        )
+        world_to_camera = np.eye(4)
+        world_to_camera[:3, :3], world_to_camera[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+        poses[name] = np.linalg.inv(world_to_camera)
+        moved = np.linalg.norm(poses[name][:3, 3])
+        print(f"  {name}: {len(inliers)} of {int(ok.sum())} matches, camera moved {moved:.2f} mm")
+    if out.is_dir():
+        shutil.rmtree(out)
+    for folder in ("images", "right", "depth", "normals"):
+        (out / folder).mkdir(parents=True)
+        for capture in frames:
+            for path in (capture.root / folder).iterdir():
+                shutil.copy(path, out / folder / path.name)
+    shutil.copy(frames[0].root / "camera.json", out / "camera.json")
+    (out / "poses.json").write_text(json.dumps({n: p.tolist() for n, p in poses.items()}))
+    return out
+
+
+def across_frames(frames: list, work: Path, fitted: int) -> dict:
+    """The paper's BRDF fitted on the first `fitted` frames, registered (left views alone,
+    then with the right views), and judged on the other frames' right views."""
+    print("registering the frames (PnP on the first frame's pair depth):")
+    names = [c.frames[0].name for c in frames]
+    everything = load_capture(registered(frames, work / "registered"))
+    first = load_capture(registered(frames[:fitted], work / "registered_fit"))
+    lambertian = ShadingModel(BRDF(Lambertian(np.ones(3))), ColocatedLight())
+    out = {}
+    views = RightViews.of(everything, range(fitted, len(frames)))
+    out["lambertian"] = views.rmse(lambertian)
+    for right in (False, True):
+        fit = fit_albedo_map(first, right_views=right)
+        found = fit.to_json()
+        key = "fit_with_right_views" if right else "fit_left_views"
+        out[key] = {
+            "sigma": found["sigma"],
+            "F_tilde": found["F_tilde"],
+            "status": found["status"],
+            "halves": {k: v["sigma"] for k, v in found.get("halves", {}).items()},
+            "judged": views.rmse(fit.model),
+        }
+    print(f"fitted on {names[:fitted]}, judged on the right views of {names[fitted:]}:")
+    print(
+        f"  Lambertian: right {out['lambertian']['right']:.2f}, left "
+        f"{out['lambertian']['left']:.2f} levels ({out['lambertian']['views']} right views)"
+    )
+    for key in ("fit_left_views", "fit_with_right_views"):
+        f = out[key]
+        print(
+            f"  {key}: sigma {f['sigma']:.4g} (halves {f['halves']}), F_tilde "
+            f"{np.round(f['F_tilde'], 4).tolist()}, {f['status']}; right "
+            f"{f['judged']['right']:.2f}, left {f['judged']['left']:.2f} levels"
+        )
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("capture", type=Path)
@@ -106,6 +193,9 @@ def main(argv=None):
     parser.add_argument("--work", type=Path, default=Path("/tmp/ctjax-stereo-right-views"))
     parser.add_argument("--fit-frame", type=int, default=0)
     parser.add_argument("--knot-px", type=float, default=12.0)
+    parser.add_argument(
+        "--fitted", type=int, default=6, help="frames fitted on across frames (registered)"
+    )
     args = parser.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
     scaled = load_capture(prepare(args.capture, args.work, args.frames, args.width))
@@ -142,7 +232,8 @@ def main(argv=None):
     if held:
         lam, cook = (np.mean([r[k] for r in held]) for k in ("lambertian", "fit"))
         print(f"other frames, mean: Lambertian {lam:.2f}, the fit {cook:.2f} levels")
-    emit({"capture": str(args.capture), "fit": found, "frames": rows})
+    across = across_frames(frames, args.work, args.fitted) if len(frames) > args.fitted else {}
+    emit({"capture": str(args.capture), "fit": found, "frames": rows, "across_frames": across})
 
 
 if __name__ == "__main__":
