@@ -21,7 +21,12 @@ the right camera has no depth of its own.
 An observation counts when it lands inside the right image, faces the right camera, is not
 hidden (its depth agrees within the tracks' tolerance with the nearest of the left frame's
 surface points splatted into the right view: a z-buffer), and none of the right image's
-four neighbours is clipped in a channel (that channel does not count).
+four neighbours is clipped in a channel (no channel of it counts then).
+
+The right camera is taken as the left one's twin behind the sensor: a right view carries
+its frame's index (the exposure of that instant, as the left image's) and, for the
+effects that read a pixel (vignetting about the principal point), its position relative
+to the right camera's optical axis written as the left camera's pixel.
 """
 
 import cv2
@@ -153,6 +158,12 @@ def _right_observations(capture, index, world, normal, tolerance, saturation_lev
     seen &= ~clipped
     values = np.where(seen[:, None], values, 0.0)
     weight = np.where(seen, observation_weight(np.where(seen, spread, 0.0)), 0.0)
+    # Where it lies on the right sensor, as the left camera's pixel at the same place
+    # relative to its optical axis: effects of the optics (vignetting about the principal
+    # point) then act as the right camera's own, taken to be the left's twin.
+    left = capture.camera
+    u = float(left.cx) + (u - float(right.cx)) * float(left.fx) / float(right.fx)
+    v = float(left.cy) + (v - float(right.cy)) * float(left.fy) / float(right.fy)
     pixel = np.stack([np.where(seen, u, 0.0), np.where(seen, v, 0.0)], -1)
     point = np.where(seen[:, None], point, (0.0, 0.0, 1.0))
     facing = np.where(seen[:, None], facing, (0.0, 0.0, -1.0))
