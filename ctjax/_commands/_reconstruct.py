@@ -43,11 +43,12 @@ def add_reconstruct_parser(commands) -> None:
     )
     recon.add_argument(
         "--stereo",
-        choices=("scale", "surface", "none"),
+        choices=("scale", "surface", "none", "pairs"),
         default="scale",
         help="on a stereo capture (right/NAME.png, camera.json's stereo): the pairs' depth "
         "gives the scale in mm (scale), and also dense points for the surfaces (surface; "
-        "noisier normals on the synthetic captures), or is not used (none)",
+        "noisier normals on the synthetic captures), or is not used (none); pairs: no SfM, "
+        "each frame's depth from its own pair and poses by PnP (a scope held still)",
     )
     recon.add_argument(
         "--focal",

@@ -28,6 +28,7 @@ from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel
 from ._focal import sparse_with_focal, with_focal
+from ._pairs import pairs_reconstruction
 from ._photometric import POINTS_WEIGHT, SMOOTHING, refine_views
 from ._stereo import stereo_points, stereo_report, stereo_scale
 from ._surface import DepthSurface, fit_depth_surface
@@ -128,7 +129,9 @@ def reconstruct_capture(
     `stereo`: on a stereo capture (camera.json's "stereo", right/NAME.png), what the pairs'
     depth (`_stereo.py`) is used for: `"scale"` (default) SfM's scale (mm, unless
     `scale_mm` or `volume_mm3` says otherwise), `"surface"` also their dense points for
-    every view's surface beside SfM's, `"none"` nothing.
+    every view's surface beside SfM's, `"none"` nothing, `"pairs"` everything: no SfM,
+    each frame's surface from its own pair and its pose by PnP (`_pairs.py`: a scope held
+    still gives SfM no parallax).
 
     `photometric`: refine each view's surface by the texture seen from the other frames
     (`_photometric.py`; on by default: SfM's points alone leave the normals 2-3 degrees off
@@ -143,6 +146,13 @@ def reconstruct_capture(
     """
     _check_scale(scale_mm, volume_mm3)
     say = progress or (lambda message: None)
+    if stereo == "pairs":  # no SfM: each frame's pair, poses by PnP (`_pairs.py`)
+        if focal != "fixed" or scale_mm is not None or volume_mm3 is not None:
+            raise ParameterError("--stereo pairs is in mm with the given camera: no scale, focal")
+        knot = max(capture.camera.width, capture.camera.height) / 20
+        found, report = pairs_reconstruction(capture, knot_spacing_px or knot, say)
+        views = {name: ViewSurface(name, *parts) for name, parts in found.items()}
+        return Reconstruction(capture.camera, views, None, report)
     sparse, camera, focal_report = sparse_with_focal(capture, focal, progress, verbose)
     reference = sparse.registered[0]
     ref_from_world = sparse.cam_from_world[reference]
@@ -210,7 +220,7 @@ def reconstruct_capture(
     return Reconstruction(camera, views, sparse, report)
 
 
-STEREO_USES = ("scale", "surface", "none")
+STEREO_USES = ("scale", "surface", "none", "pairs")
 
 
 def _photometric_report(refinements) -> dict:
