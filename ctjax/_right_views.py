@@ -34,7 +34,7 @@ import numpy as np
 
 from ._camera import Camera
 from ._errors import CtjaxError
-from ._tracks import DEFAULT_TOLERANCE, Tracks, observation_weight, sample_image
+from ._tracks import DEFAULT_TOLERANCE, Tracks, observation_weight, sample_image, world_points
 from ._units import METRIC
 from .io._encoding import SRGB, srgb_to_linear
 
@@ -115,16 +115,7 @@ def _anchors(capture, tracks: Tracks):
         frame = capture.frames[index]
         at = tracks.anchor_frame == index
         rows, cols = tracks.anchor_row[at], tracks.anchor_col[at]
-        z = frame.depth[rows, cols].astype(np.float64)
-        local = np.stack(
-            [
-                z * (cols - float(camera.cx)) / float(camera.fx),
-                z * (rows - float(camera.cy)) / float(camera.fy),
-                z,
-            ],
-            -1,
-        )
-        world[at] = local @ frame.pose[:3, :3].T + frame.pose[:3, 3]
+        world[at] = world_points(camera, frame, rows, cols)
         normal[at] = frame.normals[rows, cols].astype(np.float64) @ frame.pose[:3, :3].T
     return world, normal
 
