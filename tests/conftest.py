@@ -10,7 +10,11 @@ jax.config.update("jax_enable_x64", True)
 # subprocesses): the same fitters compile once, not once per process.
 _CACHE = Path(__file__).resolve().parent.parent / ".jax_cache"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
-os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+# Every program, however quick to compile: the two workers run different files that share
+# fitters (a diagnose compiles ~108 programs of 0.05-0.5 s each); test_notebooks' diagnose
+# after test_diagnostics' in another process: 31.9 -> 25.3 s (the suite: 493 -> 477 s, cold,
+# one run each, within the run-to-run spread).
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
 jax.config.update(
     "jax_persistent_cache_min_compile_time_secs",
@@ -38,7 +42,14 @@ jax.config.update(
 # A whole-suite profile (one process, cProfile) put 2815 compiled programs at 149 s of XLA
 # compiling, 149 s of tracing and 78 s of lowering (both inflated by the profiler), ~167 s of
 # running them; synthesising the test captures 104 s (ray casting 64 s of it, cut 4x since).
-_TEST_FLAGS = {"--xla_cpu_use_fusion_emitters": "false", "--xla_backend_optimization_level": "0"}
+# And no parallel code generation: XLA splits each program's LLVM module to compile the parts
+# on threads, but the workers already keep both cores busy, and splitting costs: a cold
+# `diagnose` (128x96 x 5, 108 programs) compiles in 12.8-13.2 s instead of 15.7-16.3 s.
+_TEST_FLAGS = {
+    "--xla_cpu_use_fusion_emitters": "false",
+    "--xla_backend_optimization_level": "0",
+    "--xla_cpu_parallel_codegen_split_count": "1",
+}
 for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()

@@ -70,7 +70,7 @@ def test_near_light_with_the_albedo_map_finds_the_offset(independent_near):
 
     scenes, roots = independent_near
     capture = load_capture(roots["offset"])
-    result = calibrate_near_light(capture, falloff=(InverseSquare(68.0),))
+    result = calibrate_near_light(capture, falloff=(InverseSquare(68.0),), max_samples=4000)
     fit = result.to_json()
     assert fit["albedo"] == "map" and fit["offset_detected"]
     np.testing.assert_allclose(fit["offset_mm"], [6.0, -4.0, 0.0], atol=0.5)
@@ -87,7 +87,7 @@ def test_near_light_with_the_albedo_map_finds_the_offset(independent_near):
 def test_near_light_with_the_albedo_map_reports_no_offset_at_the_lens(independent_near):
     scenes, roots = independent_near
     capture = load_capture(roots["lens"])
-    result = calibrate_near_light(capture, falloff=())
+    result = calibrate_near_light(capture, falloff=(), max_samples=4000)
     fit = result.to_json()
     assert not fit["offset_detected"] and fit["offset_mm"] == [0.0, 0.0, 0.0]
     assert 0 < fit["offset_bound_mm"] < 0.5
