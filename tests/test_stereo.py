@@ -236,7 +236,9 @@ def test_reconstruct_from_the_pairs_alone(stereo_capture, tmp_path):
     from ctjax.sfm import reconstruct
 
     out = tmp_path / "pairs"
-    report = reconstruct(stereo_capture, out, stereo="pairs")
+    # The surfaces' knot spacing as given (the default here: 192 / 20 = 9.6 px).
+    report = reconstruct(stereo_capture, out, stereo="pairs", knot_spacing_px=10.0)
+    assert report["surface"]["knot_spacing_px"] == 10.0
     assert report["registered"] == ["frame_000", "frame_001", "frame_002"]
     assert report["length_unit"] == "mm" and report["mean_reprojection_error_px"] < 0.5
     truth, found = load_capture(stereo_capture), load_capture(out)
@@ -251,3 +253,5 @@ def test_reconstruct_from_the_pairs_alone(stereo_capture, tmp_path):
         assert np.median(np.degrees(np.arccos(np.clip(cosine, -1, 1)))) < 6
     with pytest.raises(ParameterError, match="no scale"):
         reconstruct(stereo_capture, tmp_path / "x", stereo="pairs", scale_mm=60.0)
+    with pytest.raises(ParameterError, match="knot_spacing_px must be a positive"):
+        reconstruct(stereo_capture, tmp_path / "x", stereo="pairs", knot_spacing_px=0.0)

@@ -58,6 +58,13 @@ def add_reconstruct_parser(commands) -> None:
         "from two starts and kept where they agree (a video without calibration, read with "
         "a guessed camera); the refined one is written into the output's camera.json",
     )
+    recon.add_argument(
+        "--knot-px",
+        type=float,
+        metavar="PX",
+        help="the dense surfaces' knot spacing in pixels (default: a twentieth of the image's "
+        "larger side): the finest relief their normals resolve; finer is noisier",
+    )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
     recon.add_argument("--json", type=Path, help="write the report to this JSON file")
     recon.set_defaults(run=run_reconstruct)
@@ -77,6 +84,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         shading=args.shading,
         stereo=args.stereo,
         focal=args.focal,
+        knot_spacing_px=args.knot_px,
         progress=lambda m: print(f"[ctjax reconstruct] {m}", flush=True),
         verbose=args.verbose,
     )

@@ -76,10 +76,15 @@ class Reconstruction:
     report: dict
 
 
-def _check_scale(scale_mm, volume_mm3) -> None:
+def _check_scale(scale_mm, volume_mm3, knot_spacing_px=None) -> None:
     if scale_mm is not None and volume_mm3 is not None:
         raise ParameterError("give scale_mm or volume_mm3, not both")
-    for name, value in (("scale_mm", scale_mm), ("volume_mm3", volume_mm3)):
+    given = (
+        ("scale_mm", scale_mm),
+        ("volume_mm3", volume_mm3),
+        ("knot_spacing_px", knot_spacing_px),
+    )
+    for name, value in given:
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ParameterError(f"{name} must be a positive finite number, got {value}")
 
@@ -144,7 +149,7 @@ def reconstruct_capture(
     Raises `ReconstructionError` (too few features, no initial pair); frames that do not
     register are listed in the report and get no geometry.
     """
-    _check_scale(scale_mm, volume_mm3)
+    _check_scale(scale_mm, volume_mm3, knot_spacing_px)
     say = progress or (lambda message: None)
     if stereo == "pairs":  # no SfM: each frame's pair, poses by PnP (`_pairs.py`)
         if focal != "fixed" or scale_mm is not None or volume_mm3 is not None:
@@ -284,6 +289,7 @@ def reconstruct(
     shading: bool | str = False,
     stereo: str = "scale",
     focal: str = "fixed",
+    knot_spacing_px: float | None = None,
     progress: Callable[[str], None] | None = None,
     verbose: bool = False,
 ) -> dict:
@@ -303,11 +309,13 @@ def reconstruct(
     light's fitted `position_mm` in the capture's length unit), or why it was skipped. `stereo`: see
     `reconstruct_capture` (a stereo capture is in mm without a size given). `focal`: see
     `reconstruct_capture`; a refined focal length is written into `out`'s camera.json (in
-    place only with `force`), the given one kept in the report.
+    place only with `force`), the given one kept in the report. `knot_spacing_px`: the dense
+    surfaces' knot spacing (default: a twentieth of the image's larger side), the scale of
+    the relief their normals resolve.
 
     Returns the report (see `reconstruct_capture`).
     """
-    _check_scale(scale_mm, volume_mm3)
+    _check_scale(scale_mm, volume_mm3, knot_spacing_px)
     if shading not in (None, False, True, *SHADING_LIGHTS):
         raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {shading!r}")
     root = Path(capture_dir)
@@ -336,6 +344,7 @@ def reconstruct(
         photometric=photometric,
         stereo=stereo,
         focal=focal,
+        knot_spacing_px=knot_spacing_px,
         progress=progress,
         verbose=verbose,
     )
