@@ -369,6 +369,11 @@ OPTION_CASES = [
     ),
     pytest.param(["reconstruct", "{cap}"], "poses.json: exists", id="reconstruct-would-overwrite"),
     pytest.param(
+        ["reconstruct", "{cap}", "--out", "{out}/r", "--knot-px", "nan"],
+        "knot_spacing_px must be a positive finite number",
+        id="reconstruct-nan-knots",
+    ),
+    pytest.param(
         ["diagnose", "{cap}", "--json", "{out}/d.json", "--loop", "--max-rounds", "0"],
         "--max-rounds",
         id="diagnose-loop-no-rounds",
