@@ -1,6 +1,6 @@
 """The sparkle density's sigma against the scale of the normals, on a stereo capture.
 
-    python benchmarks/sparkle_scale.py CAPTURE [--width 640] [--knots 32 16 8] [--work DIR]
+    python benchmarks/sparkle_scale.py CAPTURE [--width 640] [--knots 32 24 16 12 8] [--work DIR]
 
 CAPTURE is a stereo capture (right/NAME.png and camera.json's stereo block, e.g. the SurgT
 clip `benchmarks/surgt_capture.py` builds), scaled to `--width` pixels wide (as
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     parser.add_argument("capture", type=Path, help="a stereo capture (right/, stereo block)")
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--frames", type=int, default=10)
-    parser.add_argument("--knots", type=float, nargs="+", default=[32.0, 16.0, 8.0])
+    parser.add_argument("--knots", type=float, nargs="+", default=[32.0, 24.0, 16.0, 12.0, 8.0])
     parser.add_argument("--work", type=Path, default=Path("sparkle-scale"))
     args = parser.parse_args(argv)
     scaled = prepare(args.capture, args.work, args.frames, args.width)
