@@ -71,6 +71,23 @@ def keep_programs(folder: Path | None) -> None:
     _FOLDER[0] = folder
 
 
+# XLA:CPU's loop emitters for the fitters instead of its newer fusion emitters: a fitter is
+# a program compiled once per model and run for milliseconds, and the loop emitters compile
+# it faster and run it no slower. A cold `diagnose` (128x96 x 5, 108 programs, XLA's other
+# defaults): 52-62 s -> 38-44 s, compiling 41-49 s -> 27-30 s (alternating, two each);
+# the renderer, whose programs run for long, keeps the fusion emitters (4-7x faster there).
+# The test suite compiles everything with the loop emitters (tests/conftest.py).
+FITTER_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
+@functools.cache
+def compiler_options() -> dict:
+    """`jax.jit`'s `compiler_options` for a fitter on the default backend (XLA:CPU's loop
+    emitters, `FITTER_COMPILER_OPTIONS`; none elsewhere). Asks for the backend: call it
+    when compiling, not at import."""
+    return dict(FITTER_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
+
+
 @functools.cache
 def _code_digest() -> str:
     """ctjax's source and the versions of the libraries that shape a traced program."""
@@ -149,7 +166,11 @@ class _Program:
         # uncommitted arguments (an exported program's outputs are committed) would
         # otherwise compile the program twice.
         device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-        self.run = jax.jit(lambda *leaves: exported.call(*leaves), in_shardings=device)
+        self.run = jax.jit(
+            lambda *leaves: exported.call(*leaves),
+            in_shardings=device,
+            compiler_options=compiler_options(),
+        )
 
     def __call__(self, leaves):
         outputs = iter(self.run(*leaves))
@@ -177,16 +198,24 @@ def _export(fun, treedef, static, leaves):
 
 def persistent_jit(fun):
     """`eqx.filter_jit(fun)` whose traced program is also kept between processes (see the
-    module doc). For module-level functions of their arguments only."""
-    jitted = eqx.filter_jit(fun)
+    module doc). For module-level functions of their arguments only. Compiled with
+    `compiler_options()` (XLA:CPU's loop emitters)."""
     loaded: dict[Path, _Program | None] = {}
     name = f"{fun.__module__}.{fun.__qualname__}"
 
+    nested = eqx.filter_jit(fun)  # called inside another program: its options apply
+
+    @functools.cache
+    def top_level():  # at the first call: the backend is not known at import
+        return eqx.filter_jit(fun, compiler_options=compiler_options())
+
     @functools.wraps(fun)
     def call(*args, **kwargs):
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs))):
+            return nested(*args, **kwargs)  # part of the caller's program (and kept with it)
         folder = _FOLDER[0]
         if folder is None:
-            return jitted(*args, **kwargs)
+            return top_level()(*args, **kwargs)
         dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, treedef = jax.tree.flatten(dynamic)
         try:
@@ -202,7 +231,7 @@ def persistent_jit(fun):
                 ]
             )
         except _Unkeyable:
-            return jitted(*args, **kwargs)
+            return top_level()(*args, **kwargs)
         key = hashlib.sha256(text.encode()).hexdigest()
         path = folder / f"{key}.program"
         if path not in loaded:
@@ -210,7 +239,7 @@ def persistent_jit(fun):
                 path, key, fun, treedef, static, leaves
             )
         program = loaded[path]
-        return jitted(*args, **kwargs) if program is None else program(leaves)
+        return top_level()(*args, **kwargs) if program is None else program(leaves)
 
     return call
 

@@ -318,3 +318,20 @@ def test_ctjax_does_not_use_pickle():
         if uses.search(line)
     ]
     assert not found
+
+
+def _doubled(x):
+    return 2 * x
+
+
+def test_fitters_compile_with_the_loop_emitters_and_nest(kept):
+    """A kept program is compiled with `compiler_options()` (XLA:CPU's loop emitters, which
+    compile fitters faster); called inside another program it is part of that one (`jax.jit`
+    refuses compiler options on a nested call), kept or not."""
+    assert _programs.compiler_options() == {"xla_cpu_use_fusion_emitters": False}
+    doubled = _programs.persistent_jit(_doubled)
+    x = jnp.arange(3.0)
+    np.testing.assert_array_equal(doubled(x), 2 * x)
+    np.testing.assert_array_equal(jax.jit(lambda y: doubled(y) + 1)(x), 2 * x + 1)
+    _programs.keep_programs(None)
+    np.testing.assert_array_equal(jax.jit(lambda y: doubled(y) + 1)(x), 2 * x + 1)
