@@ -88,6 +88,28 @@ def compiler_options() -> dict:
     return dict(FITTER_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
 
 
+def _traced(args, kwargs) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs)))
+
+
+def fitter_jit(fun):
+    """`eqx.filter_jit(fun)` compiled with `compiler_options()` (XLA:CPU's loop emitters):
+    for programs compiled once and run briefly (fitters, linearisations), not for the
+    renderer. Called inside another program's trace it is part of that program (`jax.jit`
+    takes compiler options only at the top level)."""
+    nested = eqx.filter_jit(fun)
+
+    @functools.cache
+    def top_level():  # at the first call: the backend is not known at import
+        return eqx.filter_jit(fun, compiler_options=compiler_options())
+
+    @functools.wraps(fun)
+    def call(*args, **kwargs):
+        return (nested if _traced(args, kwargs) else top_level())(*args, **kwargs)
+
+    return call
+
+
 @functools.cache
 def _code_digest() -> str:
     """ctjax's source and the versions of the libraries that shape a traced program."""
@@ -203,19 +225,13 @@ def persistent_jit(fun):
     loaded: dict[Path, _Program | None] = {}
     name = f"{fun.__module__}.{fun.__qualname__}"
 
-    nested = eqx.filter_jit(fun)  # called inside another program: its options apply
-
-    @functools.cache
-    def top_level():  # at the first call: the backend is not known at import
-        return eqx.filter_jit(fun, compiler_options=compiler_options())
+    jitted = fitter_jit(fun)
 
     @functools.wraps(fun)
     def call(*args, **kwargs):
-        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs))):
-            return nested(*args, **kwargs)  # part of the caller's program (and kept with it)
         folder = _FOLDER[0]
-        if folder is None:
-            return top_level()(*args, **kwargs)
+        if folder is None or _traced(args, kwargs):  # traced: part of the caller's program
+            return jitted(*args, **kwargs)
         dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, treedef = jax.tree.flatten(dynamic)
         try:
@@ -231,7 +247,7 @@ def persistent_jit(fun):
                 ]
             )
         except _Unkeyable:
-            return top_level()(*args, **kwargs)
+            return jitted(*args, **kwargs)
         key = hashlib.sha256(text.encode()).hexdigest()
         path = folder / f"{key}.program"
         if path not in loaded:
@@ -239,7 +255,7 @@ def persistent_jit(fun):
                 path, key, fun, treedef, static, leaves
             )
         program = loaded[path]
-        return top_level()(*args, **kwargs) if program is None else program(leaves)
+        return jitted(*args, **kwargs) if program is None else program(leaves)
 
     return call
 

@@ -34,6 +34,7 @@ import scipy.sparse.linalg as sparse_linalg
 
 from .._camera import Camera
 from .._errors import CtjaxError
+from .._programs import fitter_jit
 from .._vector import Vec3
 from ._perspective import normal_from_gradients
 
@@ -70,7 +71,7 @@ class LambertianResiduals(eqx.Module):
         return lambertian_reflectance(p, q, (u, v), self.camera)[None] - shading
 
 
-@eqx.filter_jit
+@fitter_jit
 def _linearise(residuals, z, p, q, u, v, values):
     """Every pixel's residuals and their derivatives in (z, p, q), vmapped."""
 
