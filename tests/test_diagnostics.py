@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ctjax import ParameterError
 from ctjax.cli import main
 from ctjax.diagnostics import CANDIDATES, AbstractCandidate, diagnose
 from ctjax.effects import AbstractImageEffect
@@ -159,6 +160,20 @@ def test_a_users_own_effect_is_fitted_and_ranked(captures):
     assert diagnosis.candidates[0].details["params"]["effects[0].level"] == pytest.approx(
         0.023, abs=0.005
     )
+
+
+def test_candidates_on_threads_give_what_one_thread_gives(captures):
+    few = tuple(c for c in CANDIDATES if c.name in ("ambient", "camera_gamma", "ggx"))
+    runs = [
+        diagnose(captures["ambient"], candidates=few, workers=workers, **SAMPLES).to_json()
+        for workers in (1, 3)
+    ]
+    for run in runs:
+        for candidate in run["candidates"]:
+            assert candidate.pop("seconds") > 0
+    assert runs[0] == runs[1] and runs[0]["verdict"] == "ambient"
+    with pytest.raises(ParameterError, match="workers must be a positive integer, got 0"):
+        diagnose(captures["ambient"], candidates=few, workers=0)
 
 
 def test_textured_tissue_is_diagnosed_with_the_albedo_map(tmp_path):

@@ -52,6 +52,13 @@ def add_diagnose_parser(commands) -> None:
         metavar="N",
         help="--loop: at most this many diagnoses (default %(default)s)",
     )
+    diag.add_argument(
+        "--workers",
+        type=positive_int,
+        metavar="N",
+        help="candidates fitted at once, on threads (default: the cores this process may "
+        "use, at most 4); the results do not depend on it",
+    )
     diag.set_defaults(run=run_diagnose)
 
 
@@ -68,6 +75,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         add=tuple(args.add),
         albedo=args.albedo,
         max_samples=args.max_samples,
+        workers=args.workers,
         progress=lambda m: print(f"[ctjax diagnose] {m}", flush=True),
     )
     loop = None

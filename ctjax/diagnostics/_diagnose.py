@@ -8,8 +8,11 @@ neighbouring residuals, where any smooth model error cancels), so the user knows
 model explains everything there is to explain.
 """
 
+import concurrent.futures
 import dataclasses
 import functools
+import os
+import threading
 import time
 
 import numpy as np
@@ -44,6 +47,17 @@ from ._candidates import CANDIDATES, AbstractCandidate, candidate
 # earlier rule (the base at least 5% above the floor) said "none".
 MATERIAL_IMPROVEMENT = 0.03
 
+# Candidates fitted at once (`diagnose`'s `workers`): up to this many threads, one per core.
+# On 2 cores a candidate's fit keeps ~1.5 of them busy (compiling, then running), and a
+# second one fills the gaps.
+MAX_WORKERS = 4
+
+
+def default_workers() -> int:
+    """Threads for the candidates: the cores this process may use, at most `MAX_WORKERS`."""
+    return max(1, min(MAX_WORKERS, len(os.sched_getaffinity(0))))
+
+
 # LM runs from this many of a model's starts (with their roughness variants), those of
 # lowest projected cost: each LM run is most of a candidate's time.
 REFINE = 2
@@ -67,6 +81,7 @@ class Prepared:
         self.capture = capture
         self.settings = (calibration, max_samples, heldout_samples, seed)
         self._splits = {}
+        self._lock = threading.Lock()  # candidates on several threads share the splits
 
     @classmethod
     def of(cls, capture, calibration, max_samples, heldout_samples, seed) -> "Prepared":
@@ -105,6 +120,14 @@ class Prepared:
     def split(self, albedo: str) -> "HeldOut | HeldOutTracks":
         """The held-out split for `albedo` (`split_for`), built once; its `CtjaxError` (too
         few calibration frames for a map) raised again at every call."""
+        with self._lock:
+            self._build_split(albedo)
+        split = self._splits[albedo]
+        if isinstance(split, CtjaxError):
+            raise CtjaxError(str(split))
+        return split
+
+    def _build_split(self, albedo: str) -> None:
         if albedo not in self._splits:
             calibration, max_samples, heldout_samples, seed = self.settings
             try:
@@ -118,10 +141,6 @@ class Prepared:
                 )
             except CtjaxError as error:
                 self._splits[albedo] = error
-        split = self._splits[albedo]
-        if isinstance(split, CtjaxError):
-            raise CtjaxError(str(split))
-        return split
 
 
 @dataclasses.dataclass
@@ -312,20 +331,23 @@ def _candidate_fit(effect, starts, base, heldout, prepared, max_steps) -> Estima
 NO_BETTER = "no better than the base"
 
 
-def _candidates(base, add, candidates, context, heldout, prepared, max_steps, say) -> list:
-    """Every candidate effect not in `add`, fitted on top of `base` and judged."""
+def _candidates(
+    base, add, candidates, context, heldout, prepared, max_steps, say, workers=1
+) -> list:
+    """Every candidate effect not in `add`, fitted on top of `base` and judged, on `workers`
+    threads (JAX releases the GIL while it compiles and runs a program: one candidate
+    compiles while another runs). Reported in the candidates' order; each one's `seconds`
+    is its own wall time, shared with the others' when `workers` > 1."""
     added = {_name(e) for e in add}
-    results = []
-    for effect in candidates:
-        if effect.name in added:
-            continue
+
+    def one(effect):
         started = time.perf_counter()
         starts = effect(base.model, context)
         if not starts:
-            continue
+            return None
         fit = _candidate_fit(effect, starts, base, heldout, prepared, max_steps)
         if fit is None:
-            continue
+            return None
         seconds = time.perf_counter() - started
         improvement = (base.heldout_rmse - fit.heldout_rmse) / base.heldout_rmse
         fit.details = {
@@ -336,12 +358,21 @@ def _candidates(base, add, candidates, context, heldout, prepared, max_steps, sa
             "steps": fit.details["steps"],
             "seconds": round(seconds, 2),
         }
-        results.append(fit)
-        say(
-            f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
-            f"({100 * improvement:+.1f}%) {seconds:4.0f} s"
-            + ("" if fit.converged else f" [{fit.status.name}]")
-        )
+        return fit
+
+    todo = [effect for effect in candidates if effect.name not in added]
+    with concurrent.futures.ThreadPoolExecutor(max(1, workers)) as pool:
+        fits = pool.map(one, todo)  # in order, as each is done
+        results = []
+        for effect, fit in zip(todo, fits, strict=True):
+            if fit is None:
+                continue
+            results.append(fit)
+            say(
+                f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
+                f"({100 * fit.details['improvement']:+.1f}%) {fit.details['seconds']:4.0f} s"
+                + ("" if fit.converged else f" [{fit.status.name}]")
+            )
     return results
 
 
@@ -378,6 +409,7 @@ def diagnose(
     seed: int = 0,
     progress=None,
     base: Estimate | None = None,
+    workers: int | None = None,
 ) -> Diagnosis:
     """Fit the paper's model (plus `add`) and rank every candidate effect by held-out RMSE.
 
@@ -392,6 +424,8 @@ def diagnose(
     `capture` may be `Prepared` (its observations and splits are then reused when its
     settings are these). `base`: the base model (the paper's plus `add`, with `albedo`)
     already fitted and judged on this split, as `next_base` gives it; fitted here when None.
+    `workers`: candidates fitted at once, on threads (default `default_workers()`); the
+    results do not depend on it.
     """
     started = time.perf_counter()
     say = progress or (lambda message: None)
@@ -399,6 +433,9 @@ def diagnose(
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     if base is not None and albedo is None:
         raise ParameterError("a fitted base model needs its albedo choice (albedo=...)")
+    workers = default_workers() if workers is None else workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ParameterError(f"workers must be a positive integer, got {workers!r}")
     prepared = Prepared.of(capture, calibration, max_samples, heldout_samples, seed)
     capture = prepared.observations
     options = dict(
@@ -410,6 +447,7 @@ def diagnose(
         max_steps=max_steps,
         seed=seed,
         progress=progress,
+        workers=workers,
     )
     if albedo is None:
         # The paper's model first; the map when texture is what it misses most.
@@ -426,7 +464,9 @@ def diagnose(
     noise = base.noise_floor
     say(f"base model: held-out RMSE {base.heldout_rmse:.2f} levels, noise floor {noise:.2f}")
 
-    results = _candidates(base, add, candidates, context, heldout, prepared, max_steps, say)
+    results = _candidates(
+        base, add, candidates, context, heldout, prepared, max_steps, say, workers
+    )
     results.sort(key=lambda c: c.heldout_rmse)
     if results and results[0].heldout_rmse < base.heldout_rmse:
         # Every estimate of the noise is biased up by what the model misses: the best
