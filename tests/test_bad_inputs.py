@@ -343,6 +343,25 @@ OPTION_CASES = [
         id="calibrate-light-calib-5",
     ),
     pytest.param(
+        ["diagnose", "{cap}", "--json", "{out}/d.json", "--workers", "0"],
+        "--workers: must be a positive integer, got '0'",
+        id="diagnose-workers-0",
+    ),
+    pytest.param(
+        [
+            "calibrate-light",
+            "{cap}",
+            "--json",
+            "{out}/c.json",
+            "--model",
+            "field",
+            "--workers",
+            "2",
+        ],
+        "--workers is for the near light's falloff sets",
+        id="calibrate-light-field-workers",
+    ),
+    pytest.param(
         ["calibrate-light", "{cap}", "--json", "{out}/c.json", "--falloff", "cubic"],
         "invalid choice: 'cubic'",
         id="calibrate-light-unknown-falloff",

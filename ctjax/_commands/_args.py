@@ -112,6 +112,17 @@ def mask_options(args: argparse.Namespace):
     return MaskOptions(rule, args.ring_px, args.min_speck)
 
 
+def add_workers_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """`--workers N`: how many of `what` are fitted at once, on threads."""
+    parser.add_argument(
+        "--workers",
+        type=positive_int,
+        metavar="N",
+        help=f"{what} fitted at once, on threads (default: the cores this process may use, "
+        "at most 4); the results do not depend on it",
+    )
+
+
 def add_falloff_argument(parser) -> None:
     parser.add_argument(
         "--falloff",

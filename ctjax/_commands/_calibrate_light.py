@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .._errors import CtjaxError
 from .._units import in_length_unit, label
-from ._args import add_falloff_argument, field_solver, load_observations
+from ._args import add_falloff_argument, add_workers_argument, field_solver, load_observations
 
 
 def add_calibrate_light_parser(commands) -> None:
@@ -48,6 +48,7 @@ def add_calibrate_light_parser(commands) -> None:
         help="near, a stereo capture (depth in mm): also fit each surface point's views from "
         "the right camera, which move V and keep L (a falloff cannot mimic them)",
     )
+    add_workers_argument(light, "near: falloff sets")
     light.set_defaults(run=run_calibrate_light)
 
 
@@ -60,6 +61,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
             raise CtjaxError(
                 "--right-views is for the near light (a per-pixel light field is the left camera's)"
             )
+        if args.workers is not None:
+            raise CtjaxError("--workers is for the near light's falloff sets (--model near)")
         return _calibrate_light_field(args)
     observations = load_observations(args)
     capture = observations.capture
@@ -71,6 +74,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         albedo=args.albedo,
         progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
         right_views=args.right_views,
+        workers=args.workers,
     )
     summary = result.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from .._units import in_length_unit
-from ._args import load_capture, positive_int
+from ._args import add_workers_argument, load_capture, positive_int
 
 
 def add_diagnose_parser(commands) -> None:
@@ -52,13 +52,7 @@ def add_diagnose_parser(commands) -> None:
         metavar="N",
         help="--loop: at most this many diagnoses (default %(default)s)",
     )
-    diag.add_argument(
-        "--workers",
-        type=positive_int,
-        metavar="N",
-        help="candidates fitted at once, on threads (default: the cores this process may "
-        "use, at most 4); the results do not depend on it",
-    )
+    add_workers_argument(diag, "candidates")
     diag.set_defaults(run=run_diagnose)
 
 

@@ -21,6 +21,7 @@ from .._errors import CtjaxError
 from .._json import falloff_json
 from .._result import Estimate
 from .._right_views import with_right_views
+from .._threads import checked_workers, in_order
 from .._units import length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
@@ -113,6 +114,7 @@ def calibrate_near_light(
     seed: int = 0,
     progress=None,
     right_views: bool = False,
+    workers: int | None = None,
 ) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
@@ -128,8 +130,11 @@ def calibrate_near_light(
     chosen `falloff` (by name, with its parameters) and `falloff_selection`, the held-out
     RMSE of every falloff set tried. `progress`: called with a line per step.
     `right_views`: with the map, a stereo capture's right images too (`near_light_map`).
+    `workers`: falloff sets fitted at once, on threads (default: the cores, at most 4); the
+    results do not depend on it.
     """
     say = progress or (lambda message: None)
+    workers = checked_workers(workers)
     capture = Observations.of(capture)
     if any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
@@ -148,6 +153,7 @@ def calibrate_near_light(
             seed=seed,
             progress=progress,
             right_views=right_views,
+            workers=workers,
         )
     if right_views:
         raise CtjaxError("the right views are fitted with the albedo map (albedo='map')")
@@ -157,8 +163,9 @@ def calibrate_near_light(
     )
     choices = _choices(capture, falloff)
     say(f"fitting {len(choices)} falloff set(s) on frames {heldout.calibration}, one albedo")
-    fits = [
-        fit_model(
+
+    def fit_choice(choice):
+        return fit_model(
             _starts(choice, capture),
             heldout.train,
             pixel_predict,
@@ -167,8 +174,8 @@ def calibrate_near_light(
             max_steps=max_steps,
             refine=3,
         )
-        for choice in choices
-    ]
+
+    fits = list(in_order(fit_choice, choices, workers))
     errors = [heldout.heldout_rmse(fit.model) for fit in fits]
     fit = heldout.judge(fits[simplest_within(choices, errors)])
     if not np.isfinite(fit.heldout_rmse):
@@ -241,6 +248,7 @@ def near_light_map(
     seed: int = 0,
     progress=None,
     right_views: bool = False,
+    workers: int | None = None,
 ) -> Estimate:
     """The near-light model on textured tissue: one albedo per surface point.
 
@@ -263,9 +271,10 @@ def near_light_map(
     light at the lens explains the held-out frames as well (within 1%), or the offset is
     within 2 standard errors of 0, the estimate is the light at the lens, reported with
     `offset_bound_mm` (the fitted offset's norm plus 2 standard errors): the data cannot
-    tell an offset below it from none.
+    tell an offset below it from none. `workers`: falloff sets fitted at once, on threads.
     """
     started = time.perf_counter()
+    workers = checked_workers(workers)
     say = progress or (lambda message: None)
     capture = Observations.of(capture)
     say("tracking surface points across the frames (albedo map)")
@@ -290,12 +299,22 @@ def near_light_map(
             **fixed,
         )
 
+    say(
+        f"fitting the light's offset with {len(choices)} falloff set(s), "
+        f"frames {heldout.calibration}"
+    )
+
+    def fit_choice(choice):
+        chosen = fit(_starts(choice, capture))
+        return chosen, heldout.heldout_rmse(chosen.model)
+
     fits, errors = [], []
-    for choice in choices:
-        say(f"fitting the light's offset, falloff {_name(choice)}, frames {heldout.calibration}")
-        fits.append(fit(_starts(choice, capture)))
-        errors.append(heldout.heldout_rmse(fits[-1].model))
-        say(f"  held-out RMSE {errors[-1]:.3f} levels")
+    for choice, (chosen, error) in zip(
+        choices, in_order(fit_choice, choices, workers), strict=True
+    ):
+        fits.append(chosen)
+        errors.append(error)
+        say(f"  falloff {_name(choice)}: held-out RMSE {error:.3f} levels")
     chosen = simplest_within(choices, errors)
     offset_fit = heldout.judge(fits[chosen], noise_floor=False)
     if not np.isfinite(offset_fit.heldout_rmse):

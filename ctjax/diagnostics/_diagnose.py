@@ -8,10 +8,8 @@ neighbouring residuals, where any smooth model error cancels), so the user knows
 model explains everything there is to explain.
 """
 
-import concurrent.futures
 import dataclasses
 import functools
-import os
 import threading
 import time
 
@@ -19,6 +17,7 @@ import numpy as np
 
 from .._errors import CtjaxError, ParameterError
 from .._result import Estimate
+from .._threads import checked_workers, in_order
 from .._units import length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
@@ -46,17 +45,6 @@ from ._candidates import CANDIDATES, AbstractCandidate, candidate
 # term brought the held-out RMSE from 1.36 to 1.31 levels, below that floor, where the
 # earlier rule (the base at least 5% above the floor) said "none".
 MATERIAL_IMPROVEMENT = 0.03
-
-# Candidates fitted at once (`diagnose`'s `workers`): up to this many threads, one per core.
-# On 2 cores a candidate's fit keeps ~1.5 of them busy (compiling, then running), and a
-# second one fills the gaps.
-MAX_WORKERS = 4
-
-
-def default_workers() -> int:
-    """Threads for the candidates: the cores this process may use, at most `MAX_WORKERS`."""
-    return max(1, min(MAX_WORKERS, len(os.sched_getaffinity(0))))
-
 
 # LM runs from this many of a model's starts (with their roughness variants), those of
 # lowest projected cost: each LM run is most of a candidate's time.
@@ -361,18 +349,16 @@ def _candidates(
         return fit
 
     todo = [effect for effect in candidates if effect.name not in added]
-    with concurrent.futures.ThreadPoolExecutor(max(1, workers)) as pool:
-        fits = pool.map(one, todo)  # in order, as each is done
-        results = []
-        for effect, fit in zip(todo, fits, strict=True):
-            if fit is None:
-                continue
-            results.append(fit)
-            say(
-                f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
-                f"({100 * fit.details['improvement']:+.1f}%) {fit.details['seconds']:4.0f} s"
-                + ("" if fit.converged else f" [{fit.status.name}]")
-            )
+    results = []
+    for effect, fit in zip(todo, in_order(one, todo, workers), strict=True):
+        if fit is None:
+            continue
+        results.append(fit)
+        say(
+            f"  + {effect.name:<22} held-out RMSE {fit.heldout_rmse:6.2f} "
+            f"({100 * fit.details['improvement']:+.1f}%) {fit.details['seconds']:4.0f} s"
+            + ("" if fit.converged else f" [{fit.status.name}]")
+        )
     return results
 
 
@@ -424,8 +410,8 @@ def diagnose(
     `capture` may be `Prepared` (its observations and splits are then reused when its
     settings are these). `base`: the base model (the paper's plus `add`, with `albedo`)
     already fitted and judged on this split, as `next_base` gives it; fitted here when None.
-    `workers`: candidates fitted at once, on threads (default `default_workers()`); the
-    results do not depend on it.
+    `workers`: candidates fitted at once, on threads (default: the cores, at most 4,
+    `ctjax._threads.default_workers`); the results do not depend on it.
     """
     started = time.perf_counter()
     say = progress or (lambda message: None)
@@ -433,9 +419,7 @@ def diagnose(
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     if base is not None and albedo is None:
         raise ParameterError("a fitted base model needs its albedo choice (albedo=...)")
-    workers = default_workers() if workers is None else workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ParameterError(f"workers must be a positive integer, got {workers!r}")
+    workers = checked_workers(workers)
     prepared = Prepared.of(capture, calibration, max_samples, heldout_samples, seed)
     capture = prepared.observations
     options = dict(
