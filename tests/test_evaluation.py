@@ -300,6 +300,10 @@ def test_evaluation_on_a_capture_from_an_independent_renderer(tmp_path):
     Measured: RGB 1.04 vs 4.63 levels; SfS 0.06 vs 4.47 mm (near highlights 0.05 vs 3.25)."""
     capture = _bump_capture(tmp_path / "bumps")
     summary = evaluate(capture, calibration=2, cook_torrance=fit_colocated).to_json()
+    # The test frames' SfS on threads (the default here) is what one thread gives.
+    alone = evaluate(capture, calibration=2, cook_torrance=fit_colocated, workers=1).to_json()
+    assert len(summary["test_frames"]) >= 2
+    assert {**summary, "timings_s": None} == {**alone, "timings_s": None}
     assert summary["cook_torrance_rgb_rmse_test"] <= 0.5 * summary["lambertian_rgb_rmse_test"]
     assert summary["cook_torrance_sfs_error_mm"] < 0.5 * summary["lambertian_sfs_error_mm"]
     assert (

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .._units import in_length_unit, label
-from ._args import cook_torrance_estimator, load_observations
+from ._args import add_workers_argument, cook_torrance_estimator, load_observations
 
 
 def add_evaluate_parser(commands) -> None:
@@ -42,6 +42,7 @@ def add_evaluate_parser(commands) -> None:
         action="store_true",
         help="RGB errors only: no shape from shading (it needs depth with relief to score)",
     )
+    add_workers_argument(evaluate, "test frames' shapes from shading")
     evaluate.set_defaults(run=run_evaluate)
 
 
@@ -58,6 +59,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         albedo=args.albedo,
         per_pixel_sfs=args.per_pixel_sfs,
         sfs=not args.no_sfs,
+        workers=args.workers,
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
     )
     summary = evaluation.to_json()

@@ -19,6 +19,7 @@ from .._errors import CtjaxError
 from .._json import named_parameters
 from .._result import Estimate
 from .._status import Status
+from .._threads import checked_workers, in_order
 from .._units import METRIC, label, length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo
 from ..fitting import (
@@ -333,6 +334,7 @@ def evaluate(
     reference: Capture | None = None,
     per_pixel_sfs: bool = False,
     progress: Callable[[str], None] = lambda message: None,
+    workers: int | None = None,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
     test frames (RGB error and SfS).
@@ -349,7 +351,10 @@ def evaluate(
     own; e.g. ground truth when `capture`'s shape came from structure-from-motion).
     `per_pixel_sfs`: also run the paper's per-pixel Cook-Torrance SfS (eq. 9 on Tsai-Shah's
     normals) and report it beside the joint one. Shape from shading has one image: it uses
-    one albedo per model (with the map, the median of the points'), and says so in `notes`."""
+    one albedo per model (with the map, the median of the points'), and says so in `notes`.
+    `workers`: test frames whose shape from shading runs at once, on threads (default: the
+    cores, at most 4); the results do not depend on it."""
+    workers = checked_workers(workers)
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
     if missing:
         raise CtjaxError(
@@ -400,18 +405,20 @@ def evaluate(
     shapes = []
     if sfs:
         tic = time.perf_counter()
-        for index in test:
-            progress(f"shape from shading of test frame {capture.frames[index].name}...")
-            shapes.append(
-                frame_shapes(
-                    capture,
-                    index,
-                    lambertian.model,
-                    fitted.model,
-                    reference=reference,
-                    per_pixel=per_pixel_sfs,
-                )
+        names = ", ".join(capture.frames[index].name for index in test)
+        progress(f"shape from shading of test frames {names}...")
+
+        def shapes_of(index):
+            return frame_shapes(
+                capture,
+                index,
+                lambertian.model,
+                fitted.model,
+                reference=reference,
+                per_pixel=per_pixel_sfs,
             )
+
+        shapes = list(in_order(shapes_of, test, workers))
         timings["sfs"] = time.perf_counter() - tic
     notes += [
         f"{name} fit: {e.status.message}"
