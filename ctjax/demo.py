@@ -8,7 +8,6 @@ calibrate-light (the near-light model and the paper's light field; section 5) ->
 """
 
 import base64
-import concurrent.futures
 import html
 import json
 import shutil
@@ -406,49 +405,43 @@ def run_demo(out: Path, options: SynthOptions | None = None, *, falloff: str = "
     capture = load_capture(images_dir)
     masks = MaskOptions(ring_px=DEMO_RING_PX)
     sets = step("masks", "specular set S and ring S~...", capture_sets, capture, masks)
-    # The paper's light field needs neither the fit nor the near light: it runs on a thread
-    # beside them (JAX releases the GIL while it compiles and runs), its lines among theirs.
-    with concurrent.futures.ThreadPoolExecutor(1) as beside:
-        field_job = beside.submit(
-            step,
-            "calibrate_light_field",
-            "the paper's per-pixel light field (LM per pixel, B-spline), on a thread...",
-            calibrate_light_field,
-            capture,
-            brdf_rounds=1,
-            solver=ClosedFormLM(iterations=10),
-        )
-        fit = step(
-            "fit",
-            "BRDF (rho_tilde map, F_tilde, sigma) from all frames...",
-            fit_capture,
-            capture,
-            masks,
-        ).to_json()
-        _log(
-            f"  sigma {fit['sigma']:.4f} (truth {truth.truth['sigma']}), rho_tilde "
-            f"{np.round(fit['rho_tilde'], 3).tolist()}, "
-            f"F_tilde {np.round(fit['F_tilde'], 3).tolist()}"
-        )
-        near = step(
-            "calibrate_light_near",
-            "near-light model (LM, all frames)...",
-            calibrate_near_light,
-            capture,
-            falloff=named_falloff(falloff, capture),
-            max_samples=8000,
-            heldout_samples=20_000,
-        )
-        evaluation = step(
-            "evaluate",
-            "evaluation: Lambertian vs Cook-Torrance, RGB error and shape from shading...",
-            evaluate,
-            capture,
-            cook_torrance=near,
-            reference=truth,
-            progress=lambda m: _log(f"  {m}"),
-        )
-        field = field_job.result()
+    fit = step(
+        "fit",
+        "BRDF (rho_tilde map, F_tilde, sigma) from all frames...",
+        fit_capture,
+        capture,
+        masks,
+    ).to_json()
+    _log(
+        f"  sigma {fit['sigma']:.4f} (truth {truth.truth['sigma']}), rho_tilde "
+        f"{np.round(fit['rho_tilde'], 3).tolist()}, F_tilde {np.round(fit['F_tilde'], 3).tolist()}"
+    )
+    near = step(
+        "calibrate_light_near",
+        "near-light model (LM, all frames)...",
+        calibrate_near_light,
+        capture,
+        falloff=named_falloff(falloff, capture),
+        max_samples=8000,
+        heldout_samples=20_000,
+    )
+    field = step(
+        "calibrate_light_field",
+        "the paper's per-pixel light field (LM per pixel, B-spline)...",
+        calibrate_light_field,
+        capture,
+        brdf_rounds=1,
+        solver=ClosedFormLM(iterations=10),
+    )
+    evaluation = step(
+        "evaluate",
+        "evaluation: Lambertian vs Cook-Torrance, RGB error and shape from shading...",
+        evaluate,
+        capture,
+        cook_torrance=near,
+        reference=truth,
+        progress=lambda m: _log(f"  {m}"),
+    )
     figures = _figures(out, capture, truth, sets, near, field, evaluation)
     summary = {
         "capture": str(images_dir),
