@@ -61,3 +61,7 @@ for _flag, _value in _TEST_FLAGS.items():
 # slowest first ended the two workers within 1.3 s of each other where xdist's left one idle
 # for 19 s (likely: the files share compiled programs through the persistent cache above,
 # and heavy files started together each compile the same fitters). xdist's order is kept.
+#
+# Workers: more than the cores does not pay either. At 79c0fba (656 tests, cold, 2 cores,
+# `pytest_xdist_auto_num_workers` returning 2, 3 or 4): 2 workers 462.5 s, 3 workers 437.7
+# and 476.2 s, 4 workers 499.0 s: within the run-to-run spread at 3, worse at 4. -n auto.
