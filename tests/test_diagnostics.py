@@ -12,8 +12,10 @@ import pytest
 from ctjax import ParameterError
 from ctjax.cli import main
 from ctjax.diagnostics import CANDIDATES, AbstractCandidate, diagnose
+from ctjax.diagnostics._plots import binned_residuals
 from ctjax.effects import AbstractImageEffect
 from ctjax.io import load_capture
+from ctjax.observations import Observations
 from ctjax.synth import SynthOptions, synthesize
 
 SMALL = dict(width=128, height=96, frames=5, texture=False, seed=3)
@@ -200,6 +202,20 @@ def test_textured_tissue_is_diagnosed_with_the_albedo_map(tmp_path):
     # At 128x96 the texture is finer than a pixel: interpolation across frames leaves more
     # than the noise (1.15 levels at 160x128, docs), but not 10%-more than the floor.
     assert diagnosis.base_rmse < 1.1 * diagnosis.noise_floor
+    # The binned residuals (`--plots`) are that model's too, not the texture's: under the map
+    # every bin's mean is within a level (measured 0.30), with one albedo it is not (5.81).
+    frames = diagnosis.heldout_frames
+    samples = Observations.of(capture).pixels(frames, max_samples=4000, seed=2)
+    worst = {
+        albedo: max(
+            float(np.max(np.abs(means)))
+            for _, means in binned_residuals(
+                capture, frames, diagnosis.base.model, samples, albedo
+            ).values()
+        )
+        for albedo in ("map", "uniform")
+    }
+    assert worst["map"] < 1.0 and worst["uniform"] > 3.0, worst
 
 
 def _fake_diagnose(verdicts, rmse):

@@ -12,8 +12,56 @@ from ..observations import Observations
 from ._variables import VARIABLES, binned, physical_variables
 
 
-def plot_binned_residuals(capture, frames, models: dict, path: Path, max_samples=40_000) -> Path:
-    """Mean residual per channel against each physical variable, one curve per model."""
+def _map_residual(capture, frames, model, samples) -> np.ndarray:
+    """(N, 3) model - measured at `samples` (8-bit levels) under the albedo map: each
+    pixel's albedo fitted to the other frames that see it (`map_residuals`, as the residual
+    maps and the held-out RMSE); NaN where no other frame does."""
+    from ..estimation._dense_maps import map_residuals
+    from ..fitting._map_least_squares import diffuse_lobe
+
+    images = map_residuals(
+        capture,
+        model.brdf,
+        model.light,
+        list(frames),
+        per_point=diffuse_lobe(model),
+        effects=tuple(model.effects),
+    )
+    by_frame = dict(zip(frames, images, strict=True))
+    frame, row, col = (np.asarray(a) for a in (samples.frame, samples.row, samples.col))
+    out = np.full((len(frame), 3), np.nan)
+    for index, image in by_frame.items():
+        here = frame == index
+        out[here] = -255 * image[row[here], col[here]]
+    return out
+
+
+def binned_residuals(capture, frames, model, samples, albedo: str = "uniform") -> dict:
+    """For each variable of `VARIABLES`: (bin centres, mean residual (bins, 3) in 8-bit
+    levels, model - measured) over `samples` (pixels of `frames`); `albedo` as in
+    `plot_binned_residuals`. Samples without a residual (under the map: no other frame sees
+    them) are left out."""
+    if albedo == "map":
+        residual = _map_residual(capture, frames, model, samples)
+    else:
+        predicted = np.asarray(predictions(model, samples, pixel_predict))
+        residual = 255 * (predicted - np.asarray(samples.values))
+    variables = physical_variables(model, samples, capture.camera)
+    known = np.all(np.isfinite(residual), axis=1)
+    out = {}
+    for name in VARIABLES:
+        centres, means, _ = binned(np.asarray(variables[name])[known], residual[known])
+        out[name] = (centres, means)
+    return out
+
+
+def plot_binned_residuals(
+    capture, frames, models: dict, path: Path, max_samples=40_000, albedo: str = "uniform"
+) -> Path:
+    """Mean residual (model - measured) per channel against each physical variable, one
+    curve per model. `albedo="map"`: the albedo-map model's residuals (each pixel's albedo
+    from the other frames that see it: the model whose held-out RMSE the diagnosis
+    reports); `"uniform"`: the model as it is, its one rho_tilde."""
     samples = Observations.of(capture).pixels(frames, max_samples=max_samples, seed=2)
     names = list(VARIABLES)
     columns = (len(names) + 1) // 2
@@ -23,12 +71,9 @@ def plot_binned_residuals(capture, frames, models: dict, path: Path, max_samples
     colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
     styles = ["-", "--", ":", "-."]
     for style, (label, model) in zip(styles, models.items(), strict=False):
-        residual = 255 * (
-            np.asarray(predictions(model, samples, pixel_predict)) - np.asarray(samples.values)
-        )
-        variables = physical_variables(model, samples, capture.camera)
+        curves = binned_residuals(capture, frames, model, samples, albedo)
         for ax, name in zip(axes, names, strict=False):
-            centres, means, _ = binned(np.asarray(variables[name]), residual)
+            centres, means = curves[name]
             for c, channel in enumerate("RGB"):
                 ax.plot(
                     centres,
@@ -64,6 +109,10 @@ def diagnosis_plots(capture: Capture, diagnosis, out: Path) -> list[Path]:
             albedo=diagnosis.base.details.get("albedo", "uniform"),
         ),
         plot_binned_residuals(
-            capture, diagnosis.heldout_frames, models, out / "binned_residuals.png"
+            capture,
+            diagnosis.heldout_frames,
+            models,
+            out / "binned_residuals.png",
+            albedo=diagnosis.base.details.get("albedo", "uniform"),
         ),
     ]
