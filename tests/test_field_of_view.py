@@ -67,6 +67,29 @@ def test_field_of_view_is_the_image_circle_less_its_rim(shape):
     assert fov.sum() >= 0.9 * inside.sum()
 
 
+def test_the_lens_edge_is_not_in_view():
+    """A sinus scope's image circle ends in a dim halo just above the border's level, a
+    black line and a white ring (the lens's edge): none of it is the scene; a highlight
+    on the tissue beside the ring, and the tissue itself, are."""
+    images, inside = _frames("circle", count=1)
+    image = images[0]
+    distance = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
+    edge = {
+        "halo": (distance > 0) & (distance <= 2),
+        "line": (distance > 2) & (distance <= 3),
+        "ring": (distance > 3) & (distance <= 5),
+    }
+    image[edge["halo"]] = [0.07, 0.06, 0.05]  # above the border's 0.06, yet not tissue
+    image[edge["line"]] = 0.01
+    image[edge["ring"]] = 0.93
+    image[58:62, 33:37] = 1.0  # a clipped highlight on the tissue 3 px inside the ring
+    fov = field_of_view(image)
+    for name, pixels in edge.items():
+        assert not (fov & pixels).any(), name
+    assert fov[58:62, 33:37].all()
+    assert fov.sum() >= 0.9 * (distance > 5).sum()  # the tissue inside the ring
+
+
 def test_a_capture_without_border_is_all_in_view():
     image = _tissue(0.0, 0)
     assert field_of_view(image).all()

@@ -8,8 +8,14 @@ structure-from-motion features.
 - **Border** (`field_of_view`): the dark pixels (brightest channel at most `border_level`)
   connected to the image's edge, after a morphological opening that keeps only regions at
   least `border_px` wide (a dark vessel or a shadow touching the edge is not a border), with
-  their holes filled; the field of view is the rest, shrunk by `margin_px` (the dim rim of
-  the image circle, where vignetting and the lens's edge blur the values).
+  their holes filled; the field of view is the rest, less the lens's edge, shrunk by
+  `margin_px` (where vignetting and the lens's edge blur the values). The lens's edge
+  (`_without_rim`): within `RIM_BAND` of the border, the dim pixels (brightest channel at
+  most twice `border_level`) and the near-white ones (every channel at least `RIM_WHITE`)
+  reached from the border through each other. On a sinus scope's frames (the shared
+  sequence, 640 px wide) that is a halo of 12-18 levels just above `border_level`, a black
+  line and a white ring (238-241 of 255) up to 10 px inside the dark border: not the
+  scene, yet its ring counted as near-white cores and its halo as dark tissue.
 - **Overlays** (`overlay_mask`): pixels constant over the frames of a video (every channel
   within a range of 2 `tolerance`) while the scene moves under them; at least
   `MIN_OVERLAY_FRAMES` (8) frames, and only where the scene changes (a still camera shows
@@ -40,6 +46,11 @@ DEFAULT_BORDER_PX = 9
 # The field of view is shrunk by this much (px) from the border, at 1080p scaled to the
 # image's width (at least 1 px).
 DEFAULT_MARGIN_PX = 3
+# The lens's edge is looked for within this fraction of the image's width of the border ...
+RIM_BAND = 0.025
+# ... its bright ring: every channel at least this (the ring is near-white, the tissue
+# beside it is not) ...
+RIM_WHITE = 0.85
 # An overlay pixel stays within this of its median value in every frame (2 of 255).
 DEFAULT_OVERLAY_TOLERANCE = 2 / 255
 # A constant blob whose surroundings' least channel stays at least this bright in every
@@ -98,10 +109,28 @@ def field_of_view(
     if count <= 1:
         return np.zeros((height, width), bool)
     scene = labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    scene = _without_rim(image, scene, border_level)
     margin = round(margin_px * width / 1920)
     if margin_px > 0:
         scene = cv2.erode(scene.astype(np.uint8), _disk(max(1, margin))).astype(bool)
     return scene
+
+
+def _without_rim(image: np.ndarray, scene: np.ndarray, border_level: float) -> np.ndarray:
+    """`scene` less the lens's edge (see the module doc): the dim and the near-white pixels
+    within `RIM_BAND` of the border that a path through such pixels joins to it. Tissue
+    stops the path, so a highlight beyond the first tissue pixel stays in view; the
+    image's own edge is no border (a cropped frame loses nothing there)."""
+    inside = cv2.distanceTransform(scene.astype(np.uint8), cv2.DIST_L2, 3)
+    band = scene & (inside <= max(2, round(RIM_BAND * scene.shape[1])))
+    edge_like = band & (
+        (channel_max(image) <= 2 * border_level) | (channel_min(image) >= RIM_WHITE)
+    )
+    if not edge_like.any():
+        return scene
+    count, labels = cv2.connectedComponents(edge_like.astype(np.uint8), connectivity=8)
+    touching = np.unique(labels[edge_like & (inside <= 1.5)])
+    return scene & ~np.isin(labels, touching[touching > 0])
 
 
 def overlay_mask(
