@@ -251,3 +251,20 @@ def test_s_covers_the_near_white_cores_of_real_frames_and_little_else(sequence):
     assert cores_px > 100
     assert found_px >= 0.95 * cores_px, (found_px, cores_px)
     assert s_px <= 3 * dilated_px, (s_px, dilated_px)
+
+
+def test_the_sinus_scopes_lens_edge_is_out_of_view():
+    """The sinus scope's image circle ends in a white ring inside a dim halo (the lens's
+    edge): ctjax's field of view (of the recorded frames, as `load_capture` finds it)
+    leaves the ring out, and none of the tissue inside it. Until the lens's edge was
+    looked for, every ring pixel was in view (counted as a near-white core, its halo as
+    dark tissue): 197-341 per frame here."""
+    frames, fields = _real_frames("jhu-sinus-a")  # the sequence's own mask of the circle
+    visible = visible_masks([frame.astype(np.float32) / 255 for frame in frames])
+    band = round(0.025 * frames[0].shape[1])  # `ctjax.io._field_of_view.RIM_BAND`
+    for recorded, circle, fov in zip(frames, fields, visible, strict=True):
+        inside = cv2.distanceTransform(circle.astype(np.uint8), cv2.DIST_L2, 3)
+        ring = np.all(recorded >= CORE_LEVEL, axis=-1) & circle & (inside <= band)
+        assert ring.sum() > 100  # the ring is there to leave out
+        assert (ring & fov).sum() <= 0.1 * ring.sum()
+        assert (fov & (inside > band)).sum() >= 0.99 * (inside > band).sum()

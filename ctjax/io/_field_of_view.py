@@ -12,7 +12,7 @@ structure-from-motion features.
   `margin_px` (where vignetting and the lens's edge blur the values). The lens's edge
   (`_without_rim`): within `RIM_BAND` of the border, the dim pixels (brightest channel at
   most twice `border_level`) and the near-white ones (every channel at least `RIM_WHITE`)
-  reached from the border through each other. On a sinus scope's frames (the shared
+  reached from the border through each other, where they hold a ring (`RIM_RING`). On a sinus scope's frames (the shared
   sequence, 640 px wide) that is a halo of 12-18 levels just above `border_level`, a black
   line and a white ring (238-241 of 255) up to 10 px inside the dark border: not the
   scene, yet its ring counted as near-white cores and its halo as dark tissue.
@@ -51,6 +51,9 @@ RIM_BAND = 0.025
 # ... its bright ring: every channel at least this (the ring is near-white, the tissue
 # beside it is not) ...
 RIM_WHITE = 0.85
+# ... at least this fraction of the image's width in near-white pixels (a ring along the
+# border, not a sparkle beside it; without a ring, the dim pixels stay: dark tissue).
+RIM_RING = 0.05
 # An overlay pixel stays within this of its median value in every frame (2 of 255).
 DEFAULT_OVERLAY_TOLERANCE = 2 / 255
 # A constant blob whose surroundings' least channel stays at least this bright in every
@@ -118,9 +121,10 @@ def field_of_view(
 
 def _without_rim(image: np.ndarray, scene: np.ndarray, border_level: float) -> np.ndarray:
     """`scene` less the lens's edge (see the module doc): the dim and the near-white pixels
-    within `RIM_BAND` of the border that a path through such pixels joins to it. Tissue
-    stops the path, so a highlight beyond the first tissue pixel stays in view; the
-    image's own edge is no border (a cropped frame loses nothing there)."""
+    within `RIM_BAND` of the border that a path through such pixels joins to it, where
+    they hold a ring (`RIM_RING`). Tissue stops the path, so a highlight beyond the first
+    tissue pixel stays in view; the image's own edge is no border (a cropped frame loses
+    nothing there); a scope without a ring loses nothing."""
     inside = cv2.distanceTransform(scene.astype(np.uint8), cv2.DIST_L2, 3)
     band = scene & (inside <= max(2, round(RIM_BAND * scene.shape[1])))
     edge_like = band & (
@@ -129,8 +133,13 @@ def _without_rim(image: np.ndarray, scene: np.ndarray, border_level: float) -> n
     if not edge_like.any():
         return scene
     count, labels = cv2.connectedComponents(edge_like.astype(np.uint8), connectivity=8)
-    touching = np.unique(labels[edge_like & (inside <= 1.5)])
-    return scene & ~np.isin(labels, touching[touching > 0])
+    touching = np.zeros(count, bool)
+    touching[labels[edge_like & (inside <= 1.5)]] = True
+    # A ring, not a sparkle: at least RIM_RING of the width in near-white pixels.
+    white = np.bincount(labels[channel_min(image) >= RIM_WHITE], minlength=count)
+    edge = touching & (white >= RIM_RING * scene.shape[1])
+    edge[0] = False
+    return scene & ~edge[labels]
 
 
 def overlay_mask(
