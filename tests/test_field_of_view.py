@@ -88,6 +88,12 @@ def test_the_lens_edge_is_not_in_view():
         assert not (fov & pixels).any(), name
     assert fov[58:62, 33:37].all()
     assert fov.sum() >= 0.9 * (distance > 5).sum()  # the tissue inside the ring
+    # Without a ring (a laparoscope's image circle), dark tissue by the border is tissue.
+    image = _frames("circle", count=1)[0][0]
+    shadow = (distance > 0) & (distance <= 4) & (np.arange(WIDTH) < 60)[None, :]
+    image[shadow] = [0.08, 0.03, 0.02]
+    fov = field_of_view(image)
+    assert fov[shadow & (distance > 2)].all()  # all but the 1-px margin
 
 
 def test_a_capture_without_border_is_all_in_view():

@@ -12,10 +12,12 @@ structure-from-motion features.
   `margin_px` (where vignetting and the lens's edge blur the values). The lens's edge
   (`_without_rim`): within `RIM_BAND` of the border, the dim pixels (brightest channel at
   most twice `border_level`) and the near-white ones (every channel at least `RIM_WHITE`)
-  reached from the border through each other, where they hold a ring (`RIM_RING`). On a sinus scope's frames (the shared
-  sequence, 640 px wide) that is a halo of 12-18 levels just above `border_level`, a black
-  line and a white ring (238-241 of 255) up to 10 px inside the dark border: not the
-  scene, yet its ring counted as near-white cores and its halo as dark tissue.
+  reached from the border through each other, where they hold a ring (`RIM_RING`). On a
+  sinus scope's frames (the shared sequence, 640 px wide) that is a halo of 12-18 levels
+  just above `border_level`, a black line and a white ring (238-241 of 255) up to 10 px
+  inside the dark border: not the scene, yet its ring counted as near-white cores and its
+  halo as dark tissue. Without a ring (a laparoscope's circle) dark tissue by the border
+  stays.
 - **Overlays** (`overlay_mask`): pixels constant over the frames of a video (every channel
   within a range of 2 `tolerance`) while the scene moves under them; at least
   `MIN_OVERLAY_FRAMES` (8) frames, and only where the scene changes (a still camera shows
