@@ -418,3 +418,43 @@ def test_the_maps_do_not_depend_on_how_the_pixels_are_batched(tmp_path, monkeypa
             np.testing.assert_allclose(a, b, rtol=1e-10)
             np.testing.assert_array_equal(count_a, count_b)
     assert np.mean(np.isfinite(whole[0][0])) > 0.5  # (the maps are not all NaN)
+
+
+def _two_view_tracks(tilt_deg: float):
+    """One surface point 50 mm ahead seen twice under the paper's light (at the lens), the
+    same 0.5 recorded in both views; its normal faces the lens in the first view and is
+    tilted by `tilt_deg` in the second (as a wrong light or normal would make it)."""
+    from ctjax._tracks import Tracks
+
+    tilt = np.radians(tilt_deg)
+    normals = np.array([[0.0, 0.0, -1.0], [np.sin(tilt), 0.0, -np.cos(tilt)]])
+    return Tracks(
+        corner_point=np.tile([0.0, 0.0, 50.0], (1, 2, 4, 1)),
+        corner_normal=np.repeat(normals[None, :, None, :], 4, axis=2),
+        corner_pixel=np.full((1, 2, 4, 2), 64.0),
+        corner_weight=np.tile([1.0, 0.0, 0.0, 0.0], (1, 2, 1)),
+        values=np.full((1, 2, 3), 0.5),
+        observed=np.ones((1, 2), bool),
+        weight=np.ones((1, 2)),
+        frame=np.array([[0, 1]]),
+        anchor_frame=np.array([0]),
+        anchor_row=np.array([64]),
+        anchor_col=np.array([64]),
+    )
+
+
+def test_a_held_out_view_is_judged_only_where_its_other_views_inform_the_albedo():
+    """A held-out view is predicted with its point's albedo from the point's other views; a
+    view the model calls a hundred times dimmer there gives an albedo a hundred times too
+    large, and one such view decided a falloff on real frames (`OTHER_VIEWS_SHARE`). It is
+    not judged; a view whose other views are lit half as much is."""
+    from ctjax._model import paper_model
+    from ctjax.fitting._map_least_squares import TrackSamples, heldout_map_rmse
+
+    model = paper_model(1.0, 0.0, 0.3)  # Lambertian at the lens: shading = N.L / pi
+    judged = np.array([[True], [False]])  # the first view judged, from the second
+    half = TrackSamples.of(_two_view_tracks(60.0), pad=False)  # N.L 0.5 in the other view
+    rmse = heldout_map_rmse(model, half, judged)
+    assert rmse == pytest.approx(255 * 0.5, rel=1e-3)  # predicted 1.0: the albedo doubled
+    dark = TrackSamples.of(_two_view_tracks(89.4), pad=False)  # N.L 0.01: 100x dimmer
+    assert np.isnan(heldout_map_rmse(model, dark, judged))  # nothing judged, not ~12600

@@ -236,10 +236,9 @@ def lobe_gain_where_it_shows(model, plain, tracks: "Tracks | TrackSamples") -> t
 # frames, 640 px, two reconstructions that differ by a few hundred pixels of mask a frame):
 # with the previous bar (1e-6 of the point's information) 50 of 26k held-out views, lit
 # 0.16 by the fitted light and under 0.002 in their other views, carried 99.7-99.9% of the
-# squared error of three of the four falloff sets (480-1142 levels against 24-30 for the
-# rest), and the falloff chosen differed between the reconstructions (spot, inverse
-# square); with this bar both choose inverse square (23.7 and 22.0 levels), 3.6% of the
-# views left unjudged.
+# squared error of three of the four falloff sets (480-1142 levels; the spot's 34.8), and
+# the falloff chosen differed between the reconstructions (spot, inverse square); with
+# this bar both choose inverse square (23.7 and 22.0 levels held-out).
 OTHER_VIEWS_SHARE = 0.1
 
 
