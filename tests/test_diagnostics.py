@@ -43,6 +43,8 @@ HIDDEN = {
     # Two light guides 6 mm either side of the lens (a da Vinci's): one light at the lens
     # misses their doubled highlights.
     "light_guides": dict(effects={"light_guides": (6.0, 2)}),
+    # Rough, flattened diffuse shading (Oren-Nayar; the da Vinci clip's tissue: 1.1).
+    "oren_nayar": dict(effects={"oren_nayar": 0.5}),
 }
 
 

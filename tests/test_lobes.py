@@ -16,6 +16,7 @@ from ctjax import (
     SchlickFresnel,
     Specular,
 )
+from ctjax.lobes.oren_nayar import OrenNayar
 
 LOBES = {
     "lambertian": lambda: Lambertian([0.8, 0.4, 0.3]),
@@ -31,6 +32,7 @@ LOBES = {
     "cook_torrance_full": lambda: Specular(
         0.3, GGX(0.3), (SchlickFresnel(0.02), GeometricAttenuation())
     ),
+    "oren_nayar": lambda: OrenNayar([0.8, 0.4, 0.3], 0.4),
 }
 
 

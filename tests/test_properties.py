@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ctjax
+from ctjax.lobes.oren_nayar import OrenNayar
 
 angles = st.floats(0.0, math.pi / 2, allow_nan=False)
 azimuths = st.floats(-math.pi, math.pi, allow_nan=False)
@@ -41,6 +42,7 @@ LOBES = {
     "cook_torrance": lambda s: ctjax.CookTorrance(
         1.0, ctjax.GGX(s), (ctjax.GeometricAttenuation(),)
     ),
+    "oren_nayar": lambda s: OrenNayar(1.0, s),
 }
 
 
