@@ -13,9 +13,10 @@ not a measurement of each parameter. On real frames three things happen that a r
   colour; on a real sinus video a fit put F_tilde at [0, 0.033, 0.035]). The data are
   explained without a highlight lobe, and its roughness sigma is not determined.
 - `at_bound`: a roughness at the end of its search range: within 2% of either end of the
-  paper's (0, 1], or near or above 1 where a range is opened. At the top, the lobe
-  explains a broad angular trend (a falloff, vignetting, the camera's response, a
-  non-Lambertian diffuse term), not a highlight; at the bottom, a lobe sharper than the
+  paper's (0, 1], or near or above 1 where a range is opened; or another searched parameter
+  (a diffuse term's shape, `oren_nayar_roughness`) within 2% of either end of its range.
+  At the top, the lobe explains a broad angular trend (a falloff, vignetting, the camera's
+  response, a non-Lambertian diffuse term), not a highlight; at the bottom, a lobe sharper than the
   data resolve. Its standard error, computed at the bound, means nothing.
 - `unstable`: a roughness that two halves of the frames (even and odd) put more than 20%
   apart: the fit's own standard error, small as it may be, does not measure that (on real
@@ -102,6 +103,12 @@ def _coloured(weight: np.ndarray, error: np.ndarray | None) -> bool:
     return MIN_LOBE_WHITENESS * top - least > SIGNIFICANCE * spread
 
 
+def _suffix_of(name: str) -> str | None:
+    """The lobe suffix of a roughness's name (`"_2"` for `sigma_2`, `""` for `sigma`); None
+    for any other name (a diffuse term's shape)."""
+    return next((s for p in ROUGHNESS if (s := _suffix(name, p)) is not None), None)
+
+
 def _roughness_name(values: dict, suffix: str) -> str | None:
     for prefix in ROUGHNESS:
         if prefix + suffix in values:
@@ -160,10 +167,37 @@ def _absent_lobes(
     return out, absent
 
 
+def _shape_at_bound(name: str, value: float, lo: float, hi: float) -> Undetermined | None:
+    """Another searched parameter (a diffuse term's shape: `oren_nayar_roughness`) at either
+    end of its search range."""
+    edge = EDGE * (hi - lo)
+    if lo + edge < value < hi - edge:
+        return None
+    end = "top" if value >= hi - edge else "bottom"
+    return Undetermined(
+        name,
+        Status.at_bound,
+        f"{name} = {value:.4g} is at the {end} of its search range ({lo:.4g}, {hi:.4g}): the "
+        "data ask for "
+        + (
+            "more than the term describes (for a diffuse roughness: shading flatter than its "
+            "flattest, e.g. light scattered under the surface)"
+            if end == "top"
+            else "the term's limit (for a diffuse roughness, 0 is Lambert's cosine law)"
+        )
+        + "; it is no measurement of the parameter, and its standard error, computed at the "
+        "bound, means nothing",
+    )
+
+
 def _at_bounds(values: dict, ranges: dict, absent: set[str]) -> list[Undetermined]:
     out = []
     for name, value in values.items():
-        suffix = next((s for p in ROUGHNESS if (s := _suffix(name, p)) is not None), None)
+        suffix = _suffix_of(name)
+        if suffix is None and name in ranges and np.ndim(value) == 0:
+            found = _shape_at_bound(name, float(value), *ranges[name])
+            out += [] if found is None else [found]
+            continue
         if suffix is None or suffix in absent:
             continue
         lo, hi = ranges.get(name, PAPER_ROUGHNESS_RANGE)
@@ -207,13 +241,14 @@ def _unstable(values: dict, halves: dict, flagged: set[str]) -> list[Undetermine
         spread = abs(a - b) / max(abs(a + b) / 2, 1e-12)
         if spread <= HALVES_AGREE:
             continue
+        what = "parameter" if _suffix_of(name) is None else "lobe"
         out.append(
             Undetermined(
                 name,
                 Status.unstable,
                 f"{name} = {float(values[name]):.4g} on all frames, but {a:.4g} on the even "
                 f"frames and {b:.4g} on the odd ({spread:.0%} apart, over "
-                f"{HALVES_AGREE:.0%}): the lobe is not stable across frame subsets, whatever "
+                f"{HALVES_AGREE:.0%}): the {what} is not stable across frame subsets, whatever "
                 "its standard error",
             )
         )

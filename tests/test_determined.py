@@ -43,6 +43,46 @@ def test_a_roughness_near_or_above_1_in_an_opened_range_is_a_trend_not_a_lobe():
 
 
 @pytest.mark.parametrize(
+    ("value", "end"), [(1.56, "top"), (1e-4, "bottom"), (0.8, None), (1.0, None)]
+)
+def test_a_diffuse_terms_shape_at_either_end_of_its_range_is_at_its_bound(value, end):
+    """Oren-Nayar's roughness is searched in (0, pi/2): at pi/2 the data ask for flatter
+    shading than its V-cavities give; at 0 it is Lambert's. Inside, nothing is said; it is
+    no highlight lobe's roughness (1.0 is not 'near or above 1')."""
+    values = {"rho_tilde": RHO, "F_tilde": [0.3] * 3, "sigma": 0.2}
+    values["oren_nayar_roughness"] = value
+    stderrs = {"F_tilde": [0.01] * 3, "sigma": 0.002, "oren_nayar_roughness": 0.01}
+    found = undetermined(
+        values, stderrs, {"sigma": (1e-5, 1.0), "oren_nayar_roughness": (0, 1.5708)}
+    )
+    if end is None:
+        assert found == []
+    else:
+        assert [(u.parameter, u.status) for u in found] == [
+            ("oren_nayar_roughness", Status.at_bound)
+        ]
+        assert f"at the {end} of its search range" in found[0].reason
+
+
+def test_a_parameter_at_its_bound_with_a_vanishing_derivative_keeps_the_others_errors():
+    """A diffuse roughness at 0 (where the shading's derivative in it is 0) makes the
+    information singular: it is held at its bound, and the other errors are conditional."""
+    from ctjax.estimation._branch_and_bound_map import _standard_errors
+
+    jacobian = np.random.default_rng(0).normal(size=(50, 5))
+    jacobian[:, 4] = 0  # the last nonlinear parameter: no derivative
+    information = jacobian.T @ jacobian
+    names = ("rho_tilde", "F_tilde")  # one global weight: 3 channels, then 2 parameters
+    p_err, w_err = _standard_errors(information, 2.0, names, 0, 3)
+    assert np.all(np.isinf(p_err)) and np.all(np.isinf(w_err[1]))
+    p_err, w_err = _standard_errors(information, 2.0, names, 0, 3, at_bound=[False, True])
+    reduced = np.sqrt(np.diagonal(2.0 * np.linalg.inv(information[:4, :4])))
+    np.testing.assert_allclose(w_err[1], reduced[:3], rtol=1e-9)
+    assert p_err[0] == pytest.approx(reduced[3]) and np.isinf(p_err[1])
+    assert np.all(np.isnan(w_err[0]))  # the per-point row
+
+
+@pytest.mark.parametrize(
     ("F", "error"),
     [([0.0, 0.0, 0.0], None), ([0.0, 0.0, 0.0], [0.01] * 3), ([0.01, 0.0, 0.021], [0.01] * 3)],
 )

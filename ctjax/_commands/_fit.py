@@ -8,7 +8,13 @@ from pathlib import Path
 
 from .._errors import CtjaxError
 from .._units import in_length_unit
-from ._args import add_mask_arguments, load_capture, mask_options, positive_int
+from ._args import (
+    add_diffuse_argument,
+    add_mask_arguments,
+    load_capture,
+    mask_options,
+    positive_int,
+)
 
 
 def add_fit_parser(commands) -> None:
@@ -25,6 +31,7 @@ def add_fit_parser(commands) -> None:
         default="paper",
         help="paper: one Beckmann lobe (eq. 2); two-scales: two (eq. 3)",
     )
+    add_diffuse_argument(fit)
     fit.add_argument(
         "--albedo",
         choices=("map", "uniform"),
@@ -84,9 +91,10 @@ def run_fit(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from ..estimation import PAPER, TWO_SCALES
+    from ..estimation import PAPER, TWO_SCALES, with_diffuse
     from ..estimation._capture_fit import fit_capture
     from ..io._atomic import atomic_write_json, atomic_write_npy
+    from ..lobes import diffuse_lobe
     from ..observations import Observations
     from ..specular import sparkle_density_line, sparkle_density_summary
 
@@ -104,7 +112,9 @@ def run_fit(args: argparse.Namespace) -> int:
         capture, shape = with_reconstructed_shape(capture, shading=not args.no_shading)
         for warning in shape["warnings"]:
             print(f"ctjax fit: warning: {warning}", file=sys.stderr)
-    family = {"paper": PAPER, "two-scales": TWO_SCALES}[args.model]
+    family = with_diffuse(
+        {"paper": PAPER, "two-scales": TWO_SCALES}[args.model], diffuse_lobe(args.diffuse)
+    )
     if args.albedo_maps is not None and args.albedo == "uniform":
         raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")
     if args.max_tracks is not None and args.albedo == "uniform":
@@ -146,20 +156,25 @@ def run_fit(args: argparse.Namespace) -> int:
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
-    keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status")
+    keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status", *family.names)
     print(json.dumps({k: result[k] for k in result if k in keys}))
     samples = (
         f"{result['n_points']} tracked points"
         if result["albedo"] == "map"
         else f"{result['n_ring_pixels']} ring pixels"
     )
+    if "diffuse_alone" in result:
+        print(
+            f"{args.diffuse} alone (no specular lobe): rgb_rmse "
+            f"{result['diffuse_alone']['rgb_rmse']:.2f} levels"
+        )
     print(
         f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; {samples}; "
         f"wrote {args.json}" + (f" and {args.albedo_maps}/" if args.albedo_maps else "")
     )
     halves = result.get("halves", {})
     if halves:
-        names = [n for n in ("sigma", "sigma_1", "sigma_2") if n in halves["even_frames"]]
+        names = [n for n in family.names if n in halves["even_frames"]]
         print(
             "stability: "
             + "; ".join(

@@ -21,7 +21,9 @@ from ._brdf import BRDFFit as BRDFFit
 from ._brdf import design_columns as design_columns
 from ._brdf import design_geometry as design_geometry
 from ._brdf import design_matrix as design_matrix
+from ._brdf import diffuse_alone as diffuse_alone
 from ._brdf import fit_brdf as fit_brdf
+from ._brdf import with_diffuse as with_diffuse
 from ._capture_fit import ALBEDO_CHOICES as ALBEDO_CHOICES
 from ._capture_fit import default_albedo as default_albedo
 from ._capture_fit import fit_capture as fit_capture

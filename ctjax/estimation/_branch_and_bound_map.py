@@ -37,7 +37,7 @@ from .._vector import Vec3
 from ..lights import AbstractLight, ColocatedLight
 from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
-from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, design_geometry
+from ._brdf import PAPER, BRDFFamily, design_geometry
 from ._variable_projection import (
     over_views,
     project_weights,
@@ -261,22 +261,44 @@ def _information(family, params, weights, albedo, shading, per_point, cost):
     return information, scale
 
 
-def _standard_errors(information, scale, weight_names, per_point: int, channels: int):
+def _covariance_errors(information: np.ndarray, scale) -> np.ndarray | None:
+    """sqrt(diag(scale * information^-1)); None where the information is rank-deficient."""
+    n = information.shape[0]
+    # jnp.linalg's default tolerances, in the information's own precision.
+    rtol = 10 * n * np.finfo(information.dtype).eps
+    if np.linalg.matrix_rank(information, hermitian=True) < n:
+        return None
+    variance = np.diagonal(scale * np.linalg.pinv(information, rcond=rtol, hermitian=True))
+    return np.where(variance < 0, np.inf, np.sqrt(np.abs(variance)))
+
+
+def _standard_errors(
+    information, scale, weight_names, per_point: int, channels: int, at_bound=None
+):
     """The standard errors of the nonlinear parameters (D,) and of the global weights (K, C;
     NaN in the per-point row) from `_information`, in NumPy: a matrix this small is not
-    worth LAPACK kernels in the compiled program."""
+    worth LAPACK kernels in the compiled program.
+
+    `at_bound` (D,) marks parameters at an end of their box. Where the information is
+    rank-deficient with them and not without them (a diffuse roughness at 0, where the
+    shading's derivative in it vanishes), they are held at the bound (an active
+    constraint): the others' errors are conditional on it, theirs are inf."""
     information, scale = np.asarray(information), np.asarray(scale)
     n, k = information.shape[0], len(weight_names)
     n_weights = (k - 1) * channels
     weights_stderr = np.full((k, channels), np.nan, information.dtype)
     if n == 0:
         return np.zeros(0, information.dtype), weights_stderr
-    # jnp.linalg's default tolerances, in the information's own precision.
-    rtol = 10 * n * np.finfo(information.dtype).eps
-    covariance = scale * np.linalg.pinv(information, rcond=rtol, hermitian=True)
-    variance = np.diagonal(covariance)
-    rank_deficient = np.linalg.matrix_rank(information, hermitian=True) < n
-    stderr = np.where(rank_deficient | (variance < 0), np.inf, np.sqrt(np.abs(variance)))
+    stderr = _covariance_errors(information, scale)
+    bound = np.zeros(n, bool)
+    bound[n_weights:] = False if at_bound is None else np.asarray(at_bound, bool)
+    if stderr is None and bound.any():
+        kept = _covariance_errors(information[np.ix_(~bound, ~bound)], scale)
+        if kept is not None:
+            stderr = np.full(n, np.inf, information.dtype)
+            stderr[~bound] = kept
+    if stderr is None:
+        stderr = np.full(n, np.inf, information.dtype)
     globals_ = [i for i in range(k) if i != per_point]
     weights_stderr[globals_] = stderr[:n_weights].reshape(len(globals_), channels)
     return stderr[n_weights:], weights_stderr
@@ -410,7 +432,11 @@ def fit_brdf_map(
     weights = np.array(weights)
     weights[per_point] = median
     weights = jax.device_put(weights)
-    errors = _standard_errors(*information, family.weight_names, per_point, weights.shape[1])
+    p, h = np.asarray(params, float), np.asarray(half, float)
+    at_bound = (p - h <= np.asarray(family.lo, float)) | (p + h >= np.asarray(family.hi, float))
+    errors = _standard_errors(
+        *information, family.weight_names, per_point, weights.shape[1], at_bound
+    )
     p_err, w_err = map(jax.device_put, errors)
     return AlbedoMapFit(
         params, weights, albedo, cost, rmse, p_err, w_err, half, int(observed.sum()), family
@@ -423,29 +449,29 @@ LOBE_SHOWS = 1 / 255
 
 
 @persistent_jit
-def _where_lobes_show(family, params, plain, shading: TrackShading, per_point: int):
-    """Sums of squared weighted residuals of `family` at `params` and of `plain` (a family
-    without lobes), every albedo and global weight projected out, over the observations
-    where `family`'s lobes other than the per-point one predict at least `LOBE_SHOWS`; and
-    their number."""
+def _where_lobes_show(family, params, shading: TrackShading, per_point: int):
+    """Sums of squared weighted residuals of `family` at `params` and of its diffuse lobe
+    alone at the same `params` (its shape as fitted), every albedo and global weight
+    projected out, over the observations where `family`'s lobes other than the per-point one
+    predict at least `LOBE_SHOWS`; and their number."""
     columns = _columns(family, params, shading)
     _, weights, residual = projected_residuals(columns, shading.values, shading.weight, per_point)
     lobes = sum(
         c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point
     )
     shows = (jnp.max(lobes, axis=0) >= LOBE_SHOWS) & (shading.weight > 0)
-    empty = jnp.zeros((0,), params.dtype)
     _, _, plain_residual = projected_residuals(
-        _columns(plain, empty, shading), shading.values, shading.weight, 0
+        (columns[per_point],), shading.values, shading.weight, 0
     )
     ssr = lambda r: jnp.sum(jnp.where(shows[None], r * r, 0))  # noqa: E731
     return ssr(residual), ssr(plain_residual), jnp.sum(shows)
 
 
 def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[float, int]:
-    """What `fit`'s specular lobes bring where they show: 1 - RMSE / RMSE of the Lambertian
-    model alone (`LAMBERTIAN`) over the observations where the lobes predict at least one
-    8-bit level, every point's albedo eliminated; and how many observations that is (0:
+    """What `fit`'s specular lobes bring where they show: 1 - RMSE / RMSE of its diffuse
+    lobe alone (Lambertian for the paper's model; a diffuse lobe with a shape keeps the
+    fitted one) over the observations where the lobes predict at least one 8-bit level,
+    every point's albedo eliminated; and how many observations that is (0:
     the lobes show nowhere, gain 0).
 
     Over every observation a lobe that the data determine well can bring under 0.5%: a
@@ -455,7 +481,7 @@ def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[
     the 70 observations where the lobe shows by 30%)."""
     per_point = fit.family.weight_names.index("rho_tilde")
     fit_ssr, plain_ssr, count = _where_lobes_show(
-        fit.family, jnp.asarray(fit.params), LAMBERTIAN, shading, per_point
+        fit.family, jnp.asarray(fit.params), shading, per_point
     )
     count, fit_ssr, plain_ssr = int(count), float(fit_ssr), float(plain_ssr)
     if count == 0 or not plain_ssr > 0 or not np.isfinite(fit_ssr):

@@ -1,6 +1,7 @@
 """Estimating the BRDF (paper section 4, eq. 4-6): closed-form weights, grid BnB over the
 nonlinear parameters, standard errors from the Jacobian at the optimum."""
 
+import dataclasses
 from collections.abc import Callable
 
 import equinox as eqx
@@ -27,6 +28,9 @@ class BRDFFamily(eqx.Module):
     lo: tuple[float, ...] = eqx.field(static=True)
     hi: tuple[float, ...] = eqx.field(static=True)
     weight_names: tuple[str, ...] = eqx.field(static=True)
+    # The diffuse lobe the family's BRDFs have (`with_diffuse`): the model without the
+    # specular lobes, against which their gain counts, is this lobe alone.
+    diffuse: type[Lambertian] = eqx.field(static=True, default=Lambertian)
 
 
 def _paper(params):
@@ -53,6 +57,71 @@ TWO_SCALES = BRDFFamily(
     (1.0, 1.0),
     ("rho_tilde", "F_tilde_1", "F_tilde_2"),
 )
+
+
+def _qualified(value) -> str:
+    return f"{value.__module__}.{value.__qualname__}"
+
+
+@dataclasses.dataclass(frozen=True)
+class _WithDiffuse:
+    """`build`'s BRDF with its Lambertian lobe replaced by `lobe(weight, *shape)`, the last
+    `count` parameters being the lobe's shape. Compared by value and shown without an address
+    (its programs compile once and are kept on disk, `ctjax._programs`)."""
+
+    build: Callable[[Float[Array, " D"]], BRDF]
+    lobe: type[Lambertian]
+    count: int
+
+    def __call__(self, params):
+        brdf = self.build(params[: params.shape[0] - self.count])
+        shape = [params[params.shape[0] - self.count + i] for i in range(self.count)]
+        return type(brdf)(
+            *(self.lobe(lb.weight, *shape) if type(lb) is Lambertian else lb for lb in brdf.lobes)
+        )
+
+    def __repr__(self) -> str:
+        return f"_WithDiffuse({_qualified(self.build)}, {_qualified(self.lobe)}, {self.count})"
+
+
+def with_diffuse(family: BRDFFamily, lobe: type[Lambertian]) -> BRDFFamily:
+    """`family` with `lobe` (a `Lambertian` subclass, `ctjax.lobes.diffuse_lobes`) as its
+    diffuse term: the lobe's shape parameters join the search, in the boxes of their
+    domains, after the family's own (`PAPER` with Oren-Nayar: sigma, then
+    oren_nayar_roughness). `Lambertian` gives `family` itself."""
+    from ..lobes._diffuse import diffuse_parameters
+
+    if lobe is Lambertian:
+        return family
+    if family.diffuse is not Lambertian:
+        raise CtjaxError(f"the family {family.names} has a diffuse term already")
+    if not (isinstance(lobe, type) and issubclass(lobe, Lambertian)):
+        raise CtjaxError(f"a diffuse term is a Lambertian lobe's subclass, got {lobe!r}")
+    shape = diffuse_parameters(lobe)
+    return BRDFFamily(
+        _WithDiffuse(family.build, lobe, len(shape)),
+        family.names + tuple(name for name, _, _ in shape),
+        family.lo + tuple(lo for _, lo, _ in shape),
+        family.hi + tuple(hi for _, _, hi in shape),
+        family.weight_names,
+        lobe,
+    )
+
+
+def diffuse_alone(family: BRDFFamily) -> BRDFFamily:
+    """The family's diffuse lobe without the specular ones (`LAMBERTIAN` for the paper's):
+    the model against which the lobes' gain counts."""
+    return with_diffuse(LAMBERTIAN, family.diffuse)
+
+
+def diffuse_note(family: BRDFFamily) -> str:
+    """What a fit's `model` description adds for a diffuse term other than Lambert's."""
+    if family.diffuse is Lambertian:
+        return ""
+    return (
+        f"; the diffuse term {family.diffuse.diffuse_name} ({family.diffuse.__name__}, "
+        "its shape fitted) instead of rho_tilde N.L/pi"
+    )
 
 
 class BRDFFit(eqx.Module):

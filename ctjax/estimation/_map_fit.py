@@ -24,9 +24,10 @@ from .._result import Estimate
 from .._right_views import with_right_views
 from .._tracks import DEFAULT_NEIGHBOURS, require_poses
 from ..lights import ColocatedLight
+from ..lobes import Lambertian
 from ..observations import Observations
 from ._branch_and_bound_map import fit_brdf_map, lobe_gain_where_it_shows, track_shading
-from ._brdf import LAMBERTIAN, PAPER, BRDFFamily
+from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, diffuse_alone, diffuse_note
 from ._dense_maps import albedo_maps, albedo_samples
 from ._sensitivity import specular_change
 from ._uniform_fit import (
@@ -268,8 +269,14 @@ def fit_albedo_map(
     # SfM's (the demo's capture) sigma went from +4.1% to +5.8% without them.
     fit = fit_brdf_map(shading, family, tolerance=tolerance)
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
+    # The lobes' gain counts against the same diffuse term without them.
+    plain = (
+        lambertian
+        if family.diffuse is Lambertian
+        else fit_brdf_map(shading, diffuse_alone(family), tolerance=tolerance)
+    )
     halves = _halves(tracks, shading, family, tolerance, len(capture))
-    for result in (fit, lambertian):
+    for result in (fit, lambertian, plain):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
         ):
@@ -305,11 +312,17 @@ def fit_albedo_map(
         ],
         "model": "eq. (4) with rho_tilde per surface point: rho_tilde(p) N.L/pi + F_tilde "
         "D(sigma)/(pi N.L N.V), L = V"
+        + diffuse_note(family)
         + (
             "" if right is None else " (the right camera's views: V towards it, L to the left lens)"
         ),
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": {**_map_fit_json(lambertian, 0), "albedo": "map"},
+        **(
+            {}
+            if plain is lambertian
+            else {"diffuse_alone": {**_map_fit_json(plain, 0), "albedo": "map"}}
+        ),
         "normals": _normal_sensitivity(capture, fit, shading, per_point),
         "masks": dataclasses.asdict(masks),
     }
@@ -331,4 +344,4 @@ def fit_albedo_map(
     # clipped: over every observation a determined lobe can bring under 0.5%).
     gain, shows = lobe_gain_where_it_shows(fit, shading)
     estimate.details["lobe_gain"], estimate.details["lobe_shows_observations"] = gain, shows
-    return flag_brdf_fit(estimate, fit, per_point, lambertian, halves, gain)
+    return flag_brdf_fit(estimate, fit, per_point, plain, halves, gain)

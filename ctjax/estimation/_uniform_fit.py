@@ -12,9 +12,10 @@ from .._model import ShadingModel
 from .._result import Estimate
 from ..io import Capture
 from ..lights import ColocatedLight
+from ..lobes import Lambertian
 from ..observations import Observations, usable_mask
 from ..specular import MaskOptions, SpecularSets
-from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, fit_brdf
+from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, diffuse_alone, diffuse_note, fit_brdf
 
 # S and S~ as `ctjax masks` finds them by default.
 DEFAULT_MASKS = MaskOptions()
@@ -189,7 +190,9 @@ def fit_uniform(
     samples = obs.ring()
     fit = fit_brdf(samples, family, tolerance=tolerance)
     lambertian = fit_brdf(samples, LAMBERTIAN)
-    for result in (fit, lambertian):
+    # The lobes' gain counts against the same diffuse term without them.
+    plain = lambertian if family.diffuse is Lambertian else fit_brdf(samples, diffuse_alone(family))
+    for result in (fit, lambertian, plain):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
         ):
@@ -207,9 +210,11 @@ def fit_uniform(
             }
             for f, s in zip(capture.frames, sets, strict=True)
         ],
-        "model": "paper eq. (4): rho_tilde N.L/pi + F_tilde D(sigma)/(pi N.L N.V), L = V",
+        "model": "paper eq. (4): rho_tilde N.L/pi + F_tilde D(sigma)/(pi N.L N.V), L = V"
+        + diffuse_note(family),
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
         "lambertian": _fit_to_json(lambertian),
+        **({} if plain is lambertian else {"diffuse_alone": _fit_to_json(plain)}),
         "masks": dataclasses.asdict(masks),
         "albedo": "uniform",
     }
@@ -227,7 +232,7 @@ def fit_uniform(
         details=details,
         cost=float(fit.cost),
     )
-    return flag_brdf_fit(estimate, fit, lambertian=lambertian)
+    return flag_brdf_fit(estimate, fit, lambertian=plain)
 
 
 def flag_brdf_fit(

@@ -21,6 +21,9 @@ class Lambertian(AbstractLobe):
     """
 
     weight: Float[Array, "3"] = eqx.field(converter=as_rgb, metadata=named("rho_tilde", POSITIVE))
+    # The name under which a fit offers this diffuse term (`--diffuse`); a subclass with a
+    # shape of its own sets its own (`ctjax.lobes._diffuse`).
+    diffuse_name: ClassVar[str] = "lambertian"
 
     def __check_init__(self):
         check_shape("Lambertian", "weight", self.weight, (3,))

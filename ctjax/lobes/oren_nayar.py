@@ -17,6 +17,7 @@ per surface point under the albedo map) whose angular shape has one parameter.
 """
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -45,6 +46,7 @@ class OrenNayar(Lambertian):
       (fitted below pi/2).
     """
 
+    diffuse_name: ClassVar[str] = "oren-nayar"
     # Fitted inside (0, pi/2): A and B level off as the slopes steepen (at 1.1 rad A is
     # 0.61, B 0.42; the limit 0.5, 0.45), and where the data ask for the flattest shading
     # an open range let LM walk off to 3e6 rad (the shared sinus's odd frames).
