@@ -333,4 +333,23 @@ def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=Non
 
     names = paper_names(estimate.model)
     by_name = {names[k]: v for k, v in estimate.details.get("stderr", {}).items() if k in names}
+    ranges = _diffuse_shape_ranges(estimate.model, names) | (ranges or {})
     return flag(estimate, by_name | (stderrs or {}), ranges, lobe_gain=lobe_gain)
+
+
+def _diffuse_shape_ranges(model, names: dict) -> dict[str, tuple[float, float]]:
+    """The domains of a diffuse lobe's shape parameters (`oren_nayar_roughness`), by paper
+    name: an LM fit searches them there, and one at an end is at its bound."""
+    from .fitting._parameters import free_parameters
+    from .lobes import Lambertian
+
+    lobes = model.brdf.lobes
+    diffuse = [f"brdf.lobes[{i}]." for i, lobe in enumerate(lobes) if isinstance(lobe, Lambertian)]
+    return {
+        names[p.name]: p.domain
+        for p in free_parameters(model)
+        if p.name in names
+        and p.name.startswith(tuple(diffuse))
+        and not p.name.endswith(".weight")
+        and all(np.isfinite(p.domain))
+    }

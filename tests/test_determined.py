@@ -223,3 +223,21 @@ def test_a_lobe_is_judged_where_it_shows(tmp_path):
         lambda m: m.brdf, model, model.brdf.with_weights(model.brdf.weights.at[1].set(1e-6))
     )
     assert lobe_gain_where_it_shows(faint, plain, samples) == (0.0, 0)
+
+
+def test_an_lm_fits_diffuse_shape_at_its_domains_end_is_flagged():
+    """`flag_model` (the near light's, diagnose's LM fits) checks a diffuse lobe's shape
+    against its domain: on the shared sinus Oren-Nayar's roughness went to pi/2."""
+    import equinox as eqx
+
+    from ctjax._determined import flag_model
+    from ctjax.lobes.oren_nayar import OrenNayar
+
+    stderrs = {"F_tilde": [0.01] * 3, "sigma": 0.01, "oren_nayar_roughness": 0.1}
+    for roughness, status in ((1.5707, Status.at_bound), (0.9, Status.successful)):
+        model = paper_model(1.0, 0.3, 0.2)
+        model = eqx.tree_at(lambda m: m.brdf.lobes[0], model, OrenNayar(1.0, roughness))
+        estimate = flag_model(Estimate(model), stderrs)
+        assert Status(estimate.status) == status
+        flagged = [u["parameter"] for u in estimate.details["undetermined"]]
+        assert flagged == ([] if status == Status.successful else ["oren_nayar_roughness"])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import random_hemisphere, vec3
 
-from ctjax import Lambertian, paper_model
+from ctjax import CtjaxError, Lambertian, paper_model
 from ctjax.lobes.oren_nayar import OrenNayar, OrenNayarCandidate
 
 
@@ -92,14 +92,14 @@ def test_a_negative_roughness_is_refused():
 
 def test_the_diffuse_terms_are_found_with_their_shape_parameters():
     from ctjax import CtjaxError
-    from ctjax.lobes import diffuse_lobe, diffuse_lobes
+    from ctjax.lobes import diffuse_lobe_named, diffuse_lobes
     from ctjax.lobes._diffuse import diffuse_parameters
 
     assert diffuse_lobes() == {"lambertian": Lambertian, "oren-nayar": OrenNayar}
     assert diffuse_parameters(Lambertian) == ()
     assert diffuse_parameters(OrenNayar) == (("oren_nayar_roughness", 0.0, math.pi / 2),)
     with pytest.raises(CtjaxError, match=r"unknown diffuse term 'lommel'.*oren-nayar"):
-        diffuse_lobe("lommel")
+        diffuse_lobe_named("lommel")
 
 
 def test_a_family_with_a_diffuse_term_searches_its_shape_after_its_own():
@@ -155,3 +155,50 @@ def test_fit_with_the_oren_nayar_diffuse_recovers_the_lobe_under_flattened_shadi
     paper = fit_capture(load_capture(root)).to_json()
     assert abs(paper["sigma"] / options.sigma - 1) > 0.05
     assert paper["rgb_rmse_calibration"] > 2 * result["rgb_rmse_calibration"]
+
+
+def test_evaluate_splits_the_gain_into_light_diffuse_term_and_lobe(tmp_path):
+    """With an Oren-Nayar diffuse term, evaluate fits that term alone under the same light
+    too: the test frames' gain is the light's, the diffuse term's and the lobe's, and the
+    near light's fit recovers the roughness and the lobe."""
+    import functools
+
+    from ctjax.calibration import calibrate_near_light
+    from ctjax.evaluation import evaluate
+    from ctjax.io import load_capture
+    from ctjax.synth import SynthOptions, synthesize
+
+    options = SynthOptions(width=160, height=128, frames=6, seed=3, effects={"oren_nayar": 0.8})
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    near = functools.partial(calibrate_near_light, falloff=())
+    evaluation = evaluate(capture, cook_torrance=near, sfs=False, diffuse=OrenNayar)
+    result = evaluation.to_json()
+    fitted = result["models"]["cook_torrance"]
+    assert fitted["oren_nayar_roughness"] == pytest.approx(0.8, rel=0.05)
+    assert fitted["sigma"] == pytest.approx(options.sigma, rel=0.05)
+    gain = result["gain"]
+    # The lobe is most of it here: the diffuse term alone (roughness 0.37 without the lobe)
+    # does not predict the test frames better than Lambert's.
+    assert gain["lobe_levels"] > 5 and abs(gain["diffuse_levels"]) < 0.5
+    parts = gain.get("light_levels", 0.0) + gain["diffuse_levels"] + gain["lobe_levels"]
+    assert parts == pytest.approx(gain["total_levels"], abs=1e-9)
+    alone = result["models"]["diffuse_same_light"]
+    assert "oren_nayar_roughness" in alone and "F_tilde" not in alone
+    # An estimator that takes no diffuse term is refused by name, not silently Lambertian.
+    with pytest.raises(CtjaxError, match="takes no diffuse term"):
+        evaluate(capture, cook_torrance=lambda c, calibration: None, sfs=False, diffuse=OrenNayar)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["evaluate", "{tmp}", "--json", "{tmp}/e.json", "--light", "colocated"],
+        ["calibrate-light", "{tmp}", "--json", "{tmp}/c.json", "--model", "field"],
+    ],
+)
+def test_a_diffuse_term_where_the_model_has_none_is_one_clear_error(tmp_path, capsys, argv):
+    from ctjax.cli import main
+
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main([*argv, "--diffuse", "oren-nayar"]) == 2
+    assert "--diffuse is for the near light" in capsys.readouterr().err

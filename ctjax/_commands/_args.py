@@ -37,7 +37,7 @@ def load_observations(args: argparse.Namespace):
     return Observations.of(load_capture(args))
 
 
-def add_diffuse_argument(parser: argparse.ArgumentParser) -> None:
+def add_diffuse_argument(parser: argparse.ArgumentParser, prefix: str = "") -> None:
     """`--diffuse NAME`: the diffuse term, one of the lobes `ctjax.lobes.diffuse_lobes`
     finds (a new one's file offers it here)."""
     from ..lobes import diffuse_lobes
@@ -46,9 +46,10 @@ def add_diffuse_argument(parser: argparse.ArgumentParser) -> None:
         "--diffuse",
         choices=tuple(diffuse_lobes()),
         default="lambertian",
-        help="the diffuse term: lambertian (the paper's cosine law) or a rough diffuse lobe "
-        "whose shape is fitted with the rest (oren-nayar: Oren-Nayar's V-cavities, flatter "
-        "shading; tissue's is on real laparoscope and sinus frames) (default: lambertian)",
+        help=f"{prefix}the diffuse term: lambertian (the paper's cosine law) or a rough "
+        "diffuse lobe whose shape is fitted with the rest (oren-nayar: Oren-Nayar's "
+        "V-cavities, flatter shading, as tissue's is on real laparoscope and sinus frames) "
+        "(default: lambertian)",
     )
 
 

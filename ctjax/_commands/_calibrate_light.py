@@ -8,7 +8,13 @@ from pathlib import Path
 
 from .._errors import CtjaxError
 from .._units import in_length_unit, label
-from ._args import add_falloff_argument, add_workers_argument, field_solver, load_observations
+from ._args import (
+    add_diffuse_argument,
+    add_falloff_argument,
+    add_workers_argument,
+    field_solver,
+    load_observations,
+)
 
 
 def add_calibrate_light_parser(commands) -> None:
@@ -42,6 +48,7 @@ def add_calibrate_light_parser(commands) -> None:
         "a pose) or one for the capture (uniform, the paper's)",
     )
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
+    add_diffuse_argument(light, "near: ")
     light.add_argument(
         "--right-views",
         action="store_true",
@@ -55,8 +62,14 @@ def add_calibrate_light_parser(commands) -> None:
 def run_calibrate_light(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_near_light, named_falloff
     from ..io._atomic import atomic_write_json
+    from ..lobes import diffuse_lobe_named
 
     if args.model == "field":
+        if args.diffuse != "lambertian":
+            raise CtjaxError(
+                "--diffuse is for the near light (the per-pixel light field is fitted with the "
+                "paper's Lambertian + Cook-Torrance model)"
+            )
         if args.right_views:
             raise CtjaxError(
                 "--right-views is for the near light (a per-pixel light field is the left camera's)"
@@ -75,6 +88,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         progress=lambda m: print(f"[ctjax calibrate-light] {m}", flush=True),
         right_views=args.right_views,
         workers=args.workers,
+        diffuse=diffuse_lobe_named(args.diffuse),
     )
     summary = result.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
@@ -89,9 +103,25 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
+    print(_brdf_line(summary))
     for warning in result.warnings:
         print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _brdf_line(summary: dict) -> str:
+    """The fitted BRDF's parameters (and the lobes' gain where they show) in one line."""
+    shown = []
+    for name in ("F_tilde", "sigma", "oren_nayar_roughness"):
+        value = summary.get(name)
+        if isinstance(value, list):
+            shown.append(f"{name} [{', '.join(f'{v:.4g}' for v in value)}]")
+        elif isinstance(value, int | float):
+            shown.append(f"{name} {value:.4g}")
+    gain = summary.get("lobe_gain")
+    if isinstance(gain, int | float):
+        shown.append(f"lobe gain where it shows {100 * gain:.1f}%")
+    return "BRDF: " + "; ".join(shown)
 
 
 def _calibrate_light_field(args: argparse.Namespace) -> int:

@@ -6,8 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from .._errors import CtjaxError
 from .._units import in_length_unit, label
-from ._args import add_workers_argument, cook_torrance_estimator, load_observations
+from ._args import (
+    add_diffuse_argument,
+    add_workers_argument,
+    cook_torrance_estimator,
+    load_observations,
+)
 
 
 def add_evaluate_parser(commands) -> None:
@@ -42,6 +48,7 @@ def add_evaluate_parser(commands) -> None:
         action="store_true",
         help="RGB errors only: no shape from shading (it needs depth with relief to score)",
     )
+    add_diffuse_argument(evaluate, "Cook-Torrance's (near light): ")
     add_workers_argument(evaluate, "test frames' shapes from shading")
     evaluate.set_defaults(run=run_evaluate)
 
@@ -49,7 +56,13 @@ def add_evaluate_parser(commands) -> None:
 def run_evaluate(args: argparse.Namespace) -> int:
     from ..evaluation import evaluate, evaluation_plots
     from ..io._atomic import atomic_write_json
+    from ..lobes import diffuse_lobe_named
 
+    if args.diffuse != "lambertian" and args.light != "near":
+        raise CtjaxError(
+            f"--diffuse is for the near light's Cook-Torrance (--light near), not --light "
+            f"{args.light} (the paper's fits are Lambertian + Cook-Torrance)"
+        )
     observations = load_observations(args)
     capture = observations.capture
     evaluation = evaluate(
@@ -61,6 +74,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         sfs=not args.no_sfs,
         workers=args.workers,
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
+        diffuse=diffuse_lobe_named(args.diffuse),
     )
     summary = evaluation.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
@@ -76,12 +90,23 @@ def run_evaluate(args: argparse.Namespace) -> int:
     )
     gain = summary["gain"]
     if "lobe_levels" in gain:
-        same = summary["lambertian_same_light_rgb_rmse_test"]
+        parts = []
+        if "light_levels" in gain:
+            same = summary["lambertian_same_light_rgb_rmse_test"]
+            parts.append(
+                f"{gain['light_levels']:.2f} from its light (Lambertian under the same light: "
+                f"{same:.2f})"
+            )
+        if "diffuse_levels" in gain:
+            alone = summary["diffuse_same_light_rgb_rmse_test"]
+            parts.append(
+                f"{gain['diffuse_levels']:.2f} from its diffuse term ({args.diffuse} alone "
+                f"under the same light: {alone:.2f})"
+            )
+        parts.append(f"{gain['lobe_levels']:.2f} from the lobe")
         print(
-            "Cook-Torrance's gain on the test frames: "
-            f"{gain['total_levels']:.2f} levels = {gain['light_levels']:.2f} from its light "
-            f"(Lambertian under the same light: {same:.2f}) + {gain['lobe_levels']:.2f} from "
-            "the lobe"
+            f"Cook-Torrance's gain on the test frames: {gain['total_levels']:.2f} levels = "
+            + " + ".join(parts)
         )
     right = summary.get("right_views")
     if right is not None:
@@ -91,6 +116,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             for name, key in (
                 ("Lambertian", "lambertian"),
                 ("Lambertian (same light)", "lambertian_same_light"),
+                (f"{args.diffuse} alone (same light)", "diffuse_same_light"),
                 ("Cook-Torrance", "cook_torrance"),
             )
             if f"{key}_rgb_rmse" in right

@@ -94,7 +94,7 @@ def run_fit(args: argparse.Namespace) -> int:
     from ..estimation import PAPER, TWO_SCALES, with_diffuse
     from ..estimation._capture_fit import fit_capture
     from ..io._atomic import atomic_write_json, atomic_write_npy
-    from ..lobes import diffuse_lobe
+    from ..lobes import diffuse_lobe_named
     from ..observations import Observations
     from ..specular import sparkle_density_line, sparkle_density_summary
 
@@ -113,7 +113,7 @@ def run_fit(args: argparse.Namespace) -> int:
         for warning in shape["warnings"]:
             print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     family = with_diffuse(
-        {"paper": PAPER, "two-scales": TWO_SCALES}[args.model], diffuse_lobe(args.diffuse)
+        {"paper": PAPER, "two-scales": TWO_SCALES}[args.model], diffuse_lobe_named(args.diffuse)
     )
     if args.albedo_maps is not None and args.albedo == "uniform":
         raise CtjaxError("--albedo-maps needs the albedo map (--albedo map)")

@@ -37,6 +37,7 @@ from ..fitting import (
     pixel_predict,
     roughness_variants,
 )
+from ..fitting._map_least_squares import diffuse_lobe
 from ..heldout import (
     SIMPLEST_WITHIN,
     HeldOut,
@@ -48,6 +49,7 @@ from ..io import Capture
 from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
 from ..lights._point import offset_starts
 from ..lobes import BRDF, Lambertian
+from ..lobes._diffuse import with_diffuse_lobe
 from ..observations import Observations
 from ..solvers import Solver
 
@@ -76,12 +78,21 @@ def _name(falloff: tuple[AbstractFalloff, ...]) -> str:
     return "+".join(f.name for f in falloff) or "none"
 
 
-def _starts(falloff: tuple[AbstractFalloff, ...], capture) -> list[ShadingModel]:
+def _paper(diffuse: type[Lambertian]) -> ShadingModel:
+    """The paper's model with `diffuse` as its diffuse term (its shape at the middle of its
+    domain), a fit's start."""
+    model = paper_model(1.0, 0.3, 0.2)
+    return eqx.tree_at(lambda m: m.brdf, model, with_diffuse_lobe(model.brdf, diffuse))
+
+
+def _starts(
+    falloff: tuple[AbstractFalloff, ...], capture, diffuse: type[Lambertian] = Lambertian
+) -> list[ShadingModel]:
     """Starting models from every offset of `offset_starts` and several roughnesses."""
     starts = []
     unit = length_unit_of(capture)
     for offset in offset_starts(unit, median_depth_mm(capture)):
-        base = paper_model(1.0, 0.3, 0.2)
+        base = _paper(diffuse)
         light = PointLight(jnp.asarray(offset, float), falloff=tuple(falloff))
         starts.extend(roughness_variants(eqx.tree_at(lambda m: m.light, base, light)))
     return starts
@@ -115,6 +126,7 @@ def calibrate_near_light(
     progress=None,
     right_views: bool = False,
     workers: int | None = None,
+    diffuse: type[Lambertian] = Lambertian,
 ) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
@@ -131,7 +143,8 @@ def calibrate_near_light(
     RMSE of every falloff set tried. `progress`: called with a line per step.
     `right_views`: with the map, a stereo capture's right images too (`near_light_map`).
     `workers`: falloff sets fitted at once, on threads (default: the cores, at most 4); the
-    results do not depend on it.
+    results do not depend on it. `diffuse`: the diffuse term (`ctjax.lobes.diffuse_lobes`:
+    `Lambertian`, the paper's, or e.g. `OrenNayar`, whose shape is fitted with the rest).
     """
     say = progress or (lambda message: None)
     workers = checked_workers(workers)
@@ -154,6 +167,7 @@ def calibrate_near_light(
             progress=progress,
             right_views=right_views,
             workers=workers,
+            diffuse=diffuse,
         )
     if right_views:
         raise CtjaxError("the right views are fitted with the albedo map (albedo='map')")
@@ -166,7 +180,7 @@ def calibrate_near_light(
 
     def fit_choice(choice):
         return fit_model(
-            _starts(choice, capture),
+            _starts(choice, capture, diffuse),
             heldout.train,
             pixel_predict,
             columns=pixel_columns,
@@ -193,9 +207,11 @@ def calibrate_near_light(
     return flag_model(fit)
 
 
-def _at_the_lens(falloff: tuple[AbstractFalloff, ...]) -> list[ShadingModel]:
+def _at_the_lens(
+    falloff: tuple[AbstractFalloff, ...], diffuse: type[Lambertian] = Lambertian
+) -> list[ShadingModel]:
     light = PointLight(jnp.zeros(3), falloff=tuple(falloff))
-    return roughness_variants(eqx.tree_at(lambda m: m.light, paper_model(1.0, 0.3, 0.2), light))
+    return roughness_variants(eqx.tree_at(lambda m: m.light, _paper(diffuse), light))
 
 
 def _details(result, capture, choices, errors, detected, offset, reported) -> dict:
@@ -249,6 +265,7 @@ def near_light_map(
     progress=None,
     right_views: bool = False,
     workers: int | None = None,
+    diffuse: type[Lambertian] = Lambertian,
 ) -> Estimate:
     """The near-light model on textured tissue: one albedo per surface point.
 
@@ -272,6 +289,7 @@ def near_light_map(
     within 2 standard errors of 0, the estimate is the light at the lens, reported with
     `offset_bound_mm` (the fitted offset's norm plus 2 standard errors): the data cannot
     tell an offset below it from none. `workers`: falloff sets fitted at once, on threads.
+    `diffuse`: the diffuse term, as `calibrate_near_light`'s.
     """
     started = time.perf_counter()
     workers = checked_workers(workers)
@@ -305,7 +323,7 @@ def near_light_map(
     )
 
     def fit_choice(choice):
-        chosen = fit(_starts(choice, capture))
+        chosen = fit(_starts(choice, capture, diffuse))
         return chosen, heldout.heldout_rmse(chosen.model)
 
     fits, errors = [], []
@@ -326,7 +344,7 @@ def near_light_map(
     say("standard errors, and the same model with the light at the lens")
     lens_fit = heldout.judge(
         # Held, not frozen: the chosen offset fit's compiled program serves.
-        fit(_at_the_lens(choices[chosen]), hold=("light.position_mm",)),
+        fit(_at_the_lens(choices[chosen], diffuse), hold=("light.position_mm",)),
         noise_floor=False,
     )
     significant = bool(np.all(np.isfinite(stderr)) and np.linalg.norm(offset / stderr) > 2)
@@ -361,13 +379,15 @@ def near_light_map(
 
 def _lobe_gain(result, every, tracks) -> float | None:
     """What the lobes bring under the fitted light where they show (at least one 8-bit
-    level): 1 - RMSE / RMSE of the Lambertian model under the same light (held) on the same
-    tracks, each point's albedo eliminated (`lobe_gain_where_it_shows`); None where the
-    refit on every frame did not give a finite cost."""
+    level): 1 - RMSE / RMSE of the diffuse term alone (Lambertian, or the fitted model's
+    diffuse lobe with its shape refitted) under the same light (held) on the same tracks,
+    each point's albedo eliminated (`lobe_gain_where_it_shows`); None where the refit on
+    every frame did not give a finite cost."""
     if not np.isfinite(every.cost):
         return None
     light = result.model.light
-    lambertian = ShadingModel(BRDF(Lambertian(1.0)), light, result.model.effects)
+    diffuse = result.model.brdf.lobes[diffuse_lobe(result.model)]
+    lambertian = ShadingModel(BRDF(diffuse), light, result.model.effects)
     held = [p.name for p in free_parameters(lambertian) if not p.name.startswith("brdf")]
     plain = fit_model_map(lambertian, tracks, freeze=held, standard_errors=False)
     if not np.isfinite(plain.cost) or plain.cost <= 0:

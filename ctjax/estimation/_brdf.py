@@ -74,11 +74,11 @@ class _WithDiffuse:
     count: int
 
     def __call__(self, params):
-        brdf = self.build(params[: params.shape[0] - self.count])
-        shape = [params[params.shape[0] - self.count + i] for i in range(self.count)]
-        return type(brdf)(
-            *(self.lobe(lb.weight, *shape) if type(lb) is Lambertian else lb for lb in brdf.lobes)
-        )
+        from ..lobes._diffuse import with_diffuse_lobe
+
+        own = params.shape[0] - self.count
+        shape = [params[own + i] for i in range(self.count)]
+        return with_diffuse_lobe(self.build(params[:own]), self.lobe, shape)
 
     def __repr__(self) -> str:
         return f"_WithDiffuse({_qualified(self.build)}, {_qualified(self.lobe)}, {self.count})"

@@ -40,6 +40,10 @@ from ._pyramid import block_reduce, reduced
 from ._scale import bounding_box_volume
 from ._sfs import ShapeFromShading, sfs_cook_torrance, sfs_refined, sfs_tsai_shah
 
+# The models an evaluation fits, in the order the gain is split: the paper's Lambertian,
+# the same under Cook-Torrance's light, Cook-Torrance's diffuse term alone under it, and
+# Cook-Torrance.
+MODELS = ("lambertian", "lambertian_same_light", "diffuse_same_light", "cook_torrance")
 # An estimator of Cook-Torrance with its light: fits on the first `calibration` frames.
 Estimator = Callable[..., Estimate]
 # Shape from shading runs on the frame reduced so that it is at most this wide (its sparse
@@ -102,6 +106,9 @@ class Evaluation:
     # A stereo capture's right views of the calibration frames (`ctjax.heldout.RightViews`):
     # per model, its RMSE on them and on the left views of the same points.
     right_views: dict | None = None
+    # Cook-Torrance's diffuse term alone under its light (held), its shape fitted: where
+    # that term is not Lambert's, it and the lobe differ by the lobe alone.
+    diffuse_same_light: Estimate | None = None
 
     @property
     def light(self) -> str:
@@ -123,21 +130,29 @@ class Evaluation:
 
     def gain(self) -> dict:
         """Cook-Torrance's gain over the paper's Lambertian on the test frames, split into its
-        light's (Lambertian at the camera -> Lambertian under Cook-Torrance's light) and its
-        lobe's (-> Cook-Torrance), in levels."""
+        light's (Lambertian at the camera -> Lambertian under Cook-Torrance's light), its
+        diffuse term's where that is not Lambert's (-> that term alone under the same light)
+        and its lobe's (-> Cook-Torrance), in levels."""
         test = {
             name: getattr(self, name).rmse["test"]
-            for name in ("lambertian", "lambertian_same_light", "cook_torrance")
+            for name in MODELS
             if getattr(self, name) is not None
         }
         out = {"total_levels": test["lambertian"] - test["cook_torrance"]}
+        lit = test.get("lambertian_same_light", test["lambertian"])
         if "lambertian_same_light" in test:
-            out["light_levels"] = test["lambertian"] - test["lambertian_same_light"]
-            out["lobe_levels"] = test["lambertian_same_light"] - test["cook_torrance"]
+            out["light_levels"] = test["lambertian"] - lit
+        if "diffuse_same_light" in test:
+            out["diffuse_levels"] = lit - test["diffuse_same_light"]
+            out["lobe_levels"] = test["diffuse_same_light"] - test["cook_torrance"]
+        elif "lambertian_same_light" in test:
+            out["lobe_levels"] = lit - test["cook_torrance"]
         out["note"] = (
             "test-frame RGB RMSE: Lambertian (light at the camera) minus Cook-Torrance; "
             "light_levels: what Cook-Torrance's light (offset, falloff) brings to the Lambertian "
-            "model alone; lobe_levels: what the specular lobe brings under that same light"
+            "model alone; diffuse_levels: what Cook-Torrance's diffuse term (when not "
+            "Lambert's) brings under that light; lobe_levels: what the specular lobe brings "
+            "under that same light and diffuse term"
         )
         return out
 
@@ -148,7 +163,7 @@ class Evaluation:
             "calibration_frames": self.calibration_frames,
             "test_frames": self.test_frames,
         }
-        for model in ("lambertian", "lambertian_same_light", "cook_torrance"):
+        for model in MODELS:
             if getattr(self, model) is None:
                 continue
             rmse = getattr(self, model).rmse
@@ -189,6 +204,11 @@ class Evaluation:
                 if self.lambertian_same_light is None
                 else {"lambertian_same_light": named_parameters(self.lambertian_same_light.model)}
             ),
+            **(
+                {}
+                if self.diffuse_same_light is None
+                else {"diffuse_same_light": named_parameters(self.diffuse_same_light.model)}
+            ),
             "cook_torrance": {
                 **named_parameters(self.cook_torrance.model.brdf),
                 "light": type(self.cook_torrance.model.light).__name__,
@@ -218,14 +238,18 @@ def fit_lambertian(
     *,
     tracks: HeldOutTracks | None = None,
     light: AbstractLight | None = None,
+    diffuse: Lambertian | None = None,
 ) -> Estimate:
     """The Lambertian model (rho_tilde, light at the camera) fitted to every usable pixel of
     `frames`: linear, so the closed form is the least-squares solution. With `tracks` (an
     albedo map), one albedo per tracked surface point of `tracks.train`, eliminated in
     closed form as for Cook-Torrance: the model's `rho_tilde` is their median. `light`:
     another light, held as it is (e.g. Cook-Torrance's fitted one: its offset and
-    falloff), so that the two models differ by the lobe alone."""
-    start = ShadingModel(BRDF(Lambertian(1.0)), ColocatedLight() if light is None else light)
+    falloff), so that the two models differ by the lobe alone. `diffuse`: another diffuse
+    lobe in place of Lambert's (e.g. Cook-Torrance's fitted `OrenNayar`), its shape fitted
+    from where it is."""
+    lobe = Lambertian(1.0) if diffuse is None else diffuse
+    start = ShadingModel(BRDF(lobe), ColocatedLight() if light is None else light)
     held = [p.name for p in free_parameters(start) if p.name.startswith("light")]
     if tracks is not None:
         return fit_model_map(start, tracks.train, freeze=held)
@@ -248,17 +272,25 @@ def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None)
     return fit
 
 
-def _cook_torrance(capture, calibration, cook_torrance, albedo) -> Estimate:
+def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse) -> Estimate:
     if isinstance(cook_torrance, Estimate):
         return cook_torrance
     if isinstance(cook_torrance, ShadingModel):
         return Estimate(cook_torrance, status=Status.given)
     if callable(cook_torrance):
         try:
-            takes_albedo = "albedo" in inspect.signature(cook_torrance).parameters
+            parameters = inspect.signature(cook_torrance).parameters
         except (TypeError, ValueError):
-            takes_albedo = False
-        options = {"albedo": albedo} if takes_albedo else {}
+            parameters = {}
+        options = {"albedo": albedo} if "albedo" in parameters else {}
+        if diffuse is not Lambertian:
+            if "diffuse" not in parameters:
+                raise CtjaxError(
+                    f"diffuse={diffuse.__name__}: the Cook-Torrance estimator "
+                    f"{getattr(cook_torrance, '__name__', cook_torrance)!r} takes no diffuse "
+                    "term (calibrate_near_light does)"
+                )
+            options["diffuse"] = diffuse
         return cook_torrance(capture, calibration=calibration, **options)
     raise CtjaxError(
         "cook_torrance must be a fitted ShadingModel, an Estimate or an estimator "
@@ -335,6 +367,7 @@ def evaluate(
     per_pixel_sfs: bool = False,
     progress: Callable[[str], None] = lambda message: None,
     workers: int | None = None,
+    diffuse: type[Lambertian] = Lambertian,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
     test frames (RGB error and SfS).
@@ -353,7 +386,10 @@ def evaluate(
     normals) and report it beside the joint one. Shape from shading has one image: it uses
     one albedo per model (with the map, the median of the points'), and says so in `notes`.
     `workers`: test frames whose shape from shading runs at once, on threads (default: the
-    cores, at most 4); the results do not depend on it."""
+    cores, at most 4); the results do not depend on it. `diffuse`: Cook-Torrance's diffuse
+    term (`ctjax.lobes.diffuse_lobes`), given to its estimator; where it is not Lambert's,
+    that term alone under the same light is fitted too (`diffuse_same_light`), and the
+    gain is split into the light's, the diffuse term's and the lobe's."""
     workers = checked_workers(workers)
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
     if missing:
@@ -381,24 +417,35 @@ def evaluate(
     timings["lambertian_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     progress(f"fitting Cook-Torrance with its light on frames {calib}...")
-    fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo)
+    fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo, diffuse)
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    same_light = None
-    if not isinstance(fitted.model.light, ColocatedLight) or fitted.model.light.falloff:
+    same_light = same_diffuse = None
+    light = fitted.model.light
+    if not isinstance(light, ColocatedLight) or light.falloff:
         progress("fitting the Lambertian model under Cook-Torrance's light (held)...")
-        same_light = fit_lambertian(capture, calib, tracks=tracks, light=fitted.model.light)
+        same_light = fit_lambertian(capture, calib, tracks=tracks, light=light)
+    own = _diffuse_of(fitted.model)
+    if own is not None:
+        progress(f"fitting Cook-Torrance's diffuse term ({type(own).__name__}) alone...")
+        same_diffuse = fit_lambertian(capture, calib, tracks=tracks, light=light, diffuse=own)
     timings["lambertian_same_light_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     lambertian, fitted = (_judged(capture, e, calib, test, tracks) for e in (lambertian, fitted))
     if same_light is not None:
         same_light = _judged(capture, same_light, calib, test, tracks)
+    if same_diffuse is not None:
+        same_diffuse = _judged(capture, same_diffuse, calib, test, tracks)
     timings["rgb_error"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:
         tic = time.perf_counter()
         progress(f"both models on the right camera's views of frames {calib}...")
-        fits = {"lambertian": lambertian, "lambertian_same_light": same_light}
+        fits = {
+            "lambertian": lambertian,
+            "lambertian_same_light": same_light,
+            "diffuse_same_light": same_diffuse,
+        }
         right_views, note = _on_right_views(capture, calib, {**fits, "cook_torrance": fitted})
         notes += [note] if note else []
         timings["right_views"] = time.perf_counter() - tic
@@ -443,7 +490,17 @@ def evaluate(
         same_light,
         unit,
         right_views,
+        same_diffuse,
     )
+
+
+def _diffuse_of(model: ShadingModel) -> Lambertian | None:
+    """The model's diffuse lobe where it is not Lambert's (a `Lambertian` subclass with a
+    shape, e.g. `OrenNayar`); None otherwise."""
+    for lobe in model.brdf.lobes:
+        if isinstance(lobe, Lambertian) and type(lobe) is not Lambertian:
+            return lobe
+    return None
 
 
 def _on_right_views(capture: Observations, calib, fits: dict) -> tuple[dict | None, str | None]:

@@ -2,7 +2,7 @@
 
 from ._beckmann import Beckmann as Beckmann
 from ._cook_torrance import CookTorrance as CookTorrance
-from ._diffuse import diffuse_lobe as diffuse_lobe
+from ._diffuse import diffuse_lobe_named as diffuse_lobe_named
 from ._diffuse import diffuse_lobes as diffuse_lobes
 from ._distribution import AbstractDistribution as AbstractDistribution
 from ._factor import AbstractSpecularFactor as AbstractSpecularFactor

@@ -36,7 +36,7 @@ def diffuse_lobes() -> dict[str, type[Lambertian]]:
     return found
 
 
-def diffuse_lobe(name: str) -> type[Lambertian]:
+def diffuse_lobe_named(name: str) -> type[Lambertian]:
     """The diffuse lobe called `name` (see `diffuse_lobes`); a clear error otherwise."""
     lobes = diffuse_lobes()
     if name not in lobes:
@@ -60,3 +60,16 @@ def diffuse_parameters(lobe: type[Lambertian]) -> tuple[tuple[str, float, float]
             )
         out.append((name, lo, hi))
     return tuple(out)
+
+
+def with_diffuse_lobe(brdf, lobe: type[Lambertian], shape=None):
+    """`brdf` (a `BRDF`) with its Lambertian lobe replaced by `lobe(weight, *shape)`, the
+    weight kept; `shape` by default the middle of each parameter's domain (a fit's start).
+    `Lambertian` gives `brdf` itself."""
+    if lobe is Lambertian:
+        return brdf
+    if shape is None:
+        shape = [(lo + hi) / 2 for _, lo, hi in diffuse_parameters(lobe)]
+    return type(brdf)(
+        *(lobe(each.weight, *shape) if type(each) is Lambertian else each for each in brdf.lobes)
+    )
