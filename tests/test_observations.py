@@ -79,3 +79,45 @@ def test_tracks_are_built_once_per_request(capture):
     assert other is not first and len(other.observed[0]) == 3
     # New observations of the same capture start afresh.
     assert Observations(capture).tracks(max_points=200, frames=[0, 1]) is not first
+
+
+def _world_normals(capture, tracks):
+    """Each observation's normal (bilinear over its corners) in world coordinates."""
+    normal = np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_normal)
+    with np.errstate(invalid="ignore"):  # views that are not observed: NaN, not compared
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    rotation = np.stack([f.pose[:3, :3] for f in capture.frames])
+    return np.einsum("pmij,pmj->pmi", rotation[np.maximum(tracks.frame, 0)], normal)
+
+
+def test_a_surface_point_has_one_normal_in_every_frame(tmp_path):
+    """Each frame's normals are its own (a surface per frame, a stereo pair per frame): a
+    point's normal differs between frames on real video, which a rigid surface's cannot.
+    The tracks turn each view to the point's mean normal, keeping the corners' spread."""
+    import dataclasses
+
+    root = synthesize(tmp_path / "c", SynthOptions(width=96, height=80, frames=3, seed=2))
+    exact = load_capture(root)
+    rng = np.random.default_rng(0)
+    frames = []
+    for frame in exact.frames:  # each frame's normals tilted its own way, 4 degrees
+        tilt = rng.normal(size=3) * np.tan(np.radians(4)) / np.sqrt(2)
+        normals = frame.normals + tilt
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+        frames.append(dataclasses.replace(frame, normals=normals.astype(frame.normals.dtype)))
+    tilted = dataclasses.replace(exact, frames=frames)
+    for capture in (exact, tilted):
+        tracks = Observations.of(capture).tracks()
+        world = _world_normals(capture, tracks)
+        seen = tracks.observed & (tracks.views[:, None] > 1)
+        mean = np.where(seen[..., None], world, 0).sum(1)
+        mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+        spread = np.degrees(np.arccos(np.clip(np.sum(world * mean[:, None], -1), -1, 1)))
+        assert np.max(spread[seen]) < 1e-3
+    # Once one, they stay: a second pass leaves every corner where it is.
+    from ctjax._tracks import one_normal_per_point
+
+    tracks = Observations.of(exact).tracks()
+    again = one_normal_per_point(tracks, exact)
+    seen = tracks.observed
+    np.testing.assert_allclose(again.corner_normal[seen], tracks.corner_normal[seen], atol=2e-3)
