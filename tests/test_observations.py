@@ -108,8 +108,9 @@ def test_a_surface_point_has_one_normal_in_every_frame(tmp_path):
     tilted = dataclasses.replace(exact, frames=frames)
     for capture in (exact, tilted):
         tracks = Observations.of(capture).tracks()
+        tracks = tracks.select(tracks.views > 1)
         world = _world_normals(capture, tracks)
-        seen = tracks.observed & (tracks.views[:, None] > 1)
+        seen = tracks.observed
         mean = np.where(seen[..., None], world, 0).sum(1)
         mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
         spread = np.degrees(np.arccos(np.clip(np.sum(world * mean[:, None], -1), -1, 1)))
