@@ -75,6 +75,35 @@ def test_verdict_names_the_hidden_effect(captures, effect):
         assert best.details["improvement"] > 0
 
 
+def test_a_judged_bases_per_frame_values_are_its_calibration_fits_again(tmp_path):
+    """Judging a model fits its per-frame parameters (a frame's exposure) on the held-out
+    tracks, which see the calibration frames too; the base its candidates start from and are
+    compared with must be the calibration fit's own, or every candidate ends 'no better
+    than the base' (the shared sinus after `frame_exposure`: the loop stopped with 'none'
+    while spot_falloff was worth 12.7%). The held-out frames keep their judged values."""
+    import dataclasses
+
+    from ctjax.diagnostics._diagnose import _fit, _per_frame_on_calibration
+    from ctjax.effects._exposure import FrameExposureCandidate
+    from ctjax.fitting import paper_model
+    from ctjax.heldout import HeldOutTracks
+
+    options = SynthOptions(**{**SMALL, "texture": True}, effects={"frame_exposure": 0.1})
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    heldout = HeldOutTracks.split(capture, max_points=3000, heldout_points=3000)
+    starts = FrameExposureCandidate()(paper_model(1.0, 0.3, 0.2), {"frames": len(capture)})
+    fit = _fit(starts, heldout, 80)
+    exposure = np.asarray(fit.model.effects[0].log_exposure)
+    judged = eqx.tree_at(lambda m: m.effects[0].log_exposure, fit.model, exposure + 0.2)
+    base = _per_frame_on_calibration(dataclasses.replace(fit, model=judged), heldout, 80)
+    assert base.cost == pytest.approx(fit.cost, rel=1e-4)
+    again = np.asarray(base.model.effects[0].log_exposure)
+    calibration = [f - 1 for f in heldout.calibration if f > 0]
+    heldout_frames = [f - 1 for f in heldout.heldout]
+    np.testing.assert_allclose(again[calibration], exposure[calibration], atol=2e-3)
+    np.testing.assert_allclose(again[heldout_frames], exposure[heldout_frames] + 0.2, rtol=1e-6)
+
+
 def test_a_faint_effect_is_named_though_the_base_is_near_the_noise_floor(tmp_path):
     """A faint ambient term (0.0085, about 2 levels) leaves the base within 5% of the noise
     floor, which the floor cannot tell from noise; the held-out frames can: the ambient
