@@ -7,8 +7,10 @@ surface of Lambertian V-cavities whose slopes have a standard deviation `roughne
 (radians): with the light at the lens (L = V) its radiance is `(A cos t + B sin^2 t) / pi`
 instead of `cos t / pi`, t the angle of incidence. No lobe of the paper's model, and no
 image effect, flattens the shading this way (a camera gamma compresses every value, an
-ambient term adds the same to each): on a laparoscope's frames under the albedo map the
-model is too bright where the tissue faces the scope.
+ambient term adds the same to each). Noisy normals look flatter too: a fit on normals that
+differ from frame to frame takes a roughness the surface does not have (5 degrees RMS:
+0.44 on a Lambertian synthetic capture), which is why the tracks give each surface point
+one normal (`ctjax._tracks.one_normal_per_point`).
 
 This file is the whole lobe: the physics for one pixel, its parameter's domain and name,
 and its candidate for `ctjax diagnose` and `ctjax synth --oren-nayar`. Nothing else in
