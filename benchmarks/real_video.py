@@ -63,6 +63,7 @@ def prepare(source: Path, out: Path, frames: int, width: int) -> Path:
     capture = out / "capture"
     if capture.is_dir():
         shutil.rmtree(capture)
+    out.mkdir(parents=True, exist_ok=True)
     if source.suffix.lower() in VIDEO_SUFFIXES:
         camera = source.with_name("camera.json")
         if not camera.is_file():
