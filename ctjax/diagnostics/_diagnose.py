@@ -250,23 +250,14 @@ def _per_frame_on_calibration(base: Estimate, heldout, max_steps) -> Estimate:
     reported as the base when they end above its cost: with the judged values and the
     calibration fit's cost every one did (the shared sinus after `frame_exposure`: all 14
     candidates at the base's held-out RMSE to 1e-9, the loop stopped with `none`). The
-    held-out frames' values stay as judged (the calibration samples do not see them)."""
-    if not per_frame_names(base.model):
+    held-out frames' values stay as judged (the calibration samples do not see them). On
+    pixels (`HeldOut`) the held-out samples are the held-out frames' alone: nothing to do."""
+    if not isinstance(heldout, HeldOutTracks) or not per_frame_names(base.model):
         return base
     held = [p.name for p in free_parameters(base.model) if not p.per_frame]
-    if isinstance(heldout, HeldOutTracks):
-        refit = fit_model_map(
-            base.model, heldout.train, freeze=held, max_steps=max_steps, standard_errors=False
-        )
-    else:
-        refit = fit_model(
-            base.model,
-            heldout.train,
-            pixel_predict,
-            columns=pixel_columns,
-            freeze=held,
-            max_steps=max_steps,
-        )
+    refit = fit_model_map(
+        base.model, heldout.train, freeze=held, max_steps=max_steps, standard_errors=False
+    )
     if not np.isfinite(refit.cost):
         return base
     return dataclasses.replace(base, model=refit.model, cost=refit.cost)
