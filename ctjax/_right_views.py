@@ -34,7 +34,14 @@ import numpy as np
 
 from ._camera import Camera
 from ._errors import CtjaxError
-from ._tracks import DEFAULT_TOLERANCE, Tracks, observation_weight, sample_image, world_points
+from ._tracks import (
+    DEFAULT_TOLERANCE,
+    Tracks,
+    observation_weight,
+    point_normals,
+    sample_image,
+    world_points,
+)
 from ._units import METRIC
 from .io._encoding import SRGB, srgb_to_linear
 
@@ -107,7 +114,9 @@ def z_buffer(capture, index: int) -> np.ndarray:
 
 
 def _anchors(capture, tracks: Tracks):
-    """The tracks' world points (P, 3) and unit normals (P, 3), from their anchor pixels."""
+    """The tracks' world points (P, 3), from their anchor pixels, and unit normals (P, 3):
+    each point's one normal over its left views (`point_normals`; its anchor pixel's where
+    none counts)."""
     camera = capture.camera
     world = np.empty((len(tracks), 3))
     normal = np.empty((len(tracks), 3))
@@ -117,7 +126,8 @@ def _anchors(capture, tracks: Tracks):
         rows, cols = tracks.anchor_row[at], tracks.anchor_col[at]
         world[at] = world_points(camera, frame, rows, cols)
         normal[at] = frame.normals[rows, cols].astype(np.float64) @ frame.pose[:3, :3].T
-    return world, normal
+    one = point_normals(tracks, capture)
+    return world, np.where(np.all(np.isfinite(one), axis=-1, keepdims=True), one, normal)
 
 
 def _right_observations(capture, index, world, normal, tolerance, saturation_level):

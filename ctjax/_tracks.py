@@ -475,6 +475,30 @@ def follow(
     return one_normal_per_point(_assembled(followed), capture)
 
 
+def _views_and_mean(tracks: Tracks, capture):
+    """Each view's unit normal (P, M, 3; bilinear over its corners, in its frame), its
+    frame's rotation (P, M, 3, 3; camera-to-world), whether it counts (P, M) and each
+    point's mean normal in world coordinates (P, 3; NaN where no view counts)."""
+    own = np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_normal)
+    rotation = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
+    seen = tracks.observed & (tracks.frame >= 0)
+    turn = rotation[np.where(seen, tracks.frame, 0)]
+    with np.errstate(invalid="ignore"):  # a corner without a normal: NaN, not seen below
+        own /= np.linalg.norm(own, axis=-1, keepdims=True)
+    world = np.einsum("pmij,pmj->pmi", turn, own)
+    seen &= np.all(np.isfinite(world), axis=-1)
+    mean = np.where(seen[..., None], world, 0).sum(axis=1)
+    norm = np.linalg.norm(mean, axis=-1, keepdims=True)
+    mean = np.where(norm > 0, mean / np.where(norm > 0, norm, 1), np.nan)
+    return own, turn, seen, mean
+
+
+def point_normals(tracks: Tracks, capture) -> np.ndarray:
+    """Each tracked point's normal in world coordinates (P, 3): the mean of its views'
+    (`one_normal_per_point`); NaN for a point no view of which counts."""
+    return _views_and_mean(tracks, capture)[3]
+
+
 def one_normal_per_point(tracks: Tracks, capture) -> Tracks:
     """`tracks` with each surface point's normal made one: every observation's corners
     turned by the least rotation that takes the observation's normal (bilinear over its
@@ -491,16 +515,7 @@ def one_normal_per_point(tracks: Tracks, capture) -> Tracks:
     0.2), and Oren-Nayar's roughness to 0.44 (1.52 at 10 degrees) where the truth is
     Lambertian; with one normal per point, sigma 0.222 and the roughness 0.03. Views that
     are not observed (clipped) keep their frame's normals."""
-    own = np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_normal)
-    rotation = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
-    seen = tracks.observed & (tracks.frame >= 0)
-    turn = rotation[np.where(seen, tracks.frame, 0)]  # (P, M, 3, 3) camera-to-world
-    with np.errstate(invalid="ignore"):  # a corner without a normal: NaN, not seen below
-        own /= np.linalg.norm(own, axis=-1, keepdims=True)
-    world = np.einsum("pmij,pmj->pmi", turn, own)
-    seen &= np.all(np.isfinite(world), axis=-1)
-    mean = np.where(seen[..., None], world, 0).sum(axis=1)
-    mean /= np.maximum(np.linalg.norm(mean, axis=-1, keepdims=True), 1e-300)
+    own, turn, seen, mean = _views_and_mean(tracks, capture)
     target = np.einsum("pmji,pj->pmi", turn, mean)  # in each frame: the transpose
     # The least rotation taking u to v: x + w x x + w x (w x x) / (1 + u.v), w = u x v.
     w = np.cross(own, target)[:, :, None, :]
