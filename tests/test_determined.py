@@ -10,7 +10,7 @@ from ctjax._determined import flag, undetermined
 from ctjax._model import paper_model
 from ctjax._result import Estimate
 from ctjax._status import Status
-from ctjax.estimation import PAPER, BRDFFamily, fit_brdf
+from ctjax.estimation import PAPER, BRDFFamily, design_columns, fit_brdf
 from ctjax.estimation._samples import ShadingSamples
 from ctjax.estimation._uniform_fit import flag_brdf_fit
 
@@ -158,6 +158,23 @@ def test_the_bnb_on_a_matte_surface_reports_no_lobe_not_success():
     estimate = flag_brdf_fit(Estimate(model), fit)
     assert estimate.status in (Status.no_lobe, Status.at_bound), estimate.warnings
     assert estimate.warnings and estimate.details["undetermined"]
+
+
+@pytest.mark.parametrize(("sigma", "warned"), [(0.2, False), (0.4, True)])
+def test_a_broad_lobe_under_the_papers_light_points_to_the_lights_falloff(sigma, warned):
+    """A determined lobe of sigma >= 0.3 under the paper's light (no falloff) is also what
+    the light's cone looks like: the fit says so and names calibrate-light."""
+    matte = _lambertian_samples(n=2000)
+    columns = design_columns(PAPER, jnp.asarray([sigma]), matte)
+    values = columns[0][:, None] * jnp.asarray(RHO) + columns[1][:, None] * 0.3
+    noise = np.random.default_rng(1).normal(0, 0.5 / 255, values.shape)
+    samples = ShadingSamples(
+        matte.normal, matte.light, matte.view, matte.irradiance, values + noise
+    )
+    fit = fit_brdf(samples, PAPER)
+    estimate = flag_brdf_fit(Estimate(ctjax.ShadingModel(fit.brdf, ctjax.ColocatedLight())), fit)
+    assert Status(estimate.status) == Status.successful, estimate.warnings
+    assert any("light's cone" in w for w in estimate.warnings) == warned
 
 
 def test_an_opened_family_range_is_checked_against_its_own_box():

@@ -268,4 +268,24 @@ def flag_brdf_fit(
         for d, name in enumerate(family.names)
         if halves
     }
-    return flag(estimate, stderrs, ranges, values, gain, split)
+    estimate = flag(estimate, stderrs, ranges, values, gain, split)
+    broad = [
+        f"{name} = {float(params[d]):.3g}"
+        for d, name in enumerate(family.names)
+        if name.startswith("sigma") and float(params[d]) >= BROAD_LOBE
+    ]
+    if broad and not estimate.details.get("undetermined"):
+        estimate.warnings.append(
+            f"a lobe this broad ({', '.join(broad)}) is also what the light's cone looks like "
+            "under the paper's light (at the lens, no falloff): `ctjax calibrate-light` fits "
+            "the light's falloff with the lobe and says whether the lobe remains (on a real "
+            "cholecystectomy video a lobe of sigma 0.39 that passed every check here was the "
+            "spot falloff's: its gain fell from 1.1% to 0.04%)"
+        )
+    return estimate
+
+
+# A lobe at least this broad (sigma) under the paper's light is checked against the light's
+# falloff (`flag_brdf_fit`'s warning): cos^k about the axis and a Beckmann lobe of this width
+# about N = H look alike where the tissue faces the scope.
+BROAD_LOBE = 0.3
