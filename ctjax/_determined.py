@@ -325,6 +325,17 @@ def flag(
     return estimate
 
 
+def add_undetermined(estimate, found: Undetermined):
+    """`estimate` with one more thing its data do not determine (a check beyond `flag`'s):
+    its warning, its entry in `details["undetermined"]` and, where the estimate was
+    successful, its status."""
+    estimate.details.setdefault("undetermined", []).append(found.to_json())
+    estimate.warnings.append(f"undetermined: {found.reason}")
+    if Status(estimate.status) == Status.successful:
+        estimate.status = found.status
+    return estimate
+
+
 def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=None):
     """`flag` for an estimate whose standard errors are in `details["stderr"]` by dotted
     field name (the LM fitters'), plus `stderrs` by paper name; `lobe_gain` as in

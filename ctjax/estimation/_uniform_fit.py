@@ -276,7 +276,7 @@ def flag_brdf_fit(
     ]
     if broad and not estimate.details.get("undetermined"):
         estimate.warnings.append(
-            f"a lobe this broad ({', '.join(broad)}) is also what the light's cone looks like "
+            f"{BROAD_WARNING} ({', '.join(broad)}) is also what the light's cone looks like "
             "under the paper's light (at the lens, no falloff): `ctjax calibrate-light` fits "
             "the light's falloff with the lobe and says whether the lobe remains (on a real "
             "cholecystectomy video a lobe of sigma 0.39 that passed every check here was the "
@@ -289,3 +289,4 @@ def flag_brdf_fit(
 # falloff (`flag_brdf_fit`'s warning): cos^k about the axis and a Beckmann lobe of this width
 # about N = H look alike where the tissue faces the scope.
 BROAD_LOBE = 0.3
+BROAD_WARNING = "a lobe this broad"
