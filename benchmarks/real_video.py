@@ -168,6 +168,8 @@ def _lobe(fit: dict) -> dict:
     out = {k: fit.get(k) for k in keys}
     out["undetermined"] = [u["parameter"] for u in fit.get("undetermined", [])]
     out["lambertian_rmse"] = fit.get("lambertian", {}).get("rgb_rmse")
+    # How much the frames' own normals of one surface point disagree (fit uses their mean).
+    out["frames_disagree_deg"] = fit.get("normals", {}).get("frames_disagree_deg")
     return out
 
 
@@ -289,7 +291,8 @@ def _print(row: dict) -> None:
         f"SfM        {s['registered']}/{row['frames']} registered, {s['points']} points, "
         f"reprojection {_fmt(s['reprojection_px'])} px, coverage {_fmt(s['coverage'])}, "
         f"texture refinement kept in {s['texture_refinement_kept']} frames, unit "
-        f"{s['length_unit']}"
+        f"{s['length_unit']}; the frames' normals of one point disagree by "
+        f"{_fmt(row['fit']['frames_disagree_deg'])} deg RMS"
     )
     for key in ("fit", "fit_even", "fit_odd", "fit_right"):
         f = row[key]
