@@ -373,7 +373,7 @@ def fit_albedo_map(
 
 
 # The spot falloffs a broad lobe is checked against (cos^k about the optical axis).
-SPOT_EXPONENTS = (1.0, 2.0, 4.0, 8.0)
+SPOT_EXPONENTS = (1.0, 2.0, 4.0, 8.0, 16.0)
 
 
 def _checked_against_the_lights_cone(estimate: Estimate, fit, tracks, tolerance) -> Estimate:
