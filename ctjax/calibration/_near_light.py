@@ -403,7 +403,8 @@ def _lobe_gain(result, every, tracks) -> float | None:
 def _no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
     """The light at the lens as the estimate: the bound on an offset, and the warning."""
     bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
-    result.details["offset_bound_mm"] = bound
+    # None (JSON null) where the standard errors could not be computed: no bound.
+    result.details["offset_bound_mm"] = bound if np.isfinite(bound) else None
     errors = f"{lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} levels held-out"
     if offset_fit.heldout_rmse >= (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse:
         why = f"the light at the lens explains the held-out frames about as well ({errors})"
@@ -411,8 +412,13 @@ def _no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
         why = f"the offset's standard errors could not be computed (at the lens {errors})"
     else:
         why = f"the fitted offset is within 2 standard errors of 0 (at the lens {errors})"
+    limit = (
+        f"an offset below {bound:.2g} {unit} cannot be told from none"
+        if np.isfinite(bound)
+        else "the data set no bound on an offset (its standard errors could not be computed)"
+    )
     result.warnings.append(
         f"no light offset detected: {why}; "
         f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
-        f"{unit}: an offset below {bound:.2g} {unit} cannot be told from none"
+        f"{unit}: {limit}"
     )
