@@ -30,7 +30,6 @@ from .._errors import ParameterError
 from .._typing import Array, Float, PyTree, Scalar
 from .._vector import Vec3
 from ._lambertian import Lambertian
-from ._lobe import AbstractLobe
 
 
 class OrenNayar(Lambertian):
@@ -61,23 +60,30 @@ class OrenNayar(Lambertian):
         check_shape("OrenNayar", "roughness", self.roughness, ())
         check_positive("OrenNayar", "roughness", self.roughness, allow_zero=True)
 
+    def _coefficients(self):
+        s2 = self.roughness * self.roughness
+        return 1 - 0.5 * s2 / (s2 + 0.33), 0.45 * s2 / (s2 + 0.09)  # A, B
+
     def radiance(self, normal: Vec3, light: Vec3, view: Vec3) -> Scalar:
+        return self.radiance_given(self.geometry(normal, light, view))
+
+    # The radiance is A g_A + B g_B, the roughness only in A and B: a search over the
+    # roughness (the sigma BnB with `--diffuse oren-nayar`) computes the two terms once.
+    def geometry(self, normal: Vec3, light: Vec3, view: Vec3) -> PyTree:
+        """`(N.L / pi, N.L / pi * max(0, L.V - N.L N.V) / max(N.L, N.V))` where lit
+        (N.L > 0 and N.V > 0), else 0."""
         n_dot_l, n_dot_v = normal @ light, normal @ view
         lit = (n_dot_l > 0) & (n_dot_v > 0)
-        s2 = self.roughness * self.roughness
-        a = 1 - 0.5 * s2 / (s2 + 0.33)
-        b = 0.45 * s2 / (s2 + 0.09)
         # sin(alpha) tan(beta) / (sin t_i sin t_r) = 1 / cos(beta) = 1 / max(N.L, N.V).
         larger = jnp.where(lit, jnp.maximum(n_dot_l, n_dot_v), 1.0)
         azimuth = jnp.maximum(light @ view - n_dot_l * n_dot_v, 0.0)
-        return jnp.where(lit, n_dot_l * (a + b * azimuth / larger), 0.0) / math.pi
-
-    # The Lambertian lobe's geometry is its radiance; this one has a parameter.
-    def geometry(self, normal: Vec3, light: Vec3, view: Vec3) -> PyTree:
-        return AbstractLobe.geometry(self, normal, light, view)
+        cosine = jnp.where(lit, n_dot_l, 0.0) / math.pi
+        return cosine, cosine * azimuth / larger
 
     def radiance_given(self, geometry: PyTree) -> Scalar:
-        return self.radiance(*geometry)
+        a, b = self._coefficients()
+        cosine, flattening = geometry
+        return a * cosine + b * flattening
 
 
 def _roughened(roughness):
