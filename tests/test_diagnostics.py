@@ -132,9 +132,20 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
     )
     assert status == 0
     result = json.loads(out.read_text())
-    assert list(result) == ["length_unit", "base_rmse", "noise_floor", "candidates", "verdict"]
+    assert list(result) == [
+        "length_unit",
+        "base_rmse",
+        "noise_floor",
+        "candidates",
+        "verdict",
+        "residual_budget",
+    ]
     assert result["length_unit"] == "mm"
     assert result["verdict"] == "light_offset"
+    # What is left of the verdict's model: noise (untextured, no misregistration).
+    budget = result["residual_budget"]
+    assert budget["rmse_levels"] < 1.3 * result["noise_floor"]
+    assert budget["misregistration_px"] < 0.2 and max(budget["smooth_share"].values()) < 0.02
     assert result["noise_floor"] == pytest.approx(np.sqrt(1 + 1 / 12), rel=0.2)
     assert result["candidates"][0]["heldout_rmse"] <= 1.15 * result["noise_floor"]
     assert result["candidates"][0]["improvement"] > 0

@@ -57,7 +57,13 @@ def add_diagnose_parser(commands) -> None:
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
-    from ..diagnostics import diagnose, diagnose_loop, diagnosis_plots, plot_loop
+    from ..diagnostics import (
+        diagnose,
+        diagnose_loop,
+        diagnosis_plots,
+        plot_loop,
+        residual_budget,
+    )
     from ..io._atomic import atomic_write_json
     from ..observations import Observations
 
@@ -81,6 +87,18 @@ def run_diagnose(args: argparse.Namespace) -> int:
     summary = diagnosis.to_json()
     if loop is not None:
         summary["loop"] = loop.to_json()
+    # What is left of the last model's held-out residual, where no candidate took it.
+    final = diagnosis.best_model if diagnosis.verdict != "none" else diagnosis.base.model
+    albedo = diagnosis.base.details.get("albedo", "uniform")
+    budget = None
+    try:
+        frames = diagnosis.base.frames.get("heldout")
+        if frames:
+            budget = residual_budget(observations, frames, final, albedo=albedo)
+    except ValueError as error:
+        summary["residual_budget"] = {"note": str(error)}
+    if budget is not None:
+        summary["residual_budget"] = budget.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.plots:
         for path in diagnosis_plots(observations, diagnosis, args.plots):
@@ -96,6 +114,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
                 f"({step.seconds:.0f} s)"
             )
         print(f"loop stopped: {loop.stopped}; {loop.seconds:.0f} s in all")
+    if budget is not None:
+        print(f"what is left: {budget.summary()}")
     print(
         f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
         f"noise floor {diagnosis.noise_floor:.2f}); wrote {args.json} "

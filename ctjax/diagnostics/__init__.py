@@ -2,6 +2,8 @@
 physical effect is missing."""
 
 from .._residuals import residual_map as residual_map
+from ._budget import ResidualBudget as ResidualBudget
+from ._budget import residual_budget as residual_budget
 from ._candidates import CANDIDATES as CANDIDATES
 from ._candidates import AbstractCandidate as AbstractCandidate
 from ._candidates import candidate as candidate

@@ -36,16 +36,22 @@ def _map_residual(capture, frames, model, samples) -> np.ndarray:
     return out
 
 
+def pixel_residuals(capture, frames, model, samples, albedo: str = "uniform") -> np.ndarray:
+    """(N, 3) model - measured at `samples` (pixels of `frames`), 8-bit levels: under the
+    map each pixel's albedo from the other frames that see it (NaN where none does);
+    `"uniform"`: the model as it is."""
+    if albedo == "map":
+        return _map_residual(capture, frames, model, samples)
+    predicted = np.asarray(predictions(model, samples, pixel_predict))
+    return 255 * (predicted - np.asarray(samples.values))
+
+
 def binned_residuals(capture, frames, model, samples, albedo: str = "uniform") -> dict:
     """For each variable of `VARIABLES`: (bin centres, mean residual (bins, 3) in 8-bit
     levels, model - measured) over `samples` (pixels of `frames`); `albedo` as in
     `plot_binned_residuals`. Samples without a residual (under the map: no other frame sees
     them) are left out."""
-    if albedo == "map":
-        residual = _map_residual(capture, frames, model, samples)
-    else:
-        predicted = np.asarray(predictions(model, samples, pixel_predict))
-        residual = 255 * (predicted - np.asarray(samples.values))
+    residual = pixel_residuals(capture, frames, model, samples, albedo)
     variables = physical_variables(model, samples, capture.camera)
     known = np.all(np.isfinite(residual), axis=1)
     out = {}

@@ -1,0 +1,161 @@
+"""What a model's residual is made of, where no candidate effect explains it.
+
+On real video the diagnose loop can end with "none" far above the noise floor (the shared
+sinus: 8.9x, the cholecystectomy video: 9.9x): what is left is not something a reflectance
+or light candidate takes. Three parts are measured on the held-out pixels:
+
+- **Misregistration**: a pixel whose surface point is misplaced by a displacement d (depth,
+  poses, tissue that moved) reads the texture at the wrong place, and its residual is about
+  grad I . d. For displacements of variance s^2 per axis, E[r^2] = a + s^2 |grad I|^2: the
+  slope of the squared residual against the squared image gradient (least squares, away
+  from the highlights and the field's edges) estimates s in pixels, and s^2 mean |grad I|^2
+  is the share of the mean squared residual it accounts for.
+- **Highlights**: the share of the squared residual within `NEAR_HIGHLIGHT_PX` of S (clipped
+  cores, sparkles finer than the shape).
+- **Per frame**: the share a gain of each frame's own (exposure, a light that changed, tissue
+  that moved as a whole) takes: per frame and channel, the residual's least-squares
+  multiple of the predicted intensity.
+- **Smooth in one variable**: for each physical variable (`VARIABLES`), the share its bin
+  means take (what any effect that is a function of that variable alone could still
+  remove): small shares say the candidates have not missed an angular or radial trend.
+
+The parts overlap (a highlight has a strong gradient too; the misregistration's pixels are
+taken away from the highlights) and do not sum to one; the rest is noise and what none of
+them describes.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..observations import Observations
+from ._variables import VARIABLES, binned, physical_variables
+
+# "Near a highlight": within this many pixels of S (the evaluation's bound).
+NEAR_HIGHLIGHT_PX = 7
+
+
+@dataclasses.dataclass(frozen=True)
+class ResidualBudget:
+    """The parts of a model's held-out residual (see the module doc); shares of the mean
+    squared residual (8-bit levels) over `samples` pixels."""
+
+    rmse: float
+    misregistration_px: float
+    gradient_share: float
+    highlight_share: float
+    per_frame_share: float
+    smooth_share: dict[str, float]
+    samples: int
+
+    def to_json(self) -> dict:
+        return {
+            "rmse_levels": self.rmse,
+            "misregistration_px": self.misregistration_px,
+            "gradient_share": self.gradient_share,
+            "highlight_share": self.highlight_share,
+            "per_frame_share": self.per_frame_share,
+            "smooth_share": dict(self.smooth_share),
+            "samples": self.samples,
+            "note": "shares of the held-out pixels' mean squared residual (under the map each "
+            "pixel's albedo from the other frames, as in the residual maps): the part that grows "
+            "with the image gradient squared (a misregistration of misregistration_px pixels "
+            "RMS per axis: shape, poses or tissue motion), the part within "
+            f"{NEAR_HIGHLIGHT_PX} px of S, what a gain per frame takes, and what a function of "
+            "each physical variable alone takes; they overlap",
+        }
+
+    def summary(self) -> str:
+        variable, smooth = max(self.smooth_share.items(), key=lambda item: item[1])
+        return (
+            f"held-out pixels' residual {self.rmse:.2f} levels RMS: "
+            f"{100 * self.gradient_share:.0f}% grows with the image gradient (about "
+            f"{self.misregistration_px:.2f} px of misregistration: shape, poses or tissue "
+            f"motion), {100 * self.highlight_share:.0f}% within {NEAR_HIGHLIGHT_PX} px of the "
+            f"highlights, {100 * self.per_frame_share:.0f}% a gain per frame, at most "
+            f"{100 * smooth:.0f}% a function of one physical variable ({VARIABLES[variable]})"
+        )
+
+
+def _gradient_squared(image: np.ndarray) -> np.ndarray:
+    """(H, W): mean over channels of |grad I|^2, I in 8-bit levels (central differences)."""
+    levels = 255.0 * np.asarray(image, np.float64)
+    gy, gx = np.gradient(levels, axis=(0, 1))
+    return np.mean(gx * gx + gy * gy, axis=-1)
+
+
+def _inner(usable: np.ndarray) -> np.ndarray:
+    """Usable pixels whose four neighbours are usable too (their gradient is the scene's,
+    not the edge of the field of view or of the geometry)."""
+    inner = usable.copy()
+    inner[1:] &= usable[:-1]
+    inner[:-1] &= usable[1:]
+    inner[:, 1:] &= usable[:, :-1]
+    inner[:, :-1] &= usable[:, 1:]
+    inner[[0, -1]] = False
+    inner[:, [0, -1]] = False
+    return inner
+
+
+def residual_budget(
+    capture, frames, model, *, albedo: str = "map", max_samples: int = 40_000, seed: int = 2
+) -> ResidualBudget:
+    """The parts of `model`'s residual over pixels of `frames` (see the module doc). With
+    `albedo="map"` each pixel's albedo comes from the other frames that see it (the held-out
+    residual the diagnosis reports); `"uniform"`: the model's one rho_tilde."""
+    from ._plots import pixel_residuals
+
+    observations = Observations.of(capture)
+    samples = observations.pixels(frames, max_samples=max_samples, seed=seed)
+    residual = pixel_residuals(observations.capture, frames, model, samples, albedo)
+    frame, row, col = (np.asarray(a) for a in (samples.frame, samples.row, samples.col))
+    gradient = np.full(len(frame), np.nan)
+    near = np.zeros(len(frame), bool)
+    for index in dict.fromkeys(frame.tolist()):
+        here = frame == index
+        squared = _gradient_squared(observations.capture.frames[index].image)
+        inner = _inner(observations.usable[index])
+        gradient[here] = np.where(inner, squared, np.nan)[row[here], col[here]]
+        distance = observations.specular_distance(index)
+        near[here] = distance[row[here], col[here]] <= NEAR_HIGHLIGHT_PX
+    known = np.all(np.isfinite(residual), axis=1)
+    if known.sum() < 10:
+        raise ValueError("fewer than 10 pixels with a residual: no budget")
+    squared = np.mean(residual * residual, axis=1)
+    total = float(np.mean(squared[known]))
+    variables = physical_variables(model, samples, observations.capture.camera)
+    # A gain per frame: per frame and channel, the least-squares multiple of the prediction.
+    predicted = np.asarray(variables["predicted"])
+    degained = np.where(known[:, None], residual, 0.0)
+    for index in dict.fromkeys(frame.tolist()):
+        here = known & (frame == index)
+        p = predicted[here]
+        if np.sum(p * p) > 0:
+            degained[here] -= p[:, None] * (p @ residual[here]) / np.sum(p * p)
+    kept = np.mean(degained * degained, axis=1)
+    per_frame = 1 - float(np.mean(kept[known])) / total
+    # Misregistration: r^2 = a + s^2 g^2 away from the highlights and the edges, on the
+    # residual without its gain per frame (a gain's residual is brighter where the texture
+    # is, and so steeper).
+    fit = known & ~near & np.isfinite(gradient)
+    slope = 0.0
+    if fit.sum() >= 10 and np.ptp(gradient[fit]) > 0:
+        design = np.stack([np.ones(fit.sum()), gradient[fit]], axis=1)
+        (_, slope), *_ = np.linalg.lstsq(design, kept[fit], rcond=None)
+        slope = max(float(slope), 0.0)
+    gradient_share = slope * float(np.mean(gradient[fit])) / total if fit.any() else 0.0
+    highlight_share = float(np.sum(squared[known & near]) / np.sum(squared[known]))
+    smooth = {}
+    for name in VARIABLES:
+        _, means, counts = binned(np.asarray(variables[name])[known], residual[known])
+        explained = np.sum(counts[:, None] * means * means) / 3 / known.sum()
+        smooth[name] = float(explained / total)
+    return ResidualBudget(
+        rmse=float(np.sqrt(total)),
+        misregistration_px=float(np.sqrt(slope)),
+        gradient_share=float(min(gradient_share, 1.0)),
+        highlight_share=highlight_share,
+        per_frame_share=per_frame,
+        smooth_share=smooth,
+        samples=int(known.sum()),
+    )
