@@ -22,7 +22,8 @@ is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate`
 - the near light: falloff, offset (with its unit), status;
 - evaluate: Cook-Torrance against Lambertian on the held-out frames, the gain split into
   the light's and the lobe's (and on a stereo capture both on the right camera's views);
-- diagnose --loop: the held-out RMSE step by step against the noise floor.
+- diagnose --loop: the held-out RMSE step by step against the noise floor, and what is left
+  of the last model's residual (`residual_budget`).
 
 Slow (minutes per sequence on 2 cores): a benchmark, not a test.
 """
@@ -261,6 +262,7 @@ def _table(source, out, capture, seconds, failed) -> dict:
             for s in diagnosis.get("loop", {}).get("steps", [])
         ],
         "diagnose_stopped": diagnosis.get("loop", {}).get("stopped"),
+        "residual_budget": diagnosis.get("residual_budget"),
         "failed": failed,
         "seconds": {k: round(v, 1) for k, v in seconds.items()},
     }
@@ -334,6 +336,16 @@ def _print(row: dict) -> None:
         )
     if row["diagnose_stopped"]:
         print(f"diagnose   stopped: {row['diagnose_stopped']}")
+    budget = row["residual_budget"]
+    if budget and "rmse_levels" in budget:
+        variable, smooth = max(budget["smooth_share"].items(), key=lambda item: item[1])
+        print(
+            f"left       {_fmt(budget['rmse_levels'])} levels: gradient "
+            f"{_fmt(100 * budget['gradient_share'])}% ({_fmt(budget['misregistration_px'])} px), "
+            f"near S {_fmt(100 * budget['highlight_share'])}% (on "
+            f"{_fmt(100 * budget['highlight_pixels'])}% of the pixels), gain per frame "
+            f"{_fmt(100 * budget['per_frame_share'])}%, {variable} {_fmt(100 * smooth)}%"
+        )
     for name, why in row["failed"].items():
         print(f"FAILED     {name}: {why}")
     print(f"seconds    {row['seconds']}")

@@ -49,3 +49,16 @@ def test_a_frame_brighter_than_the_model_is_a_gain_per_frame(fitted):
     budget = residual_budget(brighter, [0, 1], model)
     assert budget.per_frame_share > 0.6
     assert budget.misregistration_px < 0.3
+
+
+def test_the_heldout_budget_divides_the_diagnosis_rmse(fitted):
+    """Under the map the budget is of the held-out views the diagnosis judged: the RMSE it
+    divides is the diagnosis's own."""
+    from ctjax.diagnostics import diagnose, heldout_budget
+
+    capture, _ = fitted
+    diagnosis = diagnose(capture, albedo="map", candidates=(), max_samples=3000)
+    budget = heldout_budget(diagnosis.heldout, diagnosis.base.model)
+    assert budget.rmse == pytest.approx(diagnosis.base_rmse, rel=1e-6)
+    assert budget.misregistration_px < 0.2 and budget.per_frame_share < 0.05
+    assert 0 < budget.highlight_pixels < 0.5

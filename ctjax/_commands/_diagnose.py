@@ -61,8 +61,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
         diagnose,
         diagnose_loop,
         diagnosis_plots,
+        heldout_budget,
         plot_loop,
-        residual_budget,
     )
     from ..io._atomic import atomic_write_json
     from ..observations import Observations
@@ -89,12 +89,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
         summary["loop"] = loop.to_json()
     # What is left of the last model's held-out residual, where no candidate took it.
     final = diagnosis.best_model if diagnosis.verdict != "none" else diagnosis.base.model
-    albedo = diagnosis.base.details.get("albedo", "uniform")
     budget = None
     try:
-        frames = diagnosis.base.frames.get("heldout")
-        if frames:
-            budget = residual_budget(observations, frames, final, albedo=albedo)
+        if diagnosis.heldout is not None:
+            budget = heldout_budget(diagnosis.heldout, final)
     except ValueError as error:
         summary["residual_budget"] = {"note": str(error)}
     if budget is not None:

@@ -3,6 +3,7 @@ physical effect is missing."""
 
 from .._residuals import residual_map as residual_map
 from ._budget import ResidualBudget as ResidualBudget
+from ._budget import heldout_budget as heldout_budget
 from ._budget import residual_budget as residual_budget
 from ._candidates import CANDIDATES as CANDIDATES
 from ._candidates import AbstractCandidate as AbstractCandidate

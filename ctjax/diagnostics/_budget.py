@@ -11,7 +11,7 @@ or light candidate takes. Three parts are measured on the held-out pixels:
   from the highlights and the field's edges) estimates s in pixels, and s^2 mean |grad I|^2
   is the share of the mean squared residual it accounts for.
 - **Highlights**: the share of the squared residual within `NEAR_HIGHLIGHT_PX` of S (clipped
-  cores, sparkles finer than the shape).
+  cores, sparkles finer than the shape), beside the share of the pixels there.
 - **Per frame**: the share a gain of each frame's own (exposure, a light that changed, tissue
   that moved as a whole) takes: per frame and channel, the residual's least-squares
   multiple of the predicted intensity.
@@ -28,8 +28,9 @@ import dataclasses
 
 import numpy as np
 
+from .._vector import Vec3
 from ..observations import Observations
-from ._variables import VARIABLES, binned, physical_variables
+from ._variables import VARIABLES, physical_variables
 
 # "Near a highlight": within this many pixels of S (the evaluation's bound).
 NEAR_HIGHLIGHT_PX = 7
@@ -44,6 +45,7 @@ class ResidualBudget:
     misregistration_px: float
     gradient_share: float
     highlight_share: float
+    highlight_pixels: float
     per_frame_share: float
     smooth_share: dict[str, float]
     samples: int
@@ -54,26 +56,29 @@ class ResidualBudget:
             "misregistration_px": self.misregistration_px,
             "gradient_share": self.gradient_share,
             "highlight_share": self.highlight_share,
+            "highlight_pixels": self.highlight_pixels,
             "per_frame_share": self.per_frame_share,
             "smooth_share": dict(self.smooth_share),
             "samples": self.samples,
-            "note": "shares of the held-out pixels' mean squared residual (under the map each "
-            "pixel's albedo from the other frames, as in the residual maps): the part that grows "
-            "with the image gradient squared (a misregistration of misregistration_px pixels "
-            "RMS per axis: shape, poses or tissue motion), the part within "
-            f"{NEAR_HIGHLIGHT_PX} px of S, what a gain per frame takes, and what a function of "
-            "each physical variable alone takes; they overlap",
+            "note": "shares of the held-out mean squared residual (under the map every "
+            "held-out view of a tracked point predicted from its other views, as the held-out "
+            "RMSE): the part that grows with the image gradient squared (a misregistration of "
+            "misregistration_px pixels RMS per axis: shape, poses or tissue motion), the part "
+            f"within {NEAR_HIGHLIGHT_PX} px of S (on highlight_pixels of the views), what a "
+            "gain per frame takes, and what a function of each physical variable alone "
+            "takes; they overlap",
         }
 
     def summary(self) -> str:
         variable, smooth = max(self.smooth_share.items(), key=lambda item: item[1])
         return (
-            f"held-out pixels' residual {self.rmse:.2f} levels RMS: "
+            f"held-out residual {self.rmse:.2f} levels RMS: "
             f"{100 * self.gradient_share:.0f}% grows with the image gradient (about "
             f"{self.misregistration_px:.2f} px of misregistration: shape, poses or tissue "
             f"motion), {100 * self.highlight_share:.0f}% within {NEAR_HIGHLIGHT_PX} px of the "
-            f"highlights, {100 * self.per_frame_share:.0f}% a gain per frame, at most "
-            f"{100 * smooth:.0f}% a function of one physical variable ({VARIABLES[variable]})"
+            f"highlights ({100 * self.highlight_pixels:.0f}% of the pixels), "
+            f"{100 * self.per_frame_share:.0f}% a gain per frame, at most {100 * smooth:.0f}% "
+            f"a function of one physical variable ({VARIABLES[variable]})"
         )
 
 
@@ -101,60 +106,131 @@ def residual_budget(
     capture, frames, model, *, albedo: str = "map", max_samples: int = 40_000, seed: int = 2
 ) -> ResidualBudget:
     """The parts of `model`'s residual over pixels of `frames` (see the module doc). With
-    `albedo="map"` each pixel's albedo comes from the other frames that see it (the held-out
-    residual the diagnosis reports); `"uniform"`: the model's one rho_tilde."""
+    `albedo="map"` each pixel's albedo comes from the other frames that see it (the residual
+    maps' residual); `"uniform"`: the model's one rho_tilde. `heldout_budget` gives the
+    parts of the residual a diagnosis reports."""
     from ._plots import pixel_residuals
 
     observations = Observations.of(capture)
     samples = observations.pixels(frames, max_samples=max_samples, seed=seed)
     residual = pixel_residuals(observations.capture, frames, model, samples, albedo)
+    known = np.all(np.isfinite(residual), axis=1)
+    return _budget(observations, model, samples, np.where(known[:, None], residual, 0), known)
+
+
+def heldout_budget(heldout, model) -> ResidualBudget:
+    """The parts of `model`'s residual on a diagnosis's held-out data (`Diagnosis.heldout`):
+    under the map (`HeldOutTracks`) every held-out view of a tracked point predicted from
+    the point's other views, each weighted as in `heldout_rmse` (the RMSE this budget
+    divides is the diagnosis's); else (`HeldOut`) its held-out pixels with the model's one
+    albedo."""
+    from ..heldout import HeldOutTracks
+
+    if not isinstance(heldout, HeldOutTracks):
+        return residual_budget(heldout.capture, heldout.heldout, model, albedo="uniform")
+    from ..fitting._map_least_squares import heldout_map_residuals
+    from ..observations import PixelSamples
+
+    model = heldout.with_heldout_frames(model)
+    test = heldout.test
+    residual, weight = heldout_map_residuals(model, test, heldout.judged)
+    kept = weight > 0  # (M, P)
+    m, p = kept.shape
+
+    def at_views(leaf):  # a corner array (4 M P): its bilinear mean per view, kept views
+        corners = np.asarray(leaf).reshape(4, m, p)
+        return np.sum(np.asarray(test.corner_weight) * corners, axis=0)[kept]
+
+    point = np.stack([at_views(c) for c in (test.point.x, test.point.y, test.point.z)], -1)
+    normal = np.stack([at_views(c) for c in (test.normal.x, test.normal.y, test.normal.z)], -1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    u, v = (np.asarray(a)[kept] for a in test.site.pixel)
+    samples = PixelSamples(
+        Vec3.from_array(point),
+        Vec3.from_array(normal),
+        (u, v),
+        np.asarray(test.values)[:, kept].T,
+        np.asarray(test.site.frame)[kept],
+        np.rint(v).astype(int),
+        np.rint(u).astype(int),
+    )
+    observations = Observations.of(heldout.capture)
+    return _budget(observations, model, samples, residual[:, kept].T, weight[kept])
+
+
+def _weighted_bins(x, residual, weight, bins: int = 16):
+    """Per quantile bin of `x`: the weighted mean residual (bins, C) and the bin's weight."""
+    edges = np.unique(np.quantile(x, np.linspace(0, 1, bins + 1)))
+    index = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    total = np.bincount(index, weight, len(edges) - 1)
+    means = (
+        np.stack([np.bincount(index, weight * r, len(edges) - 1) for r in residual.T], axis=1)
+        / np.maximum(total, 1e-300)[:, None]
+    )
+    return means, total
+
+
+def _budget(observations, model, samples, residual, weight) -> ResidualBudget:
+    """The budget of `residual` (N, 3 levels; 0 where `weight` is 0) at `samples`."""
+    weight = np.asarray(weight, np.float64)
+    known = weight > 0
+    if known.sum() < 10:
+        raise ValueError("fewer than 10 held-out observations with a residual: no budget")
     frame, row, col = (np.asarray(a) for a in (samples.frame, samples.row, samples.col))
+    camera = observations.capture.camera
+    row = np.clip(row, 0, camera.height - 1)
+    col = np.clip(col, 0, camera.width - 1)
     gradient = np.full(len(frame), np.nan)
     near = np.zeros(len(frame), bool)
-    for index in dict.fromkeys(frame.tolist()):
+    for index in dict.fromkeys(frame[known].tolist()):
         here = frame == index
         squared = _gradient_squared(observations.capture.frames[index].image)
         inner = _inner(observations.usable[index])
         gradient[here] = np.where(inner, squared, np.nan)[row[here], col[here]]
         distance = observations.specular_distance(index)
         near[here] = distance[row[here], col[here]] <= NEAR_HIGHLIGHT_PX
-    known = np.all(np.isfinite(residual), axis=1)
-    if known.sum() < 10:
-        raise ValueError("fewer than 10 pixels with a residual: no budget")
+    w = np.where(known, weight, 0.0)
+    mean = lambda values, where=known: float(  # noqa: E731
+        np.sum(w[where] * values[where]) / np.sum(w[where])
+    )
     squared = np.mean(residual * residual, axis=1)
-    total = float(np.mean(squared[known]))
-    variables = physical_variables(model, samples, observations.capture.camera)
+    total = mean(squared)
+    variables = physical_variables(model, samples, camera)
     # A gain per frame: per frame and channel, the least-squares multiple of the prediction.
     predicted = np.asarray(variables["predicted"])
-    degained = np.where(known[:, None], residual, 0.0)
-    for index in dict.fromkeys(frame.tolist()):
+    degained = np.array(residual, np.float64)
+    for index in dict.fromkeys(frame[known].tolist()):
         here = known & (frame == index)
-        p = predicted[here]
-        if np.sum(p * p) > 0:
-            degained[here] -= p[:, None] * (p @ residual[here]) / np.sum(p * p)
+        pw = predicted[here] * w[here]
+        if pw @ predicted[here] > 0:
+            degained[here] -= predicted[here, None] * (pw @ residual[here]) / (pw @ predicted[here])
     kept = np.mean(degained * degained, axis=1)
-    per_frame = 1 - float(np.mean(kept[known])) / total
+    per_frame = 1 - mean(kept) / total
     # Misregistration: r^2 = a + s^2 g^2 away from the highlights and the edges, on the
     # residual without its gain per frame (a gain's residual is brighter where the texture
-    # is, and so steeper).
+    # is, and so steeper); weighted least squares.
     fit = known & ~near & np.isfinite(gradient)
     slope = 0.0
     if fit.sum() >= 10 and np.ptp(gradient[fit]) > 0:
-        design = np.stack([np.ones(fit.sum()), gradient[fit]], axis=1)
-        (_, slope), *_ = np.linalg.lstsq(design, kept[fit], rcond=None)
+        root = np.sqrt(w[fit])
+        design = np.stack([root, root * gradient[fit]], axis=1)
+        (_, slope), *_ = np.linalg.lstsq(design, root * kept[fit], rcond=None)
         slope = max(float(slope), 0.0)
-    gradient_share = slope * float(np.mean(gradient[fit])) / total if fit.any() else 0.0
-    highlight_share = float(np.sum(squared[known & near]) / np.sum(squared[known]))
+    gradient_share = slope * mean(gradient, fit) / total if fit.any() else 0.0
+    highlight_share = float(np.sum(w * squared * near) / np.sum(w * squared))
     smooth = {}
     for name in VARIABLES:
-        _, means, counts = binned(np.asarray(variables[name])[known], residual[known])
-        explained = np.sum(counts[:, None] * means * means) / 3 / known.sum()
+        means, bin_weight = _weighted_bins(
+            np.asarray(variables[name])[known], residual[known], w[known]
+        )
+        explained = np.sum(bin_weight[:, None] * means * means) / 3 / np.sum(w[known])
         smooth[name] = float(explained / total)
     return ResidualBudget(
         rmse=float(np.sqrt(total)),
         misregistration_px=float(np.sqrt(slope)),
         gradient_share=float(min(gradient_share, 1.0)),
         highlight_share=highlight_share,
+        highlight_pixels=mean(near.astype(float)),
         per_frame_share=per_frame,
         smooth_share=smooth,
         samples=int(known.sum()),

@@ -147,6 +147,8 @@ class Diagnosis:
     candidates: list[Estimate]
     verdict: str
     seconds: float
+    # The held-out split every model was judged on (`HeldOut` or `HeldOutTracks`).
+    heldout: "HeldOut | HeldOutTracks | None" = None
 
     @property
     def base_rmse(self) -> float:
@@ -490,4 +492,4 @@ def diagnose(
     verdict = "none"
     if results and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT:
         verdict = results[0].details["effect"]
-    return Diagnosis(base, noise, results, verdict, time.perf_counter() - started)
+    return Diagnosis(base, noise, results, verdict, time.perf_counter() - started, heldout)

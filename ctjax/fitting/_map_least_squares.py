@@ -244,8 +244,8 @@ OTHER_VIEWS_SHARE = 0.1
 
 @persistent_jit
 def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
-    """Weighted sum of squared residuals and sum of weights of the `judged` observations
-    (M, P), each predicted by `model` (all its parameters fixed) with its point's albedo
+    """The residuals (C, M, P; 0 where not judged) and weights (M, P) of the `judged`
+    observations, each predicted by `model` (all its parameters fixed) with its point's albedo
     fitted to the point's OTHER views (per channel, clamped at 0), where those hold enough
     of the information (`OTHER_VIEWS_SHARE`)."""
     columns = _columns(model, samples)
@@ -265,7 +265,25 @@ def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     if tuple(getattr(model, "effects", ())):  # the image's residual (see `_projected`)
         residual = samples.values - _apply_effects(model, rest + a * albedo, samples)
     residual = jnp.where(ok, residual, 0)
-    return jnp.sum(w * residual * residual), jnp.sum(jnp.where(ok, w, 0)) * samples.channels
+    return residual, jnp.where(ok, w, 0)
+
+
+@persistent_jit
+def _predicted_ssr(model, samples: TrackSamples, judged, per_point: int):
+    """Weighted sum of squared residuals and sum of weights (`_predicted_views`)."""
+    residual, w = _predicted_views(model, samples, judged, per_point)
+    return jnp.sum(w * residual * residual), jnp.sum(w) * samples.channels
+
+
+def heldout_map_residuals(
+    model, samples: TrackSamples, judged=None, per_point: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each `judged` observation's residual as `heldout_map_rmse` counts it: (C, M, P)
+    measured - predicted in 8-bit levels and (M, P) its weight (0 where not judged)."""
+    per_point = diffuse_lobe(model) if per_point is None else per_point
+    judged = samples.weight > 0 if judged is None else jnp.asarray(judged)
+    residual, w = _predicted_views(strongly_typed(model), samples, judged, per_point)
+    return 255 * np.asarray(residual), np.asarray(w)
 
 
 def heldout_map_rmse(
@@ -281,7 +299,7 @@ def heldout_map_rmse(
     where bilinear sampling averages the noise). Weighted as in the fit."""
     per_point = diffuse_lobe(model) if per_point is None else per_point
     judged = samples.weight > 0 if judged is None else jnp.asarray(judged)
-    ssr, total = _predicted_views(strongly_typed(model), samples, judged, per_point)
+    ssr, total = _predicted_ssr(strongly_typed(model), samples, judged, per_point)
     return 255 * math.sqrt(float(ssr) / float(total)) if float(total) > 0 else math.nan
 
 
