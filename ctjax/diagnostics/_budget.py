@@ -46,6 +46,7 @@ class ResidualBudget:
     gradient_share: float
     highlight_share: float
     highlight_pixels: float
+    highlight_excess: float
     per_frame_share: float
     smooth_share: dict[str, float]
     samples: int
@@ -57,6 +58,7 @@ class ResidualBudget:
             "gradient_share": self.gradient_share,
             "highlight_share": self.highlight_share,
             "highlight_pixels": self.highlight_pixels,
+            "highlight_excess_levels": self.highlight_excess,
             "per_frame_share": self.per_frame_share,
             "smooth_share": dict(self.smooth_share),
             "samples": self.samples,
@@ -64,7 +66,9 @@ class ResidualBudget:
             "held-out view of a tracked point predicted from its other views, as the held-out "
             "RMSE): the part that grows with the image gradient squared (a misregistration of "
             "misregistration_px pixels RMS per axis: shape, poses or tissue motion), the part "
-            f"within {NEAR_HIGHLIGHT_PX} px of S (on highlight_pixels of the views), what a "
+            f"within {NEAR_HIGHLIGHT_PX} px of S (on highlight_pixels of the views; "
+            "highlight_excess_levels: how much brighter than the model they are on average), "
+            "what a "
             "gain per frame takes, and what a function of each physical variable alone "
             "takes; they overlap",
         }
@@ -72,11 +76,12 @@ class ResidualBudget:
     def summary(self) -> str:
         variable, smooth = max(self.smooth_share.items(), key=lambda item: item[1])
         return (
-            f"held-out residual {self.rmse:.2f} levels RMS: "
+            f"residual {self.rmse:.2f} levels RMS: "
             f"{100 * self.gradient_share:.0f}% grows with the image gradient (about "
             f"{self.misregistration_px:.2f} px of misregistration: shape, poses or tissue "
             f"motion), {100 * self.highlight_share:.0f}% within {NEAR_HIGHLIGHT_PX} px of the "
-            f"highlights ({100 * self.highlight_pixels:.0f}% of the pixels), "
+            f"highlights ({100 * self.highlight_pixels:.0f}% of the pixels, "
+            f"{self.highlight_excess:+.1f} levels against the model), "
             f"{100 * self.per_frame_share:.0f}% a gain per frame, at most {100 * smooth:.0f}% "
             f"a function of one physical variable ({VARIABLES[variable]})"
         )
@@ -115,7 +120,8 @@ def residual_budget(
     samples = observations.pixels(frames, max_samples=max_samples, seed=seed)
     residual = pixel_residuals(observations.capture, frames, model, samples, albedo)
     known = np.all(np.isfinite(residual), axis=1)
-    return _budget(observations, model, samples, np.where(known[:, None], residual, 0), known)
+    measured_minus_model = np.where(known[:, None], -residual, 0)
+    return _budget(observations, model, samples, measured_minus_model, known)
 
 
 def heldout_budget(heldout, model) -> ResidualBudget:
@@ -171,7 +177,8 @@ def _weighted_bins(x, residual, weight, bins: int = 16):
 
 
 def _budget(observations, model, samples, residual, weight) -> ResidualBudget:
-    """The budget of `residual` (N, 3 levels; 0 where `weight` is 0) at `samples`."""
+    """The budget of `residual` (N, 3 levels, measured - predicted; 0 where `weight` is 0)
+    at `samples`."""
     weight = np.asarray(weight, np.float64)
     known = weight > 0
     if known.sum() < 10:
@@ -231,6 +238,9 @@ def _budget(observations, model, samples, residual, weight) -> ResidualBudget:
         gradient_share=float(min(gradient_share, 1.0)),
         highlight_share=highlight_share,
         highlight_pixels=mean(near.astype(float)),
+        highlight_excess=(
+            mean(np.mean(residual, axis=1), known & near) if (known & near).any() else 0.0
+        ),
         per_frame_share=per_frame,
         smooth_share=smooth,
         samples=int(known.sum()),
