@@ -330,6 +330,15 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path):
     # 14.7 / 27.5); SfS 1.7 / 11.4 mm
     assert mapped["cook_torrance_rgb_rmse_test"] <= 1.4
     assert mapped["cook_torrance_rgb_rmse_test"] <= 0.5 * mapped["lambertian_rgb_rmse_test"]
+    # What is left of each model's test residual (the same RMSE): the Lambertian model's
+    # near the highlights, brighter than it there; Cook-Torrance's not.
+    budget = mapped["residual_budget"]
+    for model in ("lambertian", "cook_torrance"):
+        rmse = mapped[f"{model}_rgb_rmse_test"]
+        assert budget[model]["rmse_levels"] == pytest.approx(rmse, rel=1e-9)
+    lambertian, fitted = budget["lambertian"], budget["cook_torrance"]
+    assert lambertian["highlight_share"] > 2 * fitted["highlight_share"]
+    assert lambertian["highlight_excess_levels"] > 1 > abs(fitted["highlight_excess_levels"])
     uniform = evaluate(capture, cook_torrance=fit_colocated, albedo="uniform", sfs=False)
     uniform = uniform.to_json()
     assert uniform["albedo"] == "uniform"

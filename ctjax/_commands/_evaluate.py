@@ -108,6 +108,16 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"Cook-Torrance's gain on the test frames: {gain['total_levels']:.2f} levels = "
             + " + ".join(parts)
         )
+    for name, budget in (summary.get("residual_budget") or {}).items():
+        if "rmse_levels" in budget:
+            print(
+                f"what is left of {name.replace('_', '-')}'s test-frame residual: "
+                f"{100 * budget['highlight_share']:.0f}% within 7 px of the highlights "
+                f"({100 * budget['highlight_pixels']:.0f}% of the views, "
+                f"{budget['highlight_excess_levels']:+.1f} levels against the model), "
+                f"{100 * budget['gradient_share']:.0f}% with the image gradient "
+                f"({budget['misregistration_px']:.2f} px)"
+            )
     right = summary.get("right_views")
     if right is not None:
         figures = ", ".join(

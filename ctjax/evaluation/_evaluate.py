@@ -109,6 +109,9 @@ class Evaluation:
     # Cook-Torrance's diffuse term alone under its light (held), its shape fitted: where
     # that term is not Lambert's, it and the lobe differ by the lobe alone.
     diffuse_same_light: Estimate | None = None
+    # What is left of each model's test-frame residual under the map
+    # (`ctjax.diagnostics.heldout_budget`'s JSON, by model name).
+    residual_budget: dict | None = None
 
     @property
     def light(self) -> str:
@@ -170,6 +173,8 @@ class Evaluation:
             out[f"{model}_rgb_rmse_calibration"] = rmse["calibration"]
             out[f"{model}_rgb_rmse_test"] = rmse["test"]
         out["gain"] = self.gain()
+        if self.residual_budget is not None:
+            out["residual_budget"] = self.residual_budget
         if self.right_views is not None:
             out["right_views"] = self.right_views
         for model in ("lambertian", "cook_torrance", "per_pixel"):
@@ -436,6 +441,9 @@ def evaluate(
         same_light = _judged(capture, same_light, calib, test, tracks)
     if same_diffuse is not None:
         same_diffuse = _judged(capture, same_diffuse, calib, test, tracks)
+    budgets = None
+    if tracks is not None:
+        budgets = _budgets(tracks, {"lambertian": lambertian, "cook_torrance": fitted})
     timings["rgb_error"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:
@@ -491,7 +499,21 @@ def evaluate(
         unit,
         right_views,
         same_diffuse,
+        budgets,
     )
+
+
+def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:
+    """What is left of each model's residual on the test frames (`heldout_budget`)."""
+    from ..diagnostics import heldout_budget
+
+    out = {}
+    for name, fit in fits.items():
+        try:
+            out[name] = heldout_budget(tracks, fit.model).to_json()
+        except ValueError as error:  # too few judged views
+            out[name] = {"note": str(error)}
+    return out
 
 
 def _diffuse_of(model: ShadingModel) -> Lambertian | None:
