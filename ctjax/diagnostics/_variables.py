@@ -1,5 +1,6 @@
 """Physical variables at each sample, where a missing effect shows up in the residuals."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -23,7 +24,11 @@ def _angle(a: Vec3, b: Vec3):
 
 def physical_variables(model, samples, camera) -> dict[str, jax.Array]:
     """Each variable of `VARIABLES` at every pixel sample, under `model`'s light."""
+    return _variables(model, samples, camera)
 
+
+@eqx.filter_jit  # one program per model structure and sample count, not one per call
+def _variables(model, samples, camera) -> dict[str, jax.Array]:
     def one(sample):
         view = safe_normalize(-sample.point)
         light, _ = model.light.illuminate(sample.point, view, sample.pixel)
@@ -41,7 +46,7 @@ def physical_variables(model, samples, camera) -> dict[str, jax.Array]:
             "predicted": jnp.mean(model(sample.point, sample.normal, sample.pixel)),
         }
 
-    return jax.jit(jax.vmap(one))(samples)
+    return jax.vmap(one)(samples)
 
 
 def binned(x, residual, bins: int = 16):
