@@ -139,7 +139,9 @@ class Diagnosis:
     base's held-out RMSE), the `params` it introduced, the per-frame parameters it held at
     the base's values (`frozen`), the LM `steps` of its best start and the `seconds` its fit
     and judgement took; candidates
-    are sorted best first.
+    are sorted best first. `heldout` is the split they were all judged on (`HeldOut`, or
+    `HeldOutTracks` under the map): what is left of a model's residual there is
+    `heldout_budget(diagnosis.heldout, model)`.
     """
 
     base: Estimate
