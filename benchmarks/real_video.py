@@ -343,7 +343,9 @@ def _print(row: dict) -> None:
             f"left       {_fmt(budget['rmse_levels'])} levels: gradient "
             f"{_fmt(100 * budget['gradient_share'])}% ({_fmt(budget['misregistration_px'])} px), "
             f"near S {_fmt(100 * budget['highlight_share'])}% (on "
-            f"{_fmt(100 * budget['highlight_pixels'])}% of the pixels), gain per frame "
+            f"{_fmt(100 * budget['highlight_pixels'])}% of the pixels, "
+            f"{_fmt(budget['highlight_excess_levels'])} levels brighter than the model), "
+            f"gain per frame "
             f"{_fmt(100 * budget['per_frame_share'])}%, {variable} {_fmt(100 * smooth)}%"
         )
     for name, why in row["failed"].items():
