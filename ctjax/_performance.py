@@ -98,15 +98,23 @@ def enable_compilation_cache(folder: Path | None = None) -> Path | None:
     """JAX's persistent compilation cache in `folder` (default `compilation_cache_dir()`):
     a repeated command loads its compiled programs instead of compiling them again (the
     fitters take seconds to compile and milliseconds to run). Leaves a cache the user set
-    through JAX's own `JAX_COMPILATION_CACHE_DIR` alone. The folder is created for the
-    user alone (0700); one that another user can write is not used, with a warning: its
-    compiled programs are machine code that whoever writes them chooses (`ctjax._programs`).
+    through JAX's own `JAX_COMPILATION_CACHE_DIR` as it is, and keeps the traced programs
+    beside it (`ctjax._programs`) when it is a local folder of the user's alone. The folder
+    is created for the user alone (0700); one that another user can write is not used, with
+    a warning: its compiled programs are machine code that whoever writes them chooses.
     Returns the folder in use (None: off)."""
     import jax
 
     from ._programs import keep_programs, private_folder
 
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        # JAX's own cache, as the user set it: the traced programs beside it, when it is a
+        # local folder for the user alone.
+        jax_folder = jax.config.jax_compilation_cache_dir
+        if jax_folder and "://" not in str(jax_folder):
+            jax_folder = Path(jax_folder).expanduser()
+            if private_folder(jax_folder):
+                keep_programs(jax_folder / "programs")
         return jax.config.jax_compilation_cache_dir
     folder = compilation_cache_dir() if folder is None else folder
     if folder is None:

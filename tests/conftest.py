@@ -2,6 +2,7 @@ import os
 from pathlib import Path
 
 import jax
+import pytest
 
 # float64 by default in the tests; float32 paths are exercised explicitly (see helpers.cast).
 jax.config.update("jax_enable_x64", True)
@@ -65,3 +66,16 @@ for _flag, _value in _TEST_FLAGS.items():
 # Workers: more than the cores does not pay either. At 79c0fba (656 tests, cold, 2 cores,
 # `pytest_xdist_auto_num_workers` returning 2, 3 or 4): 2 workers 462.5 s, 3 workers 437.7
 # and 476.2 s, 4 workers 499.0 s: within the run-to-run spread at 3, worse at 4. -n auto.
+
+
+# The traced programs too (`ctjax._programs`), in the same folder: the two workers, and the
+# commands the tests start, share the traced fitters instead of tracing each again (the
+# command line does the same beside a `JAX_COMPILATION_CACHE_DIR`). Set per test: the tests
+# of `ctjax._programs` set their own folder and turn it off after them.
+@pytest.fixture(autouse=True)
+def _kept_programs():
+    from ctjax import _programs
+
+    _programs.keep_programs(_CACHE / "programs")
+    yield
+    _programs.keep_programs(None)

@@ -8,6 +8,8 @@ import os
 import pickle
 import re
 import stat
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -335,3 +337,28 @@ def test_fitters_compile_with_the_loop_emitters_and_nest(kept):
     np.testing.assert_array_equal(jax.jit(lambda y: doubled(y) + 1)(x), 2 * x + 1)
     _programs.keep_programs(None)
     np.testing.assert_array_equal(jax.jit(lambda y: doubled(y) + 1)(x), 2 * x + 1)
+
+
+def test_programs_are_kept_beside_a_cache_set_through_jax(tmp_path):
+    """With JAX's own `JAX_COMPILATION_CACHE_DIR`, the command line keeps the traced programs
+    in its `programs/`, unless another user can write that folder."""
+    script = (
+        "from ctjax import _performance, _programs; "
+        "_performance.enable_compilation_cache(); print(_programs._FOLDER[0])"
+    )
+    private, group = tmp_path / "private", tmp_path / "group"
+    private.mkdir(mode=0o700)
+    group.mkdir()
+    group.chmod(0o770)
+    printed = {}
+    for folder in (private, group):
+        env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(folder)}
+        env.pop("CTJAX_NO_CACHE", None)
+        result = subprocess.run(
+            [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120
+        )
+        assert result.returncode == 0, result.stderr
+        printed[folder] = result
+    assert printed[private].stdout.strip() == str(private / "programs")
+    assert printed[group].stdout.strip() == "None"
+    assert "another user can write" in printed[group].stderr
