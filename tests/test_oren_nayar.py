@@ -146,14 +146,17 @@ def test_fit_with_the_oren_nayar_diffuse_recovers_the_lobe_under_flattened_shadi
 
     root, options = rough
     out = tmp_path / "fit.json"
-    assert main(["fit", str(root), "--diffuse", "oren-nayar", "--json", str(out)]) == 0
+    # 4000 of the capture's 9250 tracked points: the 2-D search runs in half the time
+    # (test flags: 21 -> 9 s) and measures the same (roughness 0.780 with all, 0.793).
+    argv = ["fit", str(root), "--diffuse", "oren-nayar", "--max-tracks", "4000"]
+    assert main([*argv, "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "oren-nayar alone (no specular lobe): rgb_rmse" in printed
     result = json.loads(out.read_text())
     assert result["status"] == "successful", result["warnings"]
     assert result["sigma"] == pytest.approx(options.sigma, rel=0.01)
     np.testing.assert_allclose(result["F_tilde"], options.F_tilde, rtol=0.02)
-    assert result["oren_nayar_roughness"] == pytest.approx(0.8, rel=0.03)  # measured 0.780
+    assert result["oren_nayar_roughness"] == pytest.approx(0.8, rel=0.03)  # measured 0.793
     assert 0 < result["oren_nayar_roughness_stderr"] < 0.02
     assert "oren-nayar" in result["model"]
     # Against the same diffuse term without the lobe, and the paper's Lambertian.
