@@ -188,11 +188,13 @@ class _Program:
         # uncommitted arguments (an exported program's outputs are committed) would
         # otherwise compile the program twice.
         device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-        self.run = jax.jit(
-            lambda *leaves: exported.call(*leaves),
-            in_shardings=device,
-            compiler_options=compiler_options(),
-        )
+
+        def run(*leaves):
+            return exported.call(*leaves)
+
+        # Named as the function kept (`jax_log_compiles`, profiles): not "<lambda>".
+        run.__name__ = run.__qualname__ = _plain_name(exported.fun_name)
+        self.run = jax.jit(run, in_shardings=device, compiler_options=compiler_options())
 
     def __call__(self, leaves):
         outputs = iter(self.run(*leaves))
@@ -214,8 +216,16 @@ def _export(fun, treedef, static, leaves):
         jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, weak_type=getattr(leaf, "weak_type", False))
         for leaf in leaves
     ]
+    flat.__name__ = flat.__qualname__ = _plain_name(getattr(fun, "__name__", "program"))
     exported = jax.export.export(jax.jit(flat))(*shapes)
     return _Program(exported, skeleton[0])
+
+
+def _plain_name(name) -> str:
+    """A function name for a kept program: JAX's `jit(NAME)` in logs and profiles (a
+    file's name, read back, is only ever used so)."""
+    name = str(name).removeprefix("jit(").removesuffix(")")
+    return "".join(c if c.isalnum() or c == "_" else "_" for c in name)[:80] or "program"
 
 
 def persistent_jit(fun):
