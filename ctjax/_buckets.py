@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._convert import on_device
+
 SMALLEST = 256
 
 
@@ -44,7 +46,7 @@ def pad_leading(tree, n: int, size: int):
             return jnp.concatenate([leaf, jnp.repeat(leaf[-1:], size - n, axis=0)])
         host = np.asarray(leaf)
         host = np.concatenate([host, np.repeat(host[-1:], size - n, axis=0)])
-        return host if isinstance(leaf, np.ndarray) else jnp.asarray(host)
+        return host if isinstance(leaf, np.ndarray) else on_device(host)
 
     return jax.tree.map(pad, tree)
 

@@ -12,6 +12,20 @@ from ._errors import ParameterError
 from ._typing import Array, Float
 
 
+def on_device(x, dtype=None) -> Array:
+    """`jnp.asarray(x, dtype)` without an eager JAX operation where `x` is host data (a
+    NumPy array or scalar, nested lists): since JAX 0.10 `jnp.asarray` of host data compiles
+    a program (`lax.stage`) per shape and dtype, 10-60 ms each in a new process (2500 of the
+    test suite's compilations were such small programs), where `jax.device_put` of the NumPy
+    array copies it. The dtype is canonicalised as `jnp.asarray` does (float64 -> float32
+    without `jax_enable_x64`); the result is not weakly typed. JAX arrays and tracers go
+    through `jnp.asarray`."""
+    if isinstance(x, jax.Array):  # tracers too
+        return jnp.asarray(x, dtype)
+    host = np.asarray(x, dtype)
+    return jax.device_put(host.astype(jax.dtypes.canonicalize_dtype(host.dtype), copy=False))
+
+
 def as_float(x) -> Float[Array, "..."]:
     """`jnp.asarray`, promoting integers and bools to the default float dtype."""
     # Python scalars without an eager JAX op (`jnp.asarray` of one, or `astype`, compiles a

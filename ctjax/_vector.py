@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._convert import on_device
 from ._typing import Array, Float
 
 
@@ -28,7 +29,7 @@ class Vec3(eqx.Module):
             return cls(a[..., 0], a[..., 1], a[..., 2])
         # Concrete arrays are split on the host: eager slicing compiles a program per shape.
         a = np.asarray(a)
-        return cls(*(jnp.asarray(a[..., i]) for i in range(3)))
+        return cls(*(on_device(a[..., i]) for i in range(3)))
 
     def to_array(self) -> Float[Array, "... 3"]:
         return jnp.stack([self.x, self.y, self.z], axis=-1)

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._camera import Camera
+from ._convert import on_device
 from ._errors import CtjaxError, ParameterError
 from ._geometry import points_from_depth
 from ._typing import Array, Float, Int
@@ -284,15 +285,15 @@ class Observations:
         u, v = cols.astype(np.float64), rows.astype(np.float64)
         x = depth * (u - float(camera.cx)) / float(camera.fx)
         y = depth * (v - float(camera.cy)) / float(camera.fy)
-        as_array = lambda a: jnp.asarray(a, _float(dtype))  # noqa: E731
+        as_array = lambda a: on_device(a, _float(dtype))  # noqa: E731
         return PixelSamples(
             Vec3(as_array(x), as_array(y), as_array(depth)),
             Vec3.from_array(as_array(normals)),
             (as_array(u), as_array(v)),
             as_array(values),
-            jnp.asarray(index),
-            jnp.asarray(rows),
-            jnp.asarray(cols),
+            on_device(index),
+            on_device(rows),
+            on_device(cols),
         )
 
     def tracks(
@@ -366,14 +367,14 @@ class Observations:
             if not s.ring.any():
                 continue
             rows, cols = np.nonzero(s.ring)
-            v = Vec3.from_array(jnp.asarray(self.view[rows, cols], _float(dtype)))
+            v = Vec3.from_array(on_device(self.view[rows, cols], _float(dtype)))
             parts.append(
                 ShadingSamples(
-                    Vec3.from_array(jnp.asarray(frame.normals[rows, cols], _float(dtype))),
+                    Vec3.from_array(on_device(frame.normals[rows, cols], _float(dtype))),
                     v,
                     v,
-                    jnp.ones(len(rows), _float(dtype)),
-                    jnp.asarray(frame.image[rows, cols], _float(dtype)),
+                    on_device(np.ones(len(rows)), _float(dtype)),
+                    on_device(frame.image[rows, cols], _float(dtype)),
                 )
             )
         return concatenate(parts)

@@ -14,10 +14,10 @@ import json
 import math
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._buckets import bucket
+from .._convert import on_device
 from .._determined import MIN_LOBE_GAIN, Undetermined, add_undetermined
 from .._errors import CtjaxError
 from .._model import ShadingModel
@@ -234,7 +234,7 @@ def _halves(tracks, shading, family: BRDFFamily, tolerance: float, frames: int) 
     out = {}
     for parity, part in ((0, "even_frames"), (1, "odd_frames")):
         keep = (frame >= 0) & (frame % 2 == parity)
-        weight = jnp.where(jnp.asarray(keep), shading.weight, 0)
+        weight = on_device(np.where(keep, np.asarray(shading.weight), 0), shading.weight.dtype)
         half = eqx.tree_at(lambda s: s.weight, shading, weight)
         out[part] = fit_brdf_map(half, family, tolerance=tolerance)
     return out

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._convert import on_device
 from .._errors import ParameterError
 from .._programs import persistent_jit
 from .._result import Estimate
@@ -56,7 +57,7 @@ class TrackSamples(eqx.Module):
         dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
         if pad:
             tracks = tracks.padded(max(1024, 1 << max(len(tracks) - 1, 1).bit_length()))
-        as_jax = lambda a: jnp.asarray(views_first(a), dtype)  # noqa: E731
+        as_jax = lambda a: on_device(views_first(a), dtype)  # noqa: E731
         pixel = as_jax(tracks.corner_pixel)
         at = as_jax(np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_pixel))
         return cls(
@@ -66,7 +67,7 @@ class TrackSamples(eqx.Module):
             as_jax(tracks.corner_weight),
             as_jax(tracks.values),
             as_jax(tracks.weight),
-            Site((at[0], at[1]), jnp.asarray(views_first(tracks.frame), jnp.int32)),
+            Site((at[0], at[1]), on_device(views_first(tracks.frame), np.int32)),
             None if tracks.corner_eye is None else Vec3.from_array(as_jax(tracks.corner_eye)),
         )
 
@@ -374,7 +375,7 @@ def fit_model_map(
                 )
     points = None if isinstance(tracks, TrackSamples) else len(tracks)
     samples = tracks if isinstance(tracks, TrackSamples) else TrackSamples.of(tracks)
-    views = np.asarray(jnp.sum(samples.weight > 0, axis=0))
+    views = np.sum(np.asarray(samples.weight) > 0, axis=0)
     per_point = diffuse_lobe(starts[0])
     starts = [strongly_typed(start) for start in starts]
     if refine is not None and len(starts) > refine:

@@ -1,0 +1,36 @@
+"""Host data to the device (`ctjax._convert`)."""
+
+import numpy as np
+
+
+def test_host_data_goes_to_the_device_without_a_compiled_program():
+    """`on_device`: host arrays as `jnp.asarray` gives them (dtype canonicalised), without
+    the program `jnp.asarray` compiles per shape (`lax.stage`); JAX arrays pass through."""
+    import jax
+    import jax.numpy as jnp
+
+    from ctjax._convert import on_device
+
+    host = np.arange(6.0).reshape(2, 3)
+    for dtype in (None, np.float32, np.int32):
+        got, want = on_device(host, dtype), jnp.asarray(host, dtype)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    assert isinstance(on_device([1, 2]), jax.Array) and on_device([1, 2]).shape == (2,)
+    device = jnp.ones(3)
+    assert on_device(device) is device
+    assert jax.jit(lambda x: on_device(x, jnp.float32))(device).dtype == jnp.float32
+    from jax._src import monitoring
+
+    compiled = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(event)
+
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        on_device(np.zeros((7, 11, 13)))
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    assert not compiled
