@@ -13,6 +13,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._convert import on_device
 from ._errors import CtjaxError
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
@@ -186,13 +187,13 @@ class HeldOut:
         samples."""
         # Every k-th sample: they are sorted by frame, and every frame needs its share.
         step = max(1, len(self.test) // (4 * _PER_FRAME_POINTS))
-        subset = jax.tree_util.tree_map(lambda a: a[::step], self.test)
-        return _per_frame_fitted(
-            model,
-            lambda m, freeze: fit_model(
-                m, subset, pixel_predict, freeze=freeze, max_steps=_PER_FRAME_STEPS
-            ),
-        )
+
+        def fitted(m, freeze):  # (only for a model with per-frame parameters)
+            # Strided on the host: an eager slice compiles a program per shape.
+            subset = jax.tree_util.tree_map(lambda a: on_device(np.asarray(a)[::step]), self.test)
+            return fit_model(m, subset, pixel_predict, freeze=freeze, max_steps=_PER_FRAME_STEPS)
+
+        return _per_frame_fitted(model, fitted)
 
     def rmse(self, model) -> dict[str, float]:
         """RMSE (8-bit levels) of `model` on the calibration and the held-out samples."""

@@ -58,16 +58,20 @@ class TrackSamples(eqx.Module):
         if pad:
             tracks = tracks.padded(max(1024, 1 << max(len(tracks) - 1, 1).bit_length()))
         as_jax = lambda a: on_device(views_first(a), dtype)  # noqa: E731
-        pixel = as_jax(tracks.corner_pixel)
-        at = as_jax(np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_pixel))
+        # Split on the host: an eager slice of a JAX array compiles a program per shape.
+        pixel = views_first(tracks.corner_pixel)
+        at = views_first(np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_pixel))
         return cls(
             Vec3.from_array(as_jax(tracks.corner_point)),
             Vec3.from_array(as_jax(tracks.corner_normal)),
-            (pixel[:, 0], pixel[:, 1]),
+            (on_device(pixel[:, 0], dtype), on_device(pixel[:, 1], dtype)),
             as_jax(tracks.corner_weight),
             as_jax(tracks.values),
             as_jax(tracks.weight),
-            Site((at[0], at[1]), on_device(views_first(tracks.frame), np.int32)),
+            Site(
+                (on_device(at[0], dtype), on_device(at[1], dtype)),
+                on_device(views_first(tracks.frame), np.int32),
+            ),
             None if tracks.corner_eye is None else Vec3.from_array(as_jax(tracks.corner_eye)),
         )
 
