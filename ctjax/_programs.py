@@ -80,12 +80,29 @@ def keep_programs(folder: Path | None) -> None:
 FITTER_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
+# XLA options for single functions, by qualified name ("ctjax.fitting._fit._least_squares"),
+# over `compiler_options()`: for a setting that compiles most programs for the speed of
+# compiling and a few long-running ones for the speed of running them (the test session,
+# tests/conftest.py). Read when a function is first compiled in a process. Empty: none.
+PROGRAM_OPTIONS: dict[str, dict] = {}
+
+
 @functools.cache
 def compiler_options() -> dict:
     """`jax.jit`'s `compiler_options` for a fitter on the default backend (XLA:CPU's loop
     emitters, `FITTER_COMPILER_OPTIONS`; none elsewhere). Asks for the backend: call it
     when compiling, not at import."""
     return dict(FITTER_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
+
+
+def options_for(name: str) -> dict:
+    """The compiler options of the function `name` (module.qualname): `compiler_options()`
+    and its own `PROGRAM_OPTIONS`."""
+    return {**compiler_options(), **PROGRAM_OPTIONS.get(name, {})}
+
+
+def _qualified(fun) -> str:
+    return f"{fun.__module__}.{fun.__qualname__}"
 
 
 def _traced(args, kwargs) -> bool:
@@ -101,7 +118,7 @@ def fitter_jit(fun):
 
     @functools.cache
     def top_level():  # at the first call: the backend is not known at import
-        return eqx.filter_jit(fun, compiler_options=compiler_options())
+        return eqx.filter_jit(fun, compiler_options=options_for(_qualified(fun)))
 
     @functools.wraps(fun)
     def call(*args, **kwargs):
@@ -180,7 +197,7 @@ def _aval(leaf) -> str:
 class _Program:
     """One exported program: call it on the dynamic leaves, rebuild the output tree."""
 
-    def __init__(self, exported, skeleton):
+    def __init__(self, exported, skeleton, options: dict):
         self.exported = exported
         self.skeleton = skeleton
         self.parts, self.structure = jax.tree.flatten(skeleton)
@@ -194,7 +211,7 @@ class _Program:
 
         # Named as the function kept (`jax_log_compiles`, profiles): not "<lambda>".
         run.__name__ = run.__qualname__ = _plain_name(exported.fun_name)
-        self.run = jax.jit(run, in_shardings=device, compiler_options=compiler_options())
+        self.run = jax.jit(run, in_shardings=device, compiler_options=options)
 
     def __call__(self, leaves):
         outputs = iter(self.run(*leaves))
@@ -218,7 +235,7 @@ def _export(fun, treedef, static, leaves):
     ]
     flat.__name__ = flat.__qualname__ = _plain_name(getattr(fun, "__name__", "program"))
     exported = jax.export.export(jax.jit(flat))(*shapes)
-    return _Program(exported, skeleton[0])
+    return _Program(exported, skeleton[0], options_for(_qualified(fun)))
 
 
 def _plain_name(name) -> str:
@@ -233,7 +250,7 @@ def persistent_jit(fun):
     module doc). For module-level functions of their arguments only. Compiled with
     `compiler_options()` (XLA:CPU's loop emitters)."""
     loaded: dict[Path, _Program | None] = {}
-    name = f"{fun.__module__}.{fun.__qualname__}"
+    name = _qualified(fun)
 
     jitted = fitter_jit(fun)
 
@@ -261,7 +278,7 @@ def persistent_jit(fun):
         key = hashlib.sha256(text.encode()).hexdigest()
         path = folder / f"{key}.program"
         if path not in loaded:
-            loaded[path] = _load(path, key, leaves) or _save(
+            loaded[path] = _load(path, key, leaves, options_for(name)) or _save(
                 path, key, fun, treedef, static, leaves
             )
         program = loaded[path]
@@ -450,7 +467,7 @@ def _blob(key: str, program: _Program) -> bytes:
     return _MAGIC + json.dumps(header, separators=(",", ":")).encode() + b"\n" + exported
 
 
-def _program(blob: bytes, key: str, leaves) -> _Program:
+def _program(blob: bytes, key: str, leaves, options: dict) -> _Program:
     """The program a file's bytes hold; raises (anything) where they are not this key's
     program for arguments like `leaves`."""
     if not blob.startswith(_MAGIC):
@@ -459,7 +476,8 @@ def _program(blob: bytes, key: str, leaves) -> _Program:
     header = json.loads(line)
     if header["key"] != key or header["sha256"] != hashlib.sha256(exported).hexdigest():
         raise ValueError("another key's program, or a damaged one")
-    program = _Program(jax.export.deserialize(bytearray(exported)), _skeleton(header["skeleton"]))
+    exported = jax.export.deserialize(bytearray(exported))
+    program = _Program(exported, _skeleton(header["skeleton"]), options)
     inputs = [(aval.shape, aval.dtype) for aval in program.exported.in_avals]
     outputs = sum(isinstance(part, _Array) for part in program.parts)
     if inputs != [(leaf.shape, leaf.dtype) for leaf in leaves]:
@@ -524,13 +542,13 @@ def _read(path: Path) -> bytes | None:
         return file.read()
 
 
-def _load(path: Path, key: str, leaves) -> _Program | None:
+def _load(path: Path, key: str, leaves, options: dict) -> _Program | None:
     """The program kept for `key`; None where there is none to use (a miss)."""
     if not private_folder(path.parent):
         return None
     try:
         blob = _read(path)
-        return None if blob is None else _program(blob, key, leaves)
+        return None if blob is None else _program(blob, key, leaves, options)
     except Exception:
         return None  # unreadable, damaged, another format or another key's: a miss
 

@@ -55,6 +55,26 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
+# ...but the Levenberg-Marquardt fitters at LLVM level 1: they run more than they compile
+# (the suite runs the pixel fitter 619 times, 84 s at level 0, for 101 programs). At 3372858
+# (707 tests, cold, fresh clone, 2 cores): 332.0 s / 610 CPU-s at level 0 everywhere,
+# 316.6 s / 581 CPU-s with the pixel fitter at level 1; warm, test_diagnostics.py 41-48 s ->
+# 24-26 s. The map's branch and bound (60 programs for 106 runs) stays at 0.
+_LONG_RUNNING = (
+    "ctjax.fitting._fit._least_squares",
+    "ctjax.fitting._map_least_squares._least_squares",
+)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _long_running_programs_optimised():
+    from ctjax import _programs
+
+    for name in _LONG_RUNNING:
+        _programs.PROGRAM_OPTIONS[name] = {"xla_backend_optimization_level": 1}
+    yield
+
+
 # File order: CI runs `--dist loadfile`, one file per worker at a time, and pytest-xdist
 # (>= 3.6) hands out the files with the most tests first. Measured against the slowest
 # files first (worker-seconds: diagnostics, sfm, calibration, estimation, ...), alternating,

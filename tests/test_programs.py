@@ -339,6 +339,25 @@ def test_fitters_compile_with_the_loop_emitters_and_nest(kept):
     np.testing.assert_array_equal(jax.jit(lambda y: doubled(y) + 1)(x), 2 * x + 1)
 
 
+def _tripled(x):
+    return 3 * x
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_a_function_compiles_with_its_own_options(kept, monkeypatch, keep):
+    """`PROGRAM_OPTIONS` reaches the compiler for the function it names, kept or not (an
+    option XLA does not know is refused there), and no other function."""
+    if not keep:
+        _programs.keep_programs(None)
+    name = f"{__name__}._tripled"
+    monkeypatch.setitem(_programs.PROGRAM_OPTIONS, name, {"xla_no_such_option": 1})
+    assert _programs.options_for(name)["xla_no_such_option"] == 1
+    assert _programs.options_for(f"{__name__}._doubled") == _programs.compiler_options()
+    with pytest.raises(Exception, match="xla_no_such_option"):
+        _programs.persistent_jit(_tripled)(jnp.arange(3.0))
+    np.testing.assert_array_equal(_programs.persistent_jit(_doubled)(jnp.arange(3.0)), [0, 2, 4])
+
+
 def test_programs_are_kept_beside_a_cache_set_through_jax(tmp_path):
     """With JAX's own `JAX_COMPILATION_CACHE_DIR`, the command line keeps the traced programs
     in its `programs/`, unless another user can write that folder."""
