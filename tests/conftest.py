@@ -62,15 +62,12 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# ...but the fitters that run more than they compile at LLVM level 1: the pixel and map
-# Levenberg-Marquardt and the map's branch and bound (in a warm suite the pixel LM ran 619
-# times for 84 s at level 0, the BnB 106 times for 50 s, the map LM 111 times for 38 s).
-# At 3372858 (707 tests, cold, 2 cores): 332.0 s / 610 CPU-s at level 0 everywhere, 316.6 s
-# / 581 CPU-s with the pixel LM at level 1; with both LMs, fresh clones, 303.6-326.5 s;
-# warm, test_diagnostics.py 41-48 -> 24-26 s. The BnB too: cold test_albedo_map.py with
-# test_oren_nayar.py 70.7 / 67.2 s (76.8 / 74.6 CPU-s) -> 68.9 / 66.1 s (72.4 / 70.1).
+# ...but the Levenberg-Marquardt fitters at LLVM level 1: they run more than they compile
+# (the suite runs the pixel fitter 619 times, 84 s at level 0, for 101 programs). At 3372858
+# (707 tests, cold, fresh clone, 2 cores): 332.0 s / 610 CPU-s at level 0 everywhere,
+# 316.6 s / 581 CPU-s with the pixel fitter at level 1; warm, test_diagnostics.py 41-48 s ->
+# 24-26 s. The map's branch and bound (60 programs for 106 runs) stays at 0.
 _LONG_RUNNING = (
-    "ctjax.estimation._branch_and_bound_map._fit",
     "ctjax.fitting._fit._least_squares",
     "ctjax.fitting._map_least_squares._least_squares",
 )
