@@ -102,18 +102,15 @@ def _started(model, samples, mask, predict, columns, scale):
 def _least_squares(model, samples, mask, predict, names, solver, max_steps, scale):
     parameters = free_parameters(model, lambda name: name in names)
 
-    @jax.jit  # traced once for the solver and the solution (pjit's cache)
-    def masked_residuals(u):
-        return _masked_residuals(constrained(model, parameters, u), samples, mask, predict)
-
     def residuals(u):
-        # Residuals in the user's units (8-bit levels for images): so are the tolerances.
-        return scale * masked_residuals(u).reshape(-1)
+        """In the user's units (8-bit levels for images): so are the tolerances; and the
+        sum of squares in the data's, as aux."""
+        residual = _masked_residuals(constrained(model, parameters, u), samples, mask, predict)
+        return scale * residual.reshape(-1), jnp.sum(residual * residual)
 
     start = unconstrained(model, parameters)
-    value, status, steps = least_squares(residuals, solver, start, max_steps)
-    residual = masked_residuals(value)
-    return constrained(model, parameters, value), jnp.sum(residual * residual), status, steps
+    value, status, steps, cost = least_squares(residuals, solver, start, max_steps, has_aux=True)
+    return constrained(model, parameters, value), cost, status, steps
 
 
 # The default solver (Levenberg-Marquardt on the Jacobian matrix, `ctjax.solvers.DenseLM`):

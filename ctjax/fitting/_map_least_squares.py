@@ -323,17 +323,19 @@ def _least_squares(model, samples, names, per_point, solver, max_steps, held):
     def kept(u):  # a held parameter's step has a zero Jacobian column: it never moves
         return [jnp.where(held[i], s, v) for i, (s, v) in enumerate(zip(start, u, strict=True))]
 
-    @jax.jit  # traced once for the solver and the solution (pjit's cache)
-    def projected(u):
-        return _projected(constrained(model, parameters, kept(u)), samples, per_point)
-
     def residuals(u):
-        return 255 * projected(u)[2].reshape(-1)  # 8-bit levels: so are the tolerances
+        """In 8-bit levels (so are the tolerances); the eliminated albedos and weights and
+        the sum of squares as aux."""
+        albedo, weights, residual = _projected(
+            constrained(model, parameters, kept(u)), samples, per_point
+        )
+        return 255 * residual.reshape(-1), (albedo, weights, jnp.sum(residual * residual))
 
-    value, status, steps = least_squares(residuals, solver, start, max_steps)
-    albedo, weights, residual = projected(value)
+    value, status, steps, (albedo, weights, cost) = least_squares(
+        residuals, solver, start, max_steps, has_aux=True
+    )
     fitted = constrained(model, parameters, kept(value))
-    return fitted, albedo, weights, jnp.sum(residual * residual), status, steps
+    return fitted, albedo, weights, cost, status, steps
 
 
 def fit_model_map(
