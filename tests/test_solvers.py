@@ -29,9 +29,15 @@ def _start(dtype):
     return (jnp.asarray([1.0, 0.5], dtype), jnp.asarray(0.0, dtype))
 
 
+# Both ways to the Jacobian (`DenseLM.linearise`): the same iterates.
+_BOTH = pytest.mark.parametrize("linearise", [False, True], ids=["forward", "linearised"])
+
+
+@_BOTH
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
-def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype):
-    solve = jax.jit(lambda y0: least_squares(_residuals, DenseLM(), y0, 100))
+def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype, linearise):
+    solver = DenseLM(linearise=linearise)
+    solve = jax.jit(lambda y0: least_squares(_residuals, solver, y0, 100))
     y, status, steps = solve(_start(dtype))
     reference = optx.least_squares(
         lambda y, _: _residuals(y),
@@ -48,35 +54,40 @@ def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype):
     np.testing.assert_allclose(jnp.append(y[0], y[1]), _TRUTH, rtol=2e-3)
 
 
-def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it():
+@_BOTH
+def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it(linearise):
+    solver = DenseLM(linearise=linearise)
     cost = lambda y: float(jnp.sum(_residuals(y) ** 2))  # noqa: E731
     start = _start(jnp.float64)
     for steps in (1, 2, 3, 5):
-        y, status, taken = least_squares(_residuals, DenseLM(), start, steps)
+        y, status, taken = least_squares(_residuals, solver, start, steps)
         assert cost(y) <= cost(start) and int(taken) == steps
         assert Status(int(status)) is Status.max_steps_reached
     # Started at its solution, it stops at once without moving.
-    y, _, _ = least_squares(_residuals, DenseLM(), start, 100)
-    again, status, taken = least_squares(_residuals, DenseLM(), y, 100)
+    y, _, _ = least_squares(_residuals, solver, start, 100)
+    again, status, taken = least_squares(_residuals, solver, y, 100)
     assert Status(int(status)) is Status.successful and int(taken) <= 3
     np.testing.assert_allclose(again[0], y[0], rtol=1e-9)
 
 
-def test_dense_lm_keeps_nan_out_of_the_solution():
+@_BOTH
+def test_dense_lm_keeps_nan_out_of_the_solution(linearise):
+    solver = DenseLM(linearise=linearise)
     nan_start = (jnp.asarray([jnp.nan, 0.5]), jnp.asarray(0.0))
-    y, status, _ = least_squares(_residuals, DenseLM(), nan_start, 50)
+    y, status, _ = least_squares(_residuals, solver, nan_start, 50)
     assert Status(int(status)) is Status.nonfinite
 
     # Residuals that are NaN beyond b = 3: the solver never steps there.
     def guarded(y):
         return jnp.where(y[0][1] > 3.0, jnp.nan, _residuals(y))
 
-    y, status, _ = least_squares(guarded, DenseLM(), _start(jnp.float64), 100)
+    y, status, _ = least_squares(guarded, solver, _start(jnp.float64), 100)
     assert np.all(np.isfinite(y[0])) and Status(int(status)) is Status.successful
     np.testing.assert_allclose(y[0], _TRUTH[:2], rtol=2e-3)
 
 
-def test_dense_lm_damps_where_gauss_newton_overshoots():
+@_BOTH
+def test_dense_lm_damps_where_gauss_newton_overshoots(linearise):
     """Freudenstein and Roth's problem from (0.5, -2) ends in its large-residual local
     minimum, where the Gauss-Newton step overshoots: the gain-ratio damping gets there in 19
     steps (29 when lambda shrank by 3 at every accepted step)."""
@@ -85,7 +96,8 @@ def test_dense_lm_damps_where_gauss_newton_overshoots():
         a, b = y
         return jnp.stack([a - 13 + ((5 - b) * b - 2) * b, a - 29 + ((b + 1) * b - 14) * b])
 
-    y, status, steps = least_squares(residuals, DenseLM(), jnp.asarray([0.5, -2.0]), 100)
+    solver = DenseLM(linearise=linearise)
+    y, status, steps = least_squares(residuals, solver, jnp.asarray([0.5, -2.0]), 100)
     assert Status(int(status)) is Status.successful and int(steps) <= 22
     np.testing.assert_allclose(y, [11.41277900, -0.89680525], rtol=1e-6)
     np.testing.assert_allclose(jnp.sum(residuals(y) ** 2), 48.98425368, rtol=1e-9)
@@ -96,6 +108,36 @@ def test_dense_lm_settings_are_checked():
         DenseLM(rtol=-1)
     with pytest.raises(CtjaxError, match="atol must be a nonnegative number, got 'x'"):
         DenseLM(atol="x")
+    with pytest.raises(CtjaxError, match="linearise must be True or False, got 'yes'"):
+        DenseLM(linearise="yes")
+
+
+def test_both_ways_to_the_jacobian_take_the_same_steps_and_return_the_aux():
+    """`linearise` changes how the Jacobian is computed, not the iterates: the same solution,
+    status and steps, and `fn`'s aux at the solution from the loop (here the residuals'
+    sum of squares, which is the solution's own)."""
+
+    def with_aux(y):
+        r = _residuals(y)
+        return r, jnp.sum(r * r)
+
+    start = _start(jnp.float64)
+    solvers = {linearise: DenseLM(linearise=linearise) for linearise in (False, True)}
+    out = {
+        linearise: jax.jit(lambda y0, s=s: least_squares(with_aux, s, y0, 100, has_aux=True))(start)
+        for linearise, s in solvers.items()
+    }
+    (y, status, steps, aux), (y_l, status_l, steps_l, aux_l) = out[False], out[True]
+    assert int(status) == int(status_l) == Status.successful.value
+    assert int(steps) == int(steps_l)
+    np.testing.assert_allclose(y_l[0], y[0], rtol=1e-12)
+    np.testing.assert_allclose(aux, jnp.sum(_residuals(y) ** 2), rtol=1e-12)
+    np.testing.assert_allclose(aux_l, aux, rtol=1e-12)
+    # Through optimistix too: the aux of the solution, computed after it.
+    value, _, _, aux_o = least_squares(
+        with_aux, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8), start, 200, has_aux=True
+    )
+    np.testing.assert_allclose(aux_o, jnp.sum(_residuals(value) ** 2), rtol=1e-12)
 
 
 @pytest.mark.parametrize(

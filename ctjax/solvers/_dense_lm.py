@@ -5,8 +5,8 @@ residuals (every pixel of every frame).
 optimistix's Levenberg-Marquardt works on the linearised residuals as a function
 (`jax.linearize`) and evaluates it once per unknown for its QR, again for the transpose
 and for the predicted reduction: each pass goes through the whole model. Here the
-linearisation is the (M, P) Jacobian, the linearised residuals applied to the P unit
-vectors (the same autodiff derivative, exactly), reduced at once to the P x P normal equations; a step is a Cholesky solve of
+linearisation is the (M, P) Jacobian from `jax.jacfwd` (the same autodiff derivative,
+exactly), reduced at once to the P x P normal equations; a step is a Cholesky solve of
 a P x P system (`benchmarks/fit_step.py` measures both solvers).
 
 Why a solver of its own rather than the Jacobian matrix handed to optimistix (a
@@ -16,7 +16,19 @@ Levenberg-Marquardt that made the steps nondeterministic. The same start on the 
 1.4e-27 in others (an accepted step that raised the loss from 1.3e4 to 2.1e6), 5 fits of 8,
 though the Jacobian computed outside the solver was bitwise the same; the cause inside the
 loop was not found. Here a step is accepted only if it lowers the cost.
+
+Two ways to the same iterates (`DenseLM.linearise`): the Jacobian's forward pass at each
+kept point beside the trials' residuals (the default: the fastest to run), or each trial
+linearised once (`jax.linearize`) and its derivative run only where it is kept: one copy of
+the model in the compiled program instead of two, which compiles about a fifth faster
+where compiling dominates (the test suite's many small fits: a cold 128x96 x 5 `diagnose`'s
+LM programs 12.2-14.5 s -> 10.0-11.5 s under its flags) and runs about a fifth slower on
+larger problems (a 32k-pixel near-light fit, loop emitters: 74 -> 90 ms, 5 steps; the
+linearised primal keeps every intermediate for the derivative where the forward pass
+fuses them).
 """
+
+import os
 
 import equinox as eqx
 import jax
@@ -43,33 +55,44 @@ class DenseLM(eqx.Module):
     accepting; x 2, 4, 8... on rejecting in a row, the Jacobian kept). Where Gauss-Newton
     overshoots along a curved valley (rho ~ 0.15 at every step, the iterates zig-zagging
     in), the damping grows instead of shrinking: a near light with inverse-square and spot
-    falloff on the demo capture took 36-56 steps instead of 60-79 to the same cost. Each trial point is
-    linearised (`jax.linearize`: its residuals, and the derivative's program that reuses
-    them) and the Jacobian formed only where the point is kept; entries that are not finite count as
-    0, and a trial whose cost is not finite is rejected, so no NaN reaches the solution.
+    falloff on the demo capture took 36-56 steps instead of 60-79 to the same cost. The
+    Jacobian is autodiff's (forward mode), computed at the start and at every accepted
+    point; entries that are not finite count as 0, and a trial whose cost is not finite is
+    rejected, so no NaN reaches the solution.
 
     Stops `successful` when a step is within `atol + rtol * |y|` (max norms) and, if it was
     accepted, lowered the cost by at most `atol + rtol * cost` (optimistix's Cauchy test);
     `max_steps_reached` when `max_steps` iterations (accepted or not) ran first;
     `nonfinite` when the cost at `y0` is not finite. `y0` may be any pytree of arrays of one
     floating dtype, in which the solve runs. The number of steps counts every iteration.
+
+    `linearise`: how the Jacobian is had (see the module doc; the same iterates either
+    way): False, its forward pass at each kept point (fastest to run); True, from each
+    trial's linearisation (fastest to compile). Default: the environment variable
+    `CTJAX_LM_LINEARISE` ("1": True), read when the solver is made; the test suite sets it.
     """
 
     rtol: float = eqx.field(static=True, default=1e-6)
     atol: float = eqx.field(static=True, default=1e-6)
+    linearise: bool = eqx.field(
+        static=True, default_factory=lambda: os.environ.get("CTJAX_LM_LINEARISE") == "1"
+    )
 
     def __check_init__(self):
         for name in ("rtol", "atol"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not value >= 0:
                 raise CtjaxError(f"{name} must be a nonnegative number, got {value!r}")
+        if not isinstance(self.linearise, bool):
+            raise CtjaxError(f"linearise must be True or False, got {self.linearise!r}")
 
     def __call__(
         self, fn, y0, max_steps: int, *, has_aux: bool = False
     ) -> tuple[object, Int[Array, ""], Array] | tuple[object, Int[Array, ""], Array, object]:
-        """Minimise `|fn(y)|^2` from `y0` (`fn(y) -> (M,)`, or `(M,), aux` with `has_aux`)
-        in at most `max_steps` iterations. Returns the solution (shaped as `y0`), its
-        `Status` code and the number of iterations (and `fn`'s aux at the solution)."""
+        """Minimise `|fn(y)|^2` from `y0` (`fn(y) -> (M,)`, or `((M,), aux)` with
+        `has_aux`) in at most `max_steps` iterations. Returns the solution (shaped as
+        `y0`), its `Status` code and the number of iterations; with `has_aux`, `fn`'s aux at
+        the solution fourth (kept by the loop: the model is not evaluated after it)."""
         flat, unravel = ravel_pytree(y0)
         if not has_aux:
             plain = fn
@@ -78,105 +101,158 @@ class DenseLM(eqx.Module):
             done = jnp.asarray(Status.successful.value), jnp.asarray(0)
             return (y0, *done, fn(y0)[1]) if has_aux else (y0, *done)
         dtype = flat.dtype
-        d0, ceiling = _DAMPING
 
+        # Jitted inside the trace: its uses (the start, the trials, the Jacobian) share one
+        # trace of `fn` (pjit's cache) instead of tracing it for each; XLA inlines the call.
+        @jax.jit
         def residuals(x):
             r, aux = fn(unravel(x))
             return r.reshape(-1).astype(dtype), aux
 
-        def normal_equations(tangents, r):
-            jac = jax.vmap(tangents, out_axes=1)(jnp.eye(flat.size, dtype=dtype))
-            jac = jnp.nan_to_num(jac, nan=0.0, posinf=0.0, neginf=0.0)
-            return jac.T @ jac, jac.T @ r
-
-        def tiny(y, dy):
-            return jnp.max(jnp.abs(dy)) <= self.atol + self.rtol * jnp.max(jnp.abs(y))
-
-        def step(carry):
-            # The point `x` is evaluated (the start, then each trial y + dy) and linearised:
-            # its cost and aux, and, only where it is kept (the start, or a lower cost), its
-            # normal equations from the linearisation. The model appears once in the
-            # compiled loop, and its derivative once (a Jacobian's forward pass beside a
-            # trial's residuals would be two copies of the model: seconds to compile each).
-            x, first, (dy, solved, predicted), y, cost, linear, aux, (damping, grow), n, _ = carry
-            r, tangents, trial_aux = jax.linearize(residuals, x, has_aux=True)
-            trial_cost = r @ r
-            better = first | (solved & jnp.isfinite(trial_cost) & (trial_cost < cost))
-            finite = ~first | jnp.isfinite(trial_cost)  # false only at a start not finite
-            done = ~first & (
-                solved
-                & tiny(y, dy)
-                & (~better | (cost - trial_cost <= self.atol + self.rtol * cost))
-            )
-            # Gain ratio: the cost's decrease over the linear model's (> 0 for any dy).
-            gain = (cost - trial_cost) / jnp.maximum(predicted, jnp.finfo(dtype).tiny)
-            accepted = damping * jnp.maximum(1 / 3, 1 - (2 * gain - 1) ** 3)
-            damping, grow = (
-                jnp.where(
-                    first,
-                    damping,
-                    jnp.minimum(jnp.where(better, accepted, damping * grow), ceiling),
-                ),
-                jnp.where(first, grow, jnp.where(better, 2.0, grow * 2)).astype(dtype),
-            )
-            linear = jax.lax.cond(better, lambda: normal_equations(tangents, r), lambda: linear)
-            y, cost, aux = jax.tree.map(
-                lambda new, old: jnp.where(better, new, old),
-                (x, trial_cost, trial_aux),
-                (y, cost, aux),
-            )
-            # The next trial, from the normal equations at y.
-            normal, gradient = linear
-            diagonal = jnp.diag(normal)
-            scale = jnp.maximum(diagonal, 1e-12 * jnp.max(diagonal)) + jnp.finfo(dtype).tiny
-            factor = cho_factor(normal + jnp.diag(damping * scale))
-            dy = -cho_solve(factor, gradient)
-            solved = jnp.all(jnp.isfinite(dy))
-            dy = jnp.where(solved, dy, 0)
-            predicted = damping * (dy * scale) @ dy - gradient @ dy
-            return (
-                y + dy,
-                jnp.asarray(False),
-                (dy, solved, predicted),
-                y,
-                cost,
-                linear,
-                aux,
-                (damping, grow),
-                n + ~first,
-                done | ~finite,
-            )
-
-        def running(carry):
-            *_, iterations, done = carry
-            return ~done & (iterations < max_steps)
-
         if max_steps <= 0:
-            r, aux = fn(y0)
-            finite = jnp.isfinite(jnp.sum(r.astype(dtype) ** 2))
+            r, aux = residuals(flat)
+            finite = jnp.isfinite(jnp.sum(r * r))
             code = jnp.where(finite, Status.max_steps_reached.value, Status.nonfinite.value)
             return (y0, code, jnp.asarray(0), aux) if has_aux else (y0, code, jnp.asarray(0))
-        zero = jnp.zeros(flat.size, dtype)
-        no_aux = jax.tree.map(
-            lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(lambda: fn(y0)[1])
-        )
-        start = (
-            flat,
-            jnp.asarray(True),
-            (zero, jnp.asarray(True), jnp.asarray(0, dtype)),
-            flat,
-            jnp.asarray(jnp.inf, dtype),
-            (jnp.zeros((flat.size, flat.size), dtype), zero),
-            no_aux,
-            (jnp.asarray(d0, dtype), jnp.asarray(2.0, dtype)),
-            jnp.asarray(0),
-            jnp.asarray(False),
-        )
-        carry = jax.lax.while_loop(running, step, start)
-        y, cost, aux, iterations, done = carry[3], carry[4], carry[6], carry[8], carry[9]
+        loop = _linearised_loop if self.linearise else _forward_loop
+        y, cost, aux, iterations, done = loop(self, residuals, flat, max_steps)
         code = jnp.where(
             jnp.isfinite(cost),
             jnp.where(done, Status.successful.value, Status.max_steps_reached.value),
             Status.nonfinite.value,
         )
-        return (unravel(y), code, iterations, aux) if has_aux else (unravel(y), code, iterations)
+        y = unravel(y)
+        return (y, code, iterations, aux) if has_aux else (y, code, iterations)
+
+
+def _normal_equations(jac, r):
+    jac = jnp.nan_to_num(jac, nan=0.0, posinf=0.0, neginf=0.0)
+    return jac.T @ jac, jac.T @ r
+
+
+def _trial_step(linear, damping):
+    """The damped Gauss-Newton step from the normal equations `linear` at y: `(dy,
+    solved, predicted decrease, scale)` (dy is 0 where the solve is not finite)."""
+    normal, gradient = linear
+    dtype = normal.dtype
+    diagonal = jnp.diag(normal)
+    scale = jnp.maximum(diagonal, 1e-12 * jnp.max(diagonal)) + jnp.finfo(dtype).tiny
+    dy = -cho_solve(cho_factor(normal + jnp.diag(damping * scale)), gradient)
+    solved = jnp.all(jnp.isfinite(dy))
+    dy = jnp.where(solved, dy, 0)
+    return dy, solved, damping * (dy * scale) @ dy - gradient @ dy
+
+
+def _judged(solver, y, dy, solved, predicted, cost, trial_cost, damping, grow):
+    """Whether the trial y + dy is kept (`better`), whether the solve is done, and the
+    damping after it (Nielsen's rule, see `DenseLM`)."""
+    dtype = y.dtype
+    better = solved & jnp.isfinite(trial_cost) & (trial_cost < cost)
+    small = jnp.max(jnp.abs(dy)) <= solver.atol + solver.rtol * jnp.max(jnp.abs(y))
+    done = solved & small & (~better | (cost - trial_cost <= solver.atol + solver.rtol * cost))
+    # Gain ratio: the cost's decrease over the linear model's (> 0 for any dy).
+    gain = (cost - trial_cost) / jnp.maximum(predicted, jnp.finfo(dtype).tiny)
+    accepted = damping * jnp.maximum(1 / 3, 1 - (2 * gain - 1) ** 3)
+    damping = jnp.minimum(jnp.where(better, accepted, damping * grow), _DAMPING[1])
+    return better, done, (damping, jnp.where(better, 2.0, grow * 2).astype(dtype))
+
+
+def _kept(better, new, old):
+    return jax.tree.map(lambda a, b: jnp.where(better, a, b), new, old)
+
+
+def _start_aux(residuals, flat):
+    shapes = jax.eval_shape(lambda: residuals(flat)[1])
+    return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+
+
+def _forward_loop(solver, residuals, flat, max_steps):
+    """The Jacobian's forward pass (`jax.jacfwd`) at the start and at every kept point, in a
+    `lax.cond`; the trials' residuals beside it."""
+    dtype = flat.dtype
+
+    def with_aux(x):
+        r, aux = residuals(x)
+        return r, (r, aux)
+
+    def normal_equations(x, _):
+        jac, (r, aux) = jax.jacfwd(with_aux, has_aux=True)(x)
+        return _normal_equations(jac, r), r @ r, aux
+
+    def step(carry):
+        y, cost, linear, aux, stale, (damping, grow), iterations, _ = carry
+        # The normal equations at y, recomputed only after an accepted step (and at the
+        # start, where they give the first cost and aux too).
+        linear, cost, aux = jax.lax.cond(
+            stale, normal_equations, lambda _, known: known, y, (linear, cost, aux)
+        )
+        finite = jnp.isfinite(cost)  # false only at a start that is not finite
+        dy, solved, predicted = _trial_step(linear, damping)
+        r, trial_aux = residuals(y + dy)
+        better, done, damping = _judged(
+            solver, y, dy, solved & finite, predicted, cost, r @ r, damping, grow
+        )
+        y, cost, aux = _kept(better, (y + dy, r @ r, trial_aux), (y, cost, aux))
+        return y, cost, linear, aux, better, damping, iterations + finite, done | ~finite
+
+    start = (
+        flat,
+        jnp.asarray(jnp.inf, dtype),  # the first step computes it
+        (jnp.zeros((flat.size, flat.size), dtype), jnp.zeros(flat.size, dtype)),
+        _start_aux(residuals, flat),
+        jnp.asarray(True),
+        (jnp.asarray(_DAMPING[0], dtype), jnp.asarray(2.0, dtype)),
+        jnp.asarray(0),
+        jnp.asarray(False),
+    )
+    y, cost, _, aux, _, _, iterations, done = jax.lax.while_loop(
+        lambda c: ~c[-1] & (c[-2] < max_steps), step, start
+    )
+    return y, cost, aux, iterations, done
+
+
+def _linearised_loop(solver, residuals, flat, max_steps):
+    """Each point evaluated (the start, then each trial) is linearised (`jax.linearize`):
+    its residuals and aux, and, only where it is kept, its normal equations from the
+    linearisation's derivative (in a `lax.cond`). The model appears once in the compiled
+    loop and its derivative once."""
+    dtype = flat.dtype
+    eye = jnp.eye(flat.size, dtype=dtype)
+
+    def step(carry):
+        x, first, (dy, solved, predicted), y, cost, linear, aux, damping, n, _ = carry
+        r, tangents, x_aux = jax.linearize(residuals, x, has_aux=True)
+        trial_cost = r @ r
+        better, done, judged_damping = _judged(
+            solver, y, dy, solved, predicted, cost, trial_cost, *damping
+        )
+        # The start is kept whatever its cost, and changes neither the damping nor `done`.
+        better, done = first | better, ~first & done
+        damping = _kept(first, damping, judged_damping)
+        finite = ~first | jnp.isfinite(trial_cost)  # false only at a start not finite
+        linear = jax.lax.cond(
+            better,
+            lambda: _normal_equations(jax.vmap(tangents, out_axes=1)(eye), r),
+            lambda: linear,
+        )
+        y, cost, aux = _kept(better, (x, trial_cost, x_aux), (y, cost, aux))
+        step_ = _trial_step(linear, damping[0])
+        return (y + step_[0], jnp.asarray(False), step_, y, cost, linear, aux, damping,
+                n + ~first, done | ~finite)  # fmt: skip
+
+    zero = jnp.zeros(flat.size, dtype)
+    start = (
+        flat,
+        jnp.asarray(True),
+        (zero, jnp.asarray(True), jnp.asarray(0, dtype)),
+        flat,
+        jnp.asarray(jnp.inf, dtype),
+        (jnp.zeros((flat.size, flat.size), dtype), zero),
+        _start_aux(residuals, flat),
+        (jnp.asarray(_DAMPING[0], dtype), jnp.asarray(2.0, dtype)),
+        jnp.asarray(0),
+        jnp.asarray(False),
+    )
+    carry = jax.lax.while_loop(lambda c: ~c[-1] & (c[-2] < max_steps), step, start)
+    _, _, _, y, cost, _, aux, _, iterations, done = carry
+    return y, cost, aux, iterations, done
