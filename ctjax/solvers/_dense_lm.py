@@ -102,9 +102,8 @@ class DenseLM(eqx.Module):
             return (y0, *done, fn(y0)[1]) if has_aux else (y0, *done)
         dtype = flat.dtype
 
-        # Jitted inside the trace: its uses (the start, the trials, the Jacobian) share one
-        # trace of `fn` (pjit's cache) instead of tracing it for each; XLA inlines the call.
-        @jax.jit
+        # `fn` jitted (`least_squares` does): its uses (the start, the trials, the Jacobian)
+        # then share one trace of it (pjit's cache); XLA inlines the call.
         def residuals(x):
             r, aux = fn(unravel(x))
             return r.reshape(-1).astype(dtype), aux
