@@ -62,15 +62,6 @@ for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
-# The Levenberg-Marquardt solver with each trial linearised (`ctjax.solvers.DenseLM`'s
-# `linearise`, read when a solver is made: set before ctjax is imported, and inherited by
-# the commands the tests start): one copy of the model in each LM program instead of two.
-# The same iterates; the LM programs compile about a fifth faster (a cold 128x96 x 5
-# `diagnose` under these flags: 12.2-14.5 -> 10.0-11.5 s) and run as fast at these levels
-# (the library's default, the forward pass, runs about a fifth faster on large problems).
-# The suite, cold, fresh clone, 2 workers: 308.3 and 312.7 s -> 298.5 and 296.3 s.
-os.environ.setdefault("CTJAX_LM_LINEARISE", "1")
-
 # ...but the Levenberg-Marquardt fitters at LLVM level 1: they run more than they compile
 # (the suite runs the pixel fitter 619 times, 84 s at level 0, for 101 programs). At 3372858
 # (707 tests, cold, fresh clone, 2 cores): 332.0 s / 610 CPU-s at level 0 everywhere,

@@ -29,14 +29,9 @@ def _start(dtype):
     return (jnp.asarray([1.0, 0.5], dtype), jnp.asarray(0.0, dtype))
 
 
-# Both ways to the Jacobian (`DenseLM.linearise`): the same iterates.
-_BOTH = pytest.mark.parametrize("linearise", [False, True], ids=["forward", "linearised"])
-
-
-@_BOTH
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
-def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype, linearise):
-    solver = DenseLM(linearise=linearise)
+def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype):
+    solver = DenseLM()
     solve = jax.jit(lambda y0: least_squares(_residuals, solver, y0, 100))
     y, status, steps = solve(_start(dtype))
     reference = optx.least_squares(
@@ -54,9 +49,8 @@ def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype, linearise):
     np.testing.assert_allclose(jnp.append(y[0], y[1]), _TRUTH, rtol=2e-3)
 
 
-@_BOTH
-def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it(linearise):
-    solver = DenseLM(linearise=linearise)
+def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it():
+    solver = DenseLM()
     cost = lambda y: float(jnp.sum(_residuals(y) ** 2))  # noqa: E731
     start = _start(jnp.float64)
     for steps in (1, 2, 3, 5):
@@ -70,9 +64,8 @@ def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it(linearise):
     np.testing.assert_allclose(again[0], y[0], rtol=1e-9)
 
 
-@_BOTH
-def test_dense_lm_keeps_nan_out_of_the_solution(linearise):
-    solver = DenseLM(linearise=linearise)
+def test_dense_lm_keeps_nan_out_of_the_solution():
+    solver = DenseLM()
     nan_start = (jnp.asarray([jnp.nan, 0.5]), jnp.asarray(0.0))
     y, status, _ = least_squares(_residuals, solver, nan_start, 50)
     assert Status(int(status)) is Status.nonfinite
@@ -86,8 +79,7 @@ def test_dense_lm_keeps_nan_out_of_the_solution(linearise):
     np.testing.assert_allclose(y[0], _TRUTH[:2], rtol=2e-3)
 
 
-@_BOTH
-def test_dense_lm_damps_where_gauss_newton_overshoots(linearise):
+def test_dense_lm_damps_where_gauss_newton_overshoots():
     """Freudenstein and Roth's problem from (0.5, -2) ends in its large-residual local
     minimum, where the Gauss-Newton step overshoots: the gain-ratio damping gets there in 19
     steps (29 when lambda shrank by 3 at every accepted step)."""
@@ -96,7 +88,7 @@ def test_dense_lm_damps_where_gauss_newton_overshoots(linearise):
         a, b = y
         return jnp.stack([a - 13 + ((5 - b) * b - 2) * b, a - 29 + ((b + 1) * b - 14) * b])
 
-    solver = DenseLM(linearise=linearise)
+    solver = DenseLM()
     y, status, steps = least_squares(residuals, solver, jnp.asarray([0.5, -2.0]), 100)
     assert Status(int(status)) is Status.successful and int(steps) <= 22
     np.testing.assert_allclose(y, [11.41277900, -0.89680525], rtol=1e-6)
@@ -108,36 +100,27 @@ def test_dense_lm_settings_are_checked():
         DenseLM(rtol=-1)
     with pytest.raises(CtjaxError, match="atol must be a nonnegative number, got 'x'"):
         DenseLM(atol="x")
-    with pytest.raises(CtjaxError, match="linearise must be True or False, got 'yes'"):
-        DenseLM(linearise="yes")
 
 
-def test_both_ways_to_the_jacobian_take_the_same_steps_and_return_the_aux():
-    """`linearise` changes how the Jacobian is computed, not the iterates: the same solution,
-    status and steps, and `fn`'s aux at the solution from the loop (here the residuals'
-    sum of squares, which is the solution's own)."""
+def test_the_aux_at_the_solution_comes_from_the_loop():
+    """`has_aux`: `fn`'s aux at the solution (here the residuals' sum of squares, which is
+    the solution's own), kept by DenseLM's loop and computed after optimistix's solve."""
 
     def with_aux(y):
         r = _residuals(y)
         return r, jnp.sum(r * r)
 
     start = _start(jnp.float64)
-    solvers = {linearise: DenseLM(linearise=linearise) for linearise in (False, True)}
-    out = {
-        linearise: jax.jit(lambda y0, s=s: least_squares(with_aux, s, y0, 100, has_aux=True))(start)
-        for linearise, s in solvers.items()
-    }
-    (y, status, steps, aux), (y_l, status_l, steps_l, aux_l) = out[False], out[True]
-    assert int(status) == int(status_l) == Status.successful.value
-    assert int(steps) == int(steps_l)
-    np.testing.assert_allclose(y_l[0], y[0], rtol=1e-12)
-    np.testing.assert_allclose(aux, jnp.sum(_residuals(y) ** 2), rtol=1e-12)
-    np.testing.assert_allclose(aux_l, aux, rtol=1e-12)
-    # Through optimistix too: the aux of the solution, computed after it.
-    value, _, _, aux_o = least_squares(
-        with_aux, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8), start, 200, has_aux=True
-    )
-    np.testing.assert_allclose(aux_o, jnp.sum(_residuals(value) ** 2), rtol=1e-12)
+    for solver in (DenseLM(), optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)):
+        y, status, steps, aux = jax.jit(
+            lambda y0, s=solver: least_squares(with_aux, s, y0, 200, has_aux=True)
+        )(start)
+        assert Status(int(status)) is Status.successful and int(steps) > 0
+        np.testing.assert_allclose(aux, jnp.sum(_residuals(y) ** 2), rtol=1e-12)
+    # Without steps: the start's aux.
+    y, status, steps, aux = least_squares(with_aux, DenseLM(), start, 0, has_aux=True)
+    assert int(steps) == 0 and Status(int(status)) is Status.max_steps_reached
+    np.testing.assert_allclose(aux, jnp.sum(_residuals(start) ** 2), rtol=1e-12)
 
 
 @pytest.mark.parametrize(

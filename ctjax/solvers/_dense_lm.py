@@ -16,19 +16,7 @@ Levenberg-Marquardt that made the steps nondeterministic. The same start on the 
 1.4e-27 in others (an accepted step that raised the loss from 1.3e4 to 2.1e6), 5 fits of 8,
 though the Jacobian computed outside the solver was bitwise the same; the cause inside the
 loop was not found. Here a step is accepted only if it lowers the cost.
-
-Two ways to the same iterates (`DenseLM.linearise`): the Jacobian's forward pass at each
-kept point beside the trials' residuals (the default: the fastest to run), or each trial
-linearised once (`jax.linearize`) and its derivative run only where it is kept: one copy of
-the model in the compiled program instead of two, which compiles about a fifth faster
-where compiling dominates (the test suite's many small fits: a cold 128x96 x 5 `diagnose`'s
-LM programs 12.2-14.5 s -> 10.0-11.5 s under its flags) and runs about a fifth slower on
-larger problems (a 32k-pixel near-light fit, loop emitters: 74 -> 90 ms, 5 steps; the
-linearised primal keeps every intermediate for the derivative where the forward pass
-fuses them).
 """
-
-import os
 
 import equinox as eqx
 import jax
@@ -66,25 +54,16 @@ class DenseLM(eqx.Module):
     `nonfinite` when the cost at `y0` is not finite. `y0` may be any pytree of arrays of one
     floating dtype, in which the solve runs. The number of steps counts every iteration.
 
-    `linearise`: how the Jacobian is had (see the module doc; the same iterates either
-    way): False, its forward pass at each kept point (fastest to run); True, from each
-    trial's linearisation (fastest to compile). Default: the environment variable
-    `CTJAX_LM_LINEARISE` ("1": True), read when the solver is made; the test suite sets it.
     """
 
     rtol: float = eqx.field(static=True, default=1e-6)
     atol: float = eqx.field(static=True, default=1e-6)
-    linearise: bool = eqx.field(
-        static=True, default_factory=lambda: os.environ.get("CTJAX_LM_LINEARISE") == "1"
-    )
 
     def __check_init__(self):
         for name in ("rtol", "atol"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not value >= 0:
                 raise CtjaxError(f"{name} must be a nonnegative number, got {value!r}")
-        if not isinstance(self.linearise, bool):
-            raise CtjaxError(f"linearise must be True or False, got {self.linearise!r}")
 
     def __call__(
         self, fn, y0, max_steps: int, *, has_aux: bool = False
@@ -113,8 +92,7 @@ class DenseLM(eqx.Module):
             finite = jnp.isfinite(jnp.sum(r * r))
             code = jnp.where(finite, Status.max_steps_reached.value, Status.nonfinite.value)
             return (y0, code, jnp.asarray(0), aux) if has_aux else (y0, code, jnp.asarray(0))
-        loop = _linearised_loop if self.linearise else _forward_loop
-        y, cost, aux, iterations, done = loop(self, residuals, flat, max_steps)
+        y, cost, aux, iterations, done = _loop(self, residuals, flat, max_steps)
         code = jnp.where(
             jnp.isfinite(cost),
             jnp.where(done, Status.successful.value, Status.max_steps_reached.value),
@@ -165,9 +143,10 @@ def _start_aux(residuals, flat):
     return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
 
 
-def _forward_loop(solver, residuals, flat, max_steps):
+def _loop(solver, residuals, flat, max_steps):
     """The Jacobian's forward pass (`jax.jacfwd`) at the start and at every kept point, in a
-    `lax.cond`; the trials' residuals beside it."""
+    `lax.cond` (one copy of its program), the trials' residuals beside it (one copy of the
+    model's), and the aux of the point kept: nothing is evaluated after the loop."""
     dtype = flat.dtype
 
     def with_aux(x):
@@ -207,51 +186,4 @@ def _forward_loop(solver, residuals, flat, max_steps):
     y, cost, _, aux, _, _, iterations, done = jax.lax.while_loop(
         lambda c: ~c[-1] & (c[-2] < max_steps), step, start
     )
-    return y, cost, aux, iterations, done
-
-
-def _linearised_loop(solver, residuals, flat, max_steps):
-    """Each point evaluated (the start, then each trial) is linearised (`jax.linearize`):
-    its residuals and aux, and, only where it is kept, its normal equations from the
-    linearisation's derivative (in a `lax.cond`). The model appears once in the compiled
-    loop and its derivative once."""
-    dtype = flat.dtype
-    eye = jnp.eye(flat.size, dtype=dtype)
-
-    def step(carry):
-        x, first, (dy, solved, predicted), y, cost, linear, aux, damping, n, _ = carry
-        r, tangents, x_aux = jax.linearize(residuals, x, has_aux=True)
-        trial_cost = r @ r
-        better, done, judged_damping = _judged(
-            solver, y, dy, solved, predicted, cost, trial_cost, *damping
-        )
-        # The start is kept whatever its cost, and changes neither the damping nor `done`.
-        better, done = first | better, ~first & done
-        damping = _kept(first, damping, judged_damping)
-        finite = ~first | jnp.isfinite(trial_cost)  # false only at a start not finite
-        linear = jax.lax.cond(
-            better,
-            lambda: _normal_equations(jax.vmap(tangents, out_axes=1)(eye), r),
-            lambda: linear,
-        )
-        y, cost, aux = _kept(better, (x, trial_cost, x_aux), (y, cost, aux))
-        step_ = _trial_step(linear, damping[0])
-        return (y + step_[0], jnp.asarray(False), step_, y, cost, linear, aux, damping,
-                n + ~first, done | ~finite)  # fmt: skip
-
-    zero = jnp.zeros(flat.size, dtype)
-    start = (
-        flat,
-        jnp.asarray(True),
-        (zero, jnp.asarray(True), jnp.asarray(0, dtype)),
-        flat,
-        jnp.asarray(jnp.inf, dtype),
-        (jnp.zeros((flat.size, flat.size), dtype), zero),
-        _start_aux(residuals, flat),
-        (jnp.asarray(_DAMPING[0], dtype), jnp.asarray(2.0, dtype)),
-        jnp.asarray(0),
-        jnp.asarray(False),
-    )
-    carry = jax.lax.while_loop(lambda c: ~c[-1] & (c[-2] < max_steps), step, start)
-    _, _, _, y, cost, _, aux, _, iterations, done = carry
     return y, cost, aux, iterations, done
