@@ -13,7 +13,7 @@ messages). `--test-flags`: the test session's XLA flags and the LM fitters at LL
 Measured (2-core VM, 2026-11-28, `--test-flags`, interleaved runs): the 16 LM programs
 (`_least_squares`) 14.5 / 12.8 s at 0f7c5a8 against 16.5 / 14.8 s at f239fa1 (the
 solution's residuals after the loop dropped: the aux comes from the loop); this VM's speed
-drifts by a fifth over a day, so compare only runs side by side.
+drifts by a fifth within hours, so compare only runs side by side.
 """
 
 import argparse
