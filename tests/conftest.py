@@ -1,8 +1,12 @@
+import functools
 import gc
+import hashlib
 import os
+import tempfile
 from pathlib import Path
 
 import jax
+import numpy as np
 import pytest
 
 # float64 by default in the tests; float32 paths are exercised explicitly (see helpers.cast).
@@ -99,6 +103,42 @@ def _long_running_programs_optimised():
 # commands the tests start, share the traced fitters instead of tracing each again (the
 # command line does the same beside a `JAX_COMPILATION_CACHE_DIR`). Set per test: the tests
 # of `ctjax._programs` set their own folder and turn it off after them.
+def _textures_kept_on_disk():
+    """The synthetic captures' tissue textures (`ctjax.synth._texture`), one file per seed in
+    the cache folder: the suite synthesises about 90 captures from 6 seeds, and each process
+    made the 2048 x 2048 texture of a seed again (1.5 s each: 17 times, 26 worker-seconds
+    of a cold suite). Keyed by the texture module's source and the libraries that draw it,
+    so a changed texture is made anew; the same bytes as made in the process."""
+    import cv2
+
+    from ctjax.synth import _texture
+
+    make = _texture._texture_of.__wrapped__
+    source = Path(_texture.__file__).read_bytes()
+    versions = f"{np.__version__} {cv2.__version__}".encode()
+    folder = _CACHE / "textures"
+
+    @functools.lru_cache(maxsize=3)
+    def texture_of(entropy, spawn_key, pool_size):
+        key = hashlib.sha256(source + versions + repr((entropy, spawn_key, pool_size)).encode())
+        path = folder / f"{key.hexdigest()[:32]}.npy"
+        try:
+            texture = np.load(path)
+        except (OSError, ValueError):
+            texture = make(entropy, spawn_key, pool_size)
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=folder, suffix=".npy", delete=False) as part:
+                np.save(part, texture)
+            os.replace(part.name, path)  # whole files only: the other worker may read it
+        texture.setflags(write=False)
+        return texture
+
+    _texture._texture_of = texture_of
+
+
+_textures_kept_on_disk()
+
+
 @pytest.fixture(autouse=True)
 def _kept_programs():
     from ctjax import _programs
