@@ -1,7 +1,9 @@
+import atexit
 import functools
 import gc
 import hashlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -137,6 +139,25 @@ def _textures_kept_on_disk():
 
 
 _textures_kept_on_disk()
+
+
+def _exit_now():
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(0)
+
+
+def pytest_unconfigure(config):
+    """An xdist worker ends without the interpreter's finalisation (as the `ctjax` command
+    does, `ctjax.cli._exit`): its results are with the controller by then, and tearing down
+    a process that ran hundreds of tests' programs is on the suite's critical path, since the
+    controller waits for its workers before it reports. Registered last, run first of the
+    `atexit` handlers."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        atexit.register(_exit_now)
 
 
 @pytest.fixture(autouse=True)
