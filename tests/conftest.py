@@ -128,10 +128,13 @@ def _textures_kept_on_disk():
             texture = np.load(path)
         except (OSError, ValueError):
             texture = make(entropy, spawn_key, pool_size)
-            folder.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(dir=folder, suffix=".npy", delete=False) as part:
-                np.save(part, texture)
-            os.replace(part.name, path)  # whole files only: the other worker may read it
+            try:  # whole files only (the other worker may read it); unwritable: not kept
+                folder.mkdir(parents=True, exist_ok=True)
+                with tempfile.NamedTemporaryFile(dir=folder, suffix=".npy", delete=False) as part:
+                    np.save(part, texture)
+                os.replace(part.name, path)
+            except OSError:
+                pass
         texture.setflags(write=False)
         return texture
 
