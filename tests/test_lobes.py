@@ -1,5 +1,6 @@
 """Lobe properties, parametrised over every lobe and factor ctjax ships."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -49,6 +50,7 @@ def _directions(seed, n=64):
     return normal, light, view
 
 
+@eqx.filter_jit  # one program per lobe (eagerly: hundreds of one-operation programs)
 def _radiance(lobe, n, l, v):
     return jax.vmap(lobe.radiance)(vec3(n), vec3(l), vec3(v))
 
