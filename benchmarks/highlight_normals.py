@@ -34,6 +34,9 @@ from _results import emit
 from ctjax.io import load_capture
 from ctjax.specular import capture_sets
 
+# Highlights by distance from the principal point (image widths): [count, median angle].
+RINGS = ((0, 0.15), (0.15, 0.3), (0.3, 1))
+
 
 def _unit(a):
     return a / np.linalg.norm(a, axis=-1, keepdims=True)
@@ -53,6 +56,7 @@ def highlight_normals(root: Path, samples: int = 5000, seed: int = 0) -> dict:
     fx, fy, cx, cy = (float(x) for x in (camera.fx, camera.fy, camera.cx, camera.cy))
     rng = np.random.default_rng(seed)
     peaks, leans, outward, sizes, everywhere, every_lean = [], [], [], [], [], []
+    radius = []  # each highlight's distance from the principal point, in image widths
     for frame, sets in zip(capture.frames, capture_sets(capture), strict=True):
         valid = frame.geometry_mask & np.all(np.isfinite(frame.normals), -1)
         ray = lambda x, y: np.stack([(x - cx) / fx, (y - cy) / fy, np.ones_like(x)], -1)  # noqa: E731
@@ -66,6 +70,7 @@ def highlight_normals(root: Path, samples: int = 5000, seed: int = 0) -> dict:
             leans.append(lean)
             outward.append(float(lean @ _unit(np.array([x - cx, y - cy]))))
             sizes.append(len(xs))
+            radius.append(float(np.hypot(x - cx, y - cy)) / camera.width)
         ys, xs = np.nonzero(valid)
         pick = rng.choice(len(xs), min(samples, len(xs)), replace=False)
         ys, xs = ys[pick], xs[pick]
@@ -79,6 +84,14 @@ def highlight_normals(root: Path, samples: int = 5000, seed: int = 0) -> dict:
         return {"capture": str(root), "highlights": 0}
     peaks, sizes, everywhere = np.array(peaks), np.array(sizes), np.concatenate(everywhere)
     largest = sizes >= np.percentile(sizes, 75)
+    radius = np.array(radius)
+    rings = {}
+    for lo, hi in RINGS:
+        inside = (radius >= lo) & (radius < hi)
+        rings[f"{lo}-{hi}"] = [
+            int(inside.sum()),
+            float(np.median(peaks[inside])) if inside.any() else None,
+        ]
     return {
         "capture": str(root),
         "frames": len(capture.frames),
@@ -91,6 +104,7 @@ def highlight_normals(root: Path, samples: int = 5000, seed: int = 0) -> dict:
         "lean_resultant": float(np.linalg.norm(np.mean(leans, 0))),
         "lean_outward_cosine_mean": float(np.mean(outward)),
         "all_pixels_lean_resultant": float(np.linalg.norm(np.concatenate(every_lean).mean(0))),
+        "angle_deg_median_by_radius": rings,
     }
 
 
@@ -108,7 +122,13 @@ def main():
                 f" {row['angle_deg_median_largest_quarter']:.1f}), all pixels"
                 f" {row['all_pixels_angle_deg_median']:.1f}; lean resultant"
                 f" {row['lean_resultant']:.2f} (all pixels {row['all_pixels_lean_resultant']:.2f}),"
-                f" outward cosine {row['lean_outward_cosine_mean']:.2f}"
+                f" outward cosine {row['lean_outward_cosine_mean']:.2f}; by distance from the"
+                " centre (image widths): "
+                + ", ".join(
+                    f"{ring} {count} at {median:.1f} deg"
+                    for ring, (count, median) in row["angle_deg_median_by_radius"].items()
+                    if count
+                )
             )
 
 
