@@ -96,7 +96,12 @@ def run_fit(args: argparse.Namespace) -> int:
     from ..io._atomic import atomic_write_json, atomic_write_npy
     from ..lobes import diffuse_lobe_named
     from ..observations import Observations
-    from ..specular import sparkle_density_line, sparkle_density_summary
+    from ..specular import (
+        highlight_alignment_line,
+        highlight_alignment_summary,
+        sparkle_density_line,
+        sparkle_density_summary,
+    )
 
     capture = load_capture(args)
     shape = None
@@ -148,6 +153,14 @@ def run_fit(args: argparse.Namespace) -> int:
                 atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
     result = estimate.to_json()
     result["sparkle_density"] = sparkle_density_summary(capture, observations.sets)
+    result["highlight_alignment"] = alignment = highlight_alignment_summary(
+        capture, observations.sets
+    )
+    if alignment["status"] == "misoriented":
+        result["warnings"] = [
+            *result["warnings"],
+            f"highlight alignment: {alignment['reason']} (ctjax.specular.highlight_alignment)",
+        ]
     if args.patch > 1:
         from ..estimation._patches import patch_summary
 
@@ -184,6 +197,7 @@ def run_fit(args: argparse.Namespace) -> int:
             )
         )
     print(sparkle_density_line(result["sparkle_density"]))
+    print(highlight_alignment_line(result["highlight_alignment"]))
     for warning in result["warnings"]:
         print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     return 0

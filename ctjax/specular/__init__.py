@@ -1,11 +1,18 @@
 """The specular set S and its ring S~ (paper section 4, step 2): which pixels are
 highlights (`WhiterThanTissue`, the paper's `HLSThresholds`), the sets of one image
 (`specular_sets`) and of every frame of a capture (`capture_sets`); sigma from the density of
-the highlights over the half angle (`sparkle_density`). Below the observations
-and the estimators, which both use them."""
+the highlights over the half angle (`sparkle_density`); whether the highlights' peaks sit
+at N = H, or one rotation of the normals puts them there (`highlight_alignment`). Below the
+observations and the estimators, which both use them."""
 
 from ._capture_sets import MaskOptions as MaskOptions
 from ._capture_sets import capture_sets as capture_sets
+from ._highlight_alignment import HighlightAlignment as HighlightAlignment
+from ._highlight_alignment import HighlightPeaks as HighlightPeaks
+from ._highlight_alignment import highlight_alignment as highlight_alignment
+from ._highlight_alignment import highlight_alignment_line as highlight_alignment_line
+from ._highlight_alignment import highlight_alignment_summary as highlight_alignment_summary
+from ._highlight_alignment import highlight_peaks as highlight_peaks
 from ._highlights import HighlightRule as HighlightRule
 from ._highlights import HLSThresholds as HLSThresholds
 from ._highlights import WhiterThanTissue as WhiterThanTissue

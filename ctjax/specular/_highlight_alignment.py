@@ -1,0 +1,310 @@
+"""Do the highlights sit where the normals say N = H? And would one rotation put them there?
+
+Under the right normals a highlight's brightest pixel lies where the surface's normal N is
+along the half vector H (with the light at the lens, H = V), however rough the surface: the
+lobe is largest there. `highlight_alignment` takes the brightest pixel of every connected
+piece of S in every frame, the angle there between N and H, and asks whether one rotation
+of every normal (in world coordinates, by the frames' poses) brings them to N = H:
+fitted on the first frames' highlights (Wahba's problem, closed form by SVD) and judged on
+the later frames', which it has not seen. Three outcomes:
+
+- `aligned`: the highlights' peaks lie within `ALIGNED_DEG` of N = H (median): the shape
+  places them, and an intensity fit of the lobe about these normals can see it.
+- `misoriented`: one rotation brings the later frames' peaks much nearer to N = H: the
+  shape's orientation is wrong by about that rotation (structure-from-motion of a nearly
+  flat scene from a moving monocular video can tilt it: a plane seen by a moving camera has
+  two solutions). A lobe fitted about these normals is looked for in the wrong place.
+- `scattered`: the peaks lie away from N = H in no common direction that a rotation takes:
+  relief finer than the reconstruction, or noisy normals (sparkles on wet tissue).
+
+Measured (12 frames at 640 px; `benchmarks/highlight_normals.py` on the same captures): the
+cholecystectomy video (monocular, guessed camera): 706 peaks, 32.6 / 36.2 degrees (first /
+later frames), a rotation of 34.7 degrees takes the later frames' to 15.2: `misoriented`;
+the SurgT da Vinci stereo clip (each frame's depth from its pair): 26.7 degrees, the best
+rotation (36 degrees) takes them to 30.6: `scattered`; the shared sinus: 10 peaks in each
+part, too few to tell.
+"""
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+
+from .._errors import CtjaxError, ParameterError
+from ..io import Capture
+from ._capture_sets import MaskOptions, capture_sets
+from ._specular_set import SpecularSets
+
+# The peaks' median angle to N = H under which the shape places the highlights.
+ALIGNED_DEG = 10.0
+# A rotation explains the peaks' offset where it brings the later frames' median angle to at
+# most this share of what it was, and by at least `MISORIENTED_MIN_GAIN_DEG`.
+MISORIENTED_SHARE = 0.7
+MISORIENTED_MIN_GAIN_DEG = 5.0
+# Fewest highlights in each part (first frames, later frames) for a verdict.
+MIN_HIGHLIGHTS = 20
+# The reweighting's floor on a peak's chord |R n - h| (about 1 degree).
+_CHORD_FLOOR = 0.02
+# The first frames: this share of the frames (at least one, at most all but one), as the
+# held-out protocol's calibration frames (`ctjax.heldout.split_frames`).
+FIRST_SHARE = 0.6
+
+
+@dataclasses.dataclass(frozen=True)
+class HighlightPeaks:
+    """The brightest pixel of each connected piece of S: its frame, pixel (x, y), and the
+    surface normal and H there in world coordinates (by the frame's pose; the camera frame
+    where the frame has none), each (K, 3) unit."""
+
+    frame: np.ndarray
+    pixel: np.ndarray
+    normal: np.ndarray
+    half: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def angles_deg(self, rotation: np.ndarray | None = None) -> np.ndarray:
+        """The angle between N (turned by `rotation`, world) and H at each peak, degrees."""
+        normal = self.normal if rotation is None else self.normal @ rotation.T
+        cosine = np.clip(np.sum(normal * self.half, axis=-1), -1.0, 1.0)
+        return np.degrees(np.arccos(cosine))
+
+
+@dataclasses.dataclass(frozen=True)
+class HighlightAlignment:
+    """The peaks' angle to N = H and what one rotation of the normals does to it (module
+    docstring). `highlights`: peaks in the first and in the later frames; `angle_deg`: their
+    median angle to N = H, all peaks; `all_pixels_angle_deg`: the same over every pixel with
+    a normal (what a peak at random would show); `rotation`: the world rotation (3x3) that
+    best takes the first frames' normals at their peaks to H, and `rotation_deg` its angle;
+    `later_angle_deg`: the later frames' median before and after it; `status`: `aligned`,
+    `misoriented`, `scattered` or `too_few_highlights`, `reason` saying why."""
+
+    highlights: tuple[int, int]
+    angle_deg: float
+    all_pixels_angle_deg: float
+    rotation: np.ndarray
+    rotation_deg: float
+    later_angle_deg: tuple[float, float]
+    status: str
+    reason: str
+
+    def to_json(self) -> dict:
+        return {
+            "highlights": {"first_frames": self.highlights[0], "later_frames": self.highlights[1]},
+            "angle_deg_median": _rounded(self.angle_deg),
+            "all_pixels_angle_deg_median": _rounded(self.all_pixels_angle_deg),
+            "rotation_deg": _rounded(self.rotation_deg),
+            "rotation": np.round(self.rotation, 6).tolist(),
+            "later_frames_angle_deg_median": {
+                "as_reconstructed": _rounded(self.later_angle_deg[0]),
+                "rotated": _rounded(self.later_angle_deg[1]),
+            },
+            "status": self.status,
+            "reason": self.reason,
+        }
+
+
+def _rounded(value: float) -> float | None:
+    return round(float(value), 3) if math.isfinite(value) else None
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    return a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def _rays(camera, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    fx, fy, cx, cy = (float(v) for v in (camera.fx, camera.fy, camera.cx, camera.cy))
+    return _unit(np.stack([(xs - cx) / fx, (ys - cy) / fy, np.ones_like(xs)], axis=-1))
+
+
+def _turn(frame) -> np.ndarray:
+    """The frame's camera-to-world rotation (the identity without a pose)."""
+    return np.eye(3) if frame.pose is None else np.asarray(frame.pose, float)[:3, :3]
+
+
+def highlight_peaks(capture: Capture, sets: list[SpecularSets]) -> HighlightPeaks:
+    """The brightest pixel (mean of the channels) of every 8-connected piece of S, among
+    the pixels with a normal, in every frame of `capture` (`sets`: one per frame)."""
+    if not capture.has_geometry:
+        raise CtjaxError(f"{capture.root}: the highlights' normals need normals for every frame")
+    if len(sets) != len(capture.frames):
+        raise ParameterError(f"{len(sets)} specular sets for {len(capture.frames)} frames")
+    frames, pixels, normals, halves = [], [], [], []
+    for index, (frame, specular) in enumerate(zip(capture.frames, sets, strict=True)):
+        valid = frame.geometry_mask & np.all(np.isfinite(frame.normals), axis=-1)
+        pieces = (specular.specular & valid).astype(np.uint8)
+        count, labels = cv2.connectedComponents(pieces, None, 8)
+        if count < 2:
+            continue
+        brightness = np.where(labels > 0, frame.image.mean(axis=-1), -np.inf).reshape(-1)
+        order = np.lexsort((-brightness, labels.reshape(-1)))  # by piece, brightest first
+        first = np.searchsorted(labels.reshape(-1)[order], np.arange(1, count))
+        peak = order[first]
+        ys, xs = np.divmod(peak, labels.shape[1])
+        turn = _turn(frame)
+        normal = _unit(frame.normals[ys, xs].astype(np.float64))
+        half = -_rays(capture.camera, xs.astype(float), ys.astype(float))
+        frames.append(np.full(len(peak), index))
+        pixels.append(np.stack([xs, ys], axis=-1))
+        normals.append(normal @ turn.T)
+        halves.append(half @ turn.T)
+    if not frames:
+        empty = np.zeros((0, 3))
+        return HighlightPeaks(np.zeros(0, int), np.zeros((0, 2), int), empty, empty)
+    return HighlightPeaks(*(np.concatenate(a) for a in (frames, pixels, normals, halves)))
+
+
+def _rotation(w: np.ndarray) -> np.ndarray:
+    """The rotation by the vector `w` (axis times angle, radians; Rodrigues)."""
+    angle = float(np.linalg.norm(w))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = w / angle
+    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * cross + (1 - math.cos(angle)) * cross @ cross
+
+
+def best_tilt(normal: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """The rotation R about an axis across the mean of `half` that minimises the sum of
+    |R n - h| (the chord: about the angle) over the pairs (K, 3) each: robust, as a median
+    is, to the peaks far from N = H (by iteratively reweighted Gauss-Newton). A turn about
+    the mean H itself barely moves normals that all lie near it (the twist is undetermined
+    where the peaks sit near the image centre): only the tilt is fitted, its two angles."""
+    mean = _unit(half.mean(axis=0))
+    helper = np.array([1.0, 0.0, 0.0]) if abs(mean[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = _unit(np.cross(mean, helper))
+    axes = np.stack([a, np.cross(mean, a)])  # (2, 3): the tilts' axes
+    w = np.zeros(2)
+    for _ in range(100):
+        rotation = _rotation(w @ axes)
+        turned = normal @ rotation.T
+        root = 1 / np.sqrt(np.maximum(np.linalg.norm(turned - half, axis=-1), _CHORD_FLOOR))
+        residual = ((turned - half) * root[:, None]).reshape(-1)
+        # d(R n)/dw_i ~ axis_i x (R n) for a small further turn (left-multiplied).
+        jacobian = np.stack(
+            [(np.cross(axis, turned) * root[:, None]).reshape(-1) for axis in axes], axis=1
+        )
+        step = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+        new = _rotation(step @ axes) @ rotation
+        w = _rotation_vector(new) @ axes.T
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    return _rotation(w @ axes)
+
+
+def _rotation_vector(rotation: np.ndarray) -> np.ndarray:
+    """The rotation vector (axis times angle) of a rotation matrix (angle below pi)."""
+    angle = math.acos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))
+    if angle < 1e-12:
+        return np.zeros(3)
+    r = rotation
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return axis / (2 * math.sin(angle)) * angle
+
+
+def _all_pixels_angle_deg(capture: Capture, samples: int = 5000, seed: int = 0) -> float:
+    rng = np.random.default_rng(seed)
+    angles = []
+    for frame in capture.frames:
+        valid = frame.geometry_mask & np.all(np.isfinite(frame.normals), axis=-1)
+        ys, xs = np.nonzero(valid)
+        pick = rng.choice(len(xs), min(samples, len(xs)), replace=False)
+        ys, xs = ys[pick], xs[pick]
+        normal = _unit(frame.normals[ys, xs].astype(np.float64))
+        half = -_rays(capture.camera, xs.astype(float), ys.astype(float))
+        angles.append(np.degrees(np.arccos(np.clip(np.sum(normal * half, -1), -1, 1))))
+    return float(np.median(np.concatenate(angles))) if angles else math.nan
+
+
+def first_frames(count: int) -> int:
+    """How many of `count` frames are the first frames (`FIRST_SHARE`)."""
+    return min(count - 1, max(1, math.ceil(FIRST_SHARE * count)))
+
+
+def highlight_alignment(
+    capture: Capture,
+    masks: MaskOptions | None = None,
+    *,
+    sets: list[SpecularSets] | None = None,
+    min_highlights: int = MIN_HIGHLIGHTS,
+) -> HighlightAlignment:
+    """Whether the highlights' peaks sit at N = H, and whether one rotation of the normals
+    fitted on the first frames' peaks brings the later frames' there (module docstring).
+
+    `sets`: S of every frame (default: `capture_sets(capture, masks)`). Raises `CtjaxError`
+    for a capture without normals or with fewer than 2 frames."""
+    if len(capture.frames) < 2:
+        raise CtjaxError(
+            f"{capture.root}: the highlights' alignment is fitted on the first frames and "
+            f"judged on the later ones; the capture has {len(capture.frames)} frame(s)"
+        )
+    if sets is None:
+        sets = capture_sets(capture, MaskOptions() if masks is None else masks)
+    peaks = highlight_peaks(capture, sets)
+    first = peaks.frame < first_frames(len(capture.frames))
+    counts = (int(first.sum()), int((~first).sum()))
+    angles = peaks.angles_deg()
+    median = float(np.median(angles)) if len(peaks) else math.nan
+    everywhere = _all_pixels_angle_deg(capture)
+    if min(counts) < min_highlights:
+        return HighlightAlignment(
+            counts, median, everywhere, np.eye(3), math.nan, (math.nan, math.nan),
+            "too_few_highlights",
+            f"{counts[0]} highlights in the first frames and {counts[1]} in the later ones "
+            f"(at least {min_highlights} each to fit a rotation on one and judge it on the "
+            "other)",
+        )  # fmt: skip
+    rotation = best_tilt(peaks.normal[first], peaks.half[first])
+    turned = math.degrees(math.acos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0)))
+    before = float(np.median(angles[~first]))
+    after = float(np.median(peaks.angles_deg(rotation)[~first]))
+    if median <= ALIGNED_DEG:
+        status, reason = (
+            "aligned",
+            (
+                f"the highlights' peaks lie {median:.1f} degrees from N = H (median; "
+                f"{everywhere:.1f} at random pixels): the normals place them"
+            ),
+        )
+    elif after <= MISORIENTED_SHARE * before and before - after >= MISORIENTED_MIN_GAIN_DEG:
+        status, reason = (
+            "misoriented",
+            (
+                f"the highlights' peaks lie {median:.1f} degrees from N = H (median; "
+                f"{everywhere:.1f} at random pixels); one rotation of the normals by "
+                f"{turned:.1f} degrees, fitted on the first frames' peaks, brings the later "
+                f"frames' from {before:.1f} to {after:.1f}: the shape's orientation is off, and "
+                "a lobe about these normals is looked for in the wrong place"
+            ),
+        )
+    else:
+        status, reason = (
+            "scattered",
+            (
+                f"the highlights' peaks lie {median:.1f} degrees from N = H (median; "
+                f"{everywhere:.1f} at random pixels), not in one direction: the rotation fitted to "
+                f"the first frames' peaks ({turned:.1f} degrees) takes the later frames' from "
+                f"{before:.1f} to {after:.1f}; relief finer than the shape, or noisy normals"
+            ),
+        )
+    return HighlightAlignment(
+        counts, median, everywhere, rotation, turned, (before, after), status, reason
+    )
+
+
+def highlight_alignment_summary(capture: Capture, sets: list[SpecularSets]) -> dict:
+    """`ctjax fit`'s `highlight_alignment` block (`HighlightAlignment.to_json`); never raises
+    for the capture's content: without normals, or with one frame, the block says why in
+    `status` (`not_measured`) and `reason`."""
+    try:
+        return highlight_alignment(capture, sets=sets).to_json()
+    except CtjaxError as error:
+        return {"status": "not_measured", "reason": str(error)}
+
+
+def highlight_alignment_line(block: dict) -> str:
+    """One line of `ctjax fit`'s output for its `highlight_alignment` block."""
+    return f"highlight alignment: {block['status']}: {block['reason']}"

@@ -1,0 +1,92 @@
+"""Whether the highlights sit at N = H, or one rotation of the normals puts them there
+(`ctjax.specular.highlight_alignment`)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from test_sparkle_density import sparkly_capture
+
+from ctjax.io import Capture
+from ctjax.specular import (
+    capture_sets,
+    highlight_alignment,
+    highlight_alignment_line,
+    highlight_alignment_summary,
+    highlight_peaks,
+)
+from ctjax.specular._highlight_alignment import _rotation, best_tilt
+
+
+def _angle_deg(rotation: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(rotation) - 1) / 2, -1, 1)))
+
+
+def _tilted(capture: Capture, rotation: np.ndarray) -> Capture:
+    """`capture` with every stored normal turned by `rotation` (the frames have no pose:
+    the camera frame is the world's)."""
+    frames = tuple(
+        dataclasses.replace(f, normals=(f.normals @ rotation.T).astype(np.float32))
+        for f in capture.frames
+    )
+    return dataclasses.replace(capture, frames=frames)
+
+
+def test_best_tilt_recovers_a_tilt_despite_outliers():
+    rng = np.random.default_rng(0)
+    half = rng.normal(size=(400, 3)) * [0.3, 0.3, 0.0] + [0.0, 0.0, -1.0]
+    half /= np.linalg.norm(half, axis=-1, keepdims=True)
+    true = half + rng.normal(0, 0.05, half.shape)  # peaks within a few degrees of N = H
+    true[:80] = rng.normal(size=(80, 3)) * [1, 1, 0] + [0, 0, -1]  # a fifth far from it
+    true /= np.linalg.norm(true, axis=-1, keepdims=True)
+    tilt = _rotation(np.radians(25.0) * np.array([0.6, 0.8, 0.0]))
+    stored = true @ tilt  # the reconstruction's normals: turned by tilt^-1
+    found = best_tilt(stored, half)
+    assert _angle_deg(found @ tilt.T) < 1.5  # found undoes it: found ~ tilt
+    assert _angle_deg(found) == pytest.approx(25.0, abs=1.5)
+
+
+def test_sparkles_about_the_right_normals_are_aligned(tmp_path):
+    capture = sparkly_capture(tmp_path, 0.1, frames=8)
+    result = highlight_alignment(capture)
+    assert min(result.highlights) >= 20
+    assert result.status == "aligned", result.reason
+    assert result.angle_deg < 10 < result.all_pixels_angle_deg
+
+
+def test_a_tilted_shape_is_found_and_the_tilt_measured(tmp_path):
+    capture = sparkly_capture(tmp_path, 0.1, frames=8)
+    tilt = _rotation(np.radians(20.0) * np.array([1.0, 0.0, 0.0]))
+    result = highlight_alignment(_tilted(capture, tilt.T))
+    assert result.status == "misoriented", result.reason
+    assert result.rotation_deg == pytest.approx(20.0, abs=2.0)
+    before, after = result.later_angle_deg
+    assert before > 15 and after < 8
+    assert "one rotation of the normals by" in result.reason
+
+
+def test_normals_wrong_in_every_direction_are_scattered(tmp_path):
+    capture = sparkly_capture(tmp_path, 0.1, frames=8, normal_error_deg=25.0)
+    result = highlight_alignment(capture)
+    assert result.status == "scattered", result.reason
+    assert result.later_angle_deg[1] > 0.7 * result.later_angle_deg[0]
+
+
+def test_too_few_highlights_and_what_cannot_be_measured(tmp_path):
+    capture = sparkly_capture(tmp_path, 0.1, frames=2)
+    sets = capture_sets(capture)
+    peaks = highlight_peaks(capture, sets)
+    result = highlight_alignment(capture, sets=sets, min_highlights=len(peaks))
+    assert result.status == "too_few_highlights"
+    assert "at least" in result.reason and math.isnan(result.rotation_deg)
+    assert result.to_json()["rotation_deg"] is None
+    one = dataclasses.replace(capture, frames=capture.frames[:1])
+    block = highlight_alignment_summary(one, sets[:1])
+    assert block["status"] == "not_measured" and "1 frame" in block["reason"]
+    bare = dataclasses.replace(
+        capture, frames=tuple(dataclasses.replace(f, normals=None) for f in capture.frames)
+    )
+    block = highlight_alignment_summary(bare, sets)
+    assert block["status"] == "not_measured" and "normals" in block["reason"]
+    assert highlight_alignment_line(block).startswith("highlight alignment: not_measured")
