@@ -3,7 +3,8 @@
     python benchmarks/highlight_normals.py RECONSTRUCTED_CAPTURE [...]
 
 For every connected component of S (`ctjax.specular.capture_sets`, the fit's own sets) in
-every frame: the angle between the surface normal and H at its brightest pixel (the light at
+every frame: the angle between the surface normal and H at its peak (its brightest pixel, or
+the middle of its clipped core, as `ctjax.specular.highlight_peaks` takes it; the light at
 the lens: H = V), and the direction, in the image plane, in which N leans away from H. Under
 the right normals a highlight's peak is where N = H (0 degrees) whatever the surface's
 roughness; the same figures over all pixels of the field say how far N = H is from a pixel
@@ -14,13 +15,13 @@ bias points away from the image centre (+1) or towards it (-1).
 
 Measured (2026-11-28, 12 frames at 640 px, `benchmarks/real_video.py`'s preparation, then
 `ctjax reconstruct`): the shared sinus (its calibrated camera, 741 SfM points): 20
-highlights, median 24.2 deg (the largest quarter 18.6), all pixels 57.1 deg; the lean one
-way (resultant 0.66), towards the centre (cosine -0.82). The cholecystectomy video (`ctjax
+highlights, median 24.7 deg (the largest quarter 18.6), all pixels 57.1 deg; the lean one
+way (resultant 0.65), towards the centre (cosine -0.81). The cholecystectomy video (`ctjax
 import --camera guess`, `reconstruct --focal refine`: 373 px): 706 highlights, median 34.0
-deg (the largest quarter 34.8), all pixels 39.3 deg; the lean one way (0.81), as every
+deg (the largest quarter 34.9), all pixels 39.3 deg; the lean one way (0.81), as every
 pixel's (0.73): its highlights hardly follow the reconstructed normals at all.
 The stereo SurgT da Vinci clip (`benchmarks/surgt_capture.py`, 10 frames at 640 px,
-`reconstruct --stereo pairs`): 1315 highlights, median 26.9 deg (24.2), all pixels 52.4
+`reconstruct --stereo pairs`): 1315 highlights, median 26.8 deg (24.2), all pixels 52.4
 deg; no one way (0.33, all pixels 0.45; outward cosine 0.02).
 
 `--rotated OUT` writes a copy of one capture with its normals turned by the rotation that
@@ -40,6 +41,7 @@ from _results import emit
 
 from ctjax.io import load_capture
 from ctjax.specular import capture_sets, highlight_alignment
+from ctjax.specular._highlight_alignment import _peaks
 
 # Highlights by distance from the principal point (image widths): [count, median angle].
 RINGS = ((0, 0.15), (0.15, 0.3), (0.3, 1))
@@ -68,15 +70,15 @@ def highlight_normals(root: Path, samples: int = 5000, seed: int = 0) -> dict:
         valid = frame.geometry_mask & np.all(np.isfinite(frame.normals), -1)
         ray = lambda x, y: np.stack([(x - cx) / fx, (y - cy) / fy, np.ones_like(x)], -1)  # noqa: E731
         count, labels = cv2.connectedComponents((sets.specular & valid).astype(np.uint8), None, 8)
-        brightness = frame.image.mean(-1)
+        peak_ys, peak_xs = _peaks(labels, count, frame.image.mean(-1))
+        piece_sizes = np.bincount(labels.reshape(-1), minlength=count)
         for k in range(1, count):
-            ys, xs = np.nonzero(labels == k)
-            y, x = ys[np.argmax(brightness[ys, xs])], xs[np.argmax(brightness[ys, xs])]
+            y, x = peak_ys[k - 1], peak_xs[k - 1]
             angle, lean = _lean(_unit(frame.normals[y, x].astype(np.float64)), -_unit(ray(x, y)))
             peaks.append(angle)
             leans.append(lean)
             outward.append(float(lean @ _unit(np.array([x - cx, y - cy]))))
-            sizes.append(len(xs))
+            sizes.append(int(piece_sizes[k]))
             radius.append(float(np.hypot(x - cx, y - cy)) / camera.width)
         ys, xs = np.nonzero(valid)
         pick = rng.choice(len(xs), min(samples, len(xs)), replace=False)

@@ -139,9 +139,13 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
         "candidates",
         "verdict",
         "residual_budget",
+        "highlight_alignment",
     ]
     assert result["length_unit"] == "mm"
     assert result["verdict"] == "light_offset"
+    # A few solid highlights a frame, about the true normals: never said to be misoriented.
+    alignment = result["highlight_alignment"]
+    assert alignment["status"] in ("aligned", "too_few_highlights"), alignment["reason"]
     # What is left of the verdict's model: noise (untextured, no misregistration).
     budget = result["residual_budget"]
     assert budget["rmse_levels"] < 1.3 * result["noise_floor"]

@@ -188,7 +188,40 @@ def test_fit_reports_the_sparkle_density(small_capture, tmp_path, capsys):
         "theta_h_median_specular_deg",
     }
     assert set(block["halves"]) == {"even_frames", "odd_frames"}
-    assert "sparkle density: sigma" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "sparkle density: sigma" in printed
+    # A few solid highlights a frame about the true normals: too few to tell, never tilted.
+    alignment = json.loads(out.read_text())["highlight_alignment"]
+    assert alignment["status"] == "too_few_highlights" and "at least 20" in alignment["reason"]
+    assert "highlight alignment: too_few_highlights" in printed
+
+
+def test_fit_warns_where_one_tilt_of_the_normals_places_the_highlights(
+    small_capture, tmp_path, monkeypatch, capsys
+):
+    """Every normal turned 25 degrees (world): the highlights' peaks then sit 25 degrees
+    from N = H in every frame, and the tilt fitted on the first frames' peaks brings the
+    later frames' back; `fit` says the shape is misoriented (here with every peak counted:
+    synth's solid highlights are a few a frame)."""
+    import ctjax.specular._highlight_alignment as alignment_module
+
+    monkeypatch.setattr(alignment_module, "MIN_HIGHLIGHTS", 1)
+    copy = tmp_path / "cap"
+    shutil.copytree(small_capture, copy)
+    tilt = cv2.Rodrigues(np.radians(25.0) * np.array([1.0, 0.0, 0.0]))[0]
+    for frame in load_capture(copy).frames:
+        turn = frame.pose[:3, :3]
+        turned = frame.normals.astype(np.float64) @ (turn.T @ tilt @ turn).T
+        np.save(copy / "normals" / f"{frame.name}.npy", turned.astype(np.float32))
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(copy), "--json", str(out), "--albedo", "uniform"]) == 0
+    result = json.loads(out.read_text())
+    block = result["highlight_alignment"]
+    assert block["status"] == "misoriented", block["reason"]
+    assert block["rotation_deg"] == pytest.approx(25.0, abs=3.0)
+    assert block["later_frames_angle_deg_median"]["rotated"] < 5
+    assert any(w.startswith("highlight alignment: ") for w in result["warnings"])
+    assert "shape's orientation is off" in capsys.readouterr().err
 
 
 def test_fit_without_normals_on_the_highlights(small_capture, tmp_path, capsys):

@@ -66,6 +66,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     from ..io._atomic import atomic_write_json
     from ..observations import Observations
+    from ..specular import highlight_alignment_line, highlight_alignment_summary
 
     capture = load_capture(args)
     # Decoded once: the diagnoses (every step of a loop) and the plots share them.
@@ -97,6 +98,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
         summary["residual_budget"] = {"note": str(error)}
     if budget is not None:
         summary["residual_budget"] = budget.to_json()
+    # Whether the shape places the highlights, where most of a real sequence's residual is.
+    summary["highlight_alignment"] = highlight_alignment_summary(
+        observations.capture, observations.sets
+    )
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     if args.plots:
         for path in diagnosis_plots(observations, diagnosis, args.plots):
@@ -114,6 +119,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         print(f"loop stopped: {loop.stopped}; {loop.seconds:.0f} s in all")
     if budget is not None:
         print(f"what is left: {budget.summary()}")
+    print(highlight_alignment_line(summary["highlight_alignment"]))
     print(
         f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
         f"noise floor {diagnosis.noise_floor:.2f}); wrote {args.json} "

@@ -18,11 +18,12 @@ the later frames', which it has not seen. Three outcomes:
   relief finer than the reconstruction, or noisy normals (sparkles on wet tissue).
 
 Measured (12 frames at 640 px; `benchmarks/highlight_normals.py` on the same captures): the
-cholecystectomy video (monocular, guessed camera): 706 peaks, 32.6 / 36.2 degrees (first /
-later frames), a rotation of 34.7 degrees takes the later frames' to 15.2: `misoriented`;
-the SurgT da Vinci stereo clip (each frame's depth from its pair): 26.7 degrees, the best
-rotation (36 degrees) takes them to 30.6: `scattered`; the shared sinus: 10 peaks in each
-part, too few to tell.
+cholecystectomy video (monocular, guessed camera): 706 peaks, 34.0 degrees from N = H
+(median; 39.3 at random pixels), a tilt of 29.7 degrees fitted on the first frames takes
+the later frames' from 36.2 to 13.6: `misoriented`; the SurgT da Vinci stereo clip (each
+frame's depth from its pair): 26.8 degrees (52.4 at random), the tilt fitted (12.2
+degrees) takes the later frames' from 26.6 to 30.4: `scattered`; the shared sinus: 10
+peaks in each part, too few to tell.
 """
 
 import dataclasses
@@ -44,6 +45,9 @@ MISORIENTED_SHARE = 0.7
 MISORIENTED_MIN_GAIN_DEG = 5.0
 # Fewest highlights in each part (first frames, later frames) for a verdict.
 MIN_HIGHLIGHTS = 20
+# Pixels within this of a piece's brightest (linear, mean of the channels: one 8-bit level)
+# share its peak (a clipped core).
+PEAK_TOLERANCE = 1 / 255
 # The reweighting's floor on a peak's chord |R n - h| (about 1 degree).
 _CHORD_FLOOR = 0.02
 # The first frames: this share of the frames (at least one, at most all but one), as the
@@ -125,9 +129,32 @@ def _turn(frame) -> np.ndarray:
     return np.eye(3) if frame.pose is None else np.asarray(frame.pose, float)[:3, :3]
 
 
+def _peaks(labels: np.ndarray, count: int, brightness: np.ndarray):
+    """Each labelled piece's peak (rows, columns; pieces 1 to `count` - 1): among its
+    pixels within `PEAK_TOLERANCE` of its brightest, the one nearest their centroid. A
+    clipped core is many pixels at the top: its first pixel in raster order would sit on
+    the core's upper edge, its middle is where N = H."""
+    flat = labels.reshape(-1)
+    inside = np.flatnonzero(flat > 0)
+    label, value = flat[inside], brightness.reshape(-1)[inside]
+    top = np.full(count, -np.inf)
+    np.maximum.at(top, label, value)
+    near = value >= top[label] - PEAK_TOLERANCE
+    index, label = inside[near], label[near]
+    ys, xs = np.divmod(index, labels.shape[1])
+    size = np.bincount(label, minlength=count)
+    cy = np.bincount(label, ys, minlength=count) / np.maximum(size, 1)
+    cx = np.bincount(label, xs, minlength=count) / np.maximum(size, 1)
+    distance = (ys - cy[label]) ** 2 + (xs - cx[label]) ** 2
+    order = np.lexsort((distance, label))  # by piece, nearest the centroid first
+    first = order[np.searchsorted(label[order], np.arange(1, count))]
+    return ys[first], xs[first]
+
+
 def highlight_peaks(capture: Capture, sets: list[SpecularSets]) -> HighlightPeaks:
-    """The brightest pixel (mean of the channels) of every 8-connected piece of S, among
-    the pixels with a normal, in every frame of `capture` (`sets`: one per frame)."""
+    """The peak of every 8-connected piece of S, among the pixels with a normal, in every
+    frame of `capture` (`sets`: one per frame): its brightest pixel (mean of the channels),
+    or the middle one of its clipped core (`_peaks`)."""
     if not capture.has_geometry:
         raise CtjaxError(f"{capture.root}: the highlights' normals need normals for every frame")
     if len(sets) != len(capture.frames):
@@ -139,15 +166,11 @@ def highlight_peaks(capture: Capture, sets: list[SpecularSets]) -> HighlightPeak
         count, labels = cv2.connectedComponents(pieces, None, 8)
         if count < 2:
             continue
-        brightness = np.where(labels > 0, frame.image.mean(axis=-1), -np.inf).reshape(-1)
-        order = np.lexsort((-brightness, labels.reshape(-1)))  # by piece, brightest first
-        first = np.searchsorted(labels.reshape(-1)[order], np.arange(1, count))
-        peak = order[first]
-        ys, xs = np.divmod(peak, labels.shape[1])
+        ys, xs = _peaks(labels, count, frame.image.mean(axis=-1))
         turn = _turn(frame)
         normal = _unit(frame.normals[ys, xs].astype(np.float64))
         half = -_rays(capture.camera, xs.astype(float), ys.astype(float))
-        frames.append(np.full(len(peak), index))
+        frames.append(np.full(len(ys), index))
         pixels.append(np.stack([xs, ys], axis=-1))
         normals.append(normal @ turn.T)
         halves.append(half @ turn.T)
@@ -229,13 +252,17 @@ def highlight_alignment(
     masks: MaskOptions | None = None,
     *,
     sets: list[SpecularSets] | None = None,
-    min_highlights: int = MIN_HIGHLIGHTS,
+    min_highlights: int | None = None,
 ) -> HighlightAlignment:
     """Whether the highlights' peaks sit at N = H, and whether one rotation of the normals
     fitted on the first frames' peaks brings the later frames' there (module docstring).
 
-    `sets`: S of every frame (default: `capture_sets(capture, masks)`). Raises `CtjaxError`
-    for a capture without normals or with fewer than 2 frames."""
+    `sets`: S of every frame (default: `capture_sets(capture, masks)`); `min_highlights`:
+    the fewest peaks in each part for a verdict (default `MIN_HIGHLIGHTS`). Raises
+    `CtjaxError` for a capture without normals or with fewer than 2 frames."""
+    min_highlights = MIN_HIGHLIGHTS if min_highlights is None else int(min_highlights)
+    if min_highlights < 1:
+        raise ParameterError(f"min_highlights must be at least 1, got {min_highlights}")
     if len(capture.frames) < 2:
         raise CtjaxError(
             f"{capture.root}: the highlights' alignment is fitted on the first frames and "
