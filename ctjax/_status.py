@@ -31,6 +31,7 @@ class Status(enum.IntEnum):
     no_lobe = 8
     no_standard_error = 9
     unstable = 10
+    misoriented = 11
 
     @property
     def message(self) -> str:
@@ -84,7 +85,13 @@ class Status(enum.IntEnum):
         }
 
 
-_UNDETERMINED = (Status.at_bound, Status.no_lobe, Status.no_standard_error, Status.unstable)
+_UNDETERMINED = (
+    Status.at_bound,
+    Status.no_lobe,
+    Status.no_standard_error,
+    Status.unstable,
+    Status.misoriented,
+)
 
 _MESSAGES = {
     Status.not_solved: "not solved (no data at this pixel, or not in the solved set)",
@@ -103,6 +110,9 @@ _MESSAGES = {
     "data do not constrain a parameter)",
     Status.unstable: "converged, but two halves of the frames disagree on a parameter: no "
     "measurement of it",
+    Status.misoriented: "converged, but the highlights lie where one rotation of the normals "
+    "would put N = H: the lobe is fitted about normals that misplace them, no measurement of "
+    "it",
 }
 
 _FROM_OPTIMISTIX = (

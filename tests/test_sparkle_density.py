@@ -220,7 +220,11 @@ def test_fit_warns_where_one_tilt_of_the_normals_places_the_highlights(
     assert block["status"] == "misoriented", block["reason"]
     assert block["rotation_deg"] == pytest.approx(25.0, abs=3.0)
     assert block["later_frames_angle_deg_median"]["rotated"] < 5
-    assert any(w.startswith("highlight alignment: ") for w in result["warnings"])
+    # Not a measurement of the lobe: its status says so (synth's lobe, sigma 0.2, comes out
+    # far broader about these normals).
+    assert result["status"] == "misoriented"
+    last = result["undetermined"][-1]
+    assert last["parameter"] == "sigma" and last["status"] == "misoriented"
     assert "shape's orientation is off" in capsys.readouterr().err
 
 
