@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from test_sparkle_density import sparkly_capture
 
+from ctjax._errors import CtjaxError
 from ctjax.io import Capture
 from ctjax.specular import (
     capture_sets,
@@ -90,3 +91,26 @@ def test_too_few_highlights_and_what_cannot_be_measured(tmp_path):
     block = highlight_alignment_summary(bare, sets)
     assert block["status"] == "not_measured" and "normals" in block["reason"]
     assert highlight_alignment_line(block).startswith("highlight alignment: not_measured")
+
+
+def test_h_from_a_near_lights_position(tmp_path):
+    """A light 12 mm beside the lens (about 70 mm away): the peaks lie 6-8 degrees from the
+    H of a light at the lens, and within 2.5 of the H of the light where it is."""
+    from ctjax.io import load_capture
+    from ctjax.synth import SynthOptions, synthesize
+
+    offset = (12.0, 0.0, 0.0)
+    options = SynthOptions(
+        width=128, height=96, frames=4, texture=False, seed=2, effects={"light_offset": offset}
+    )
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    sets = capture_sets(capture)
+    at_the_lens = highlight_peaks(capture, sets).angles_deg()
+    where_it_is = highlight_peaks(capture, sets, offset).angles_deg()
+    assert len(at_the_lens) == len(where_it_is) >= 4
+    assert at_the_lens.min() > 5 and where_it_is.max() < 2.5
+    no_depth = dataclasses.replace(
+        capture, frames=tuple(dataclasses.replace(f, depth=None) for f in capture.frames)
+    )
+    with pytest.raises(CtjaxError, match="needs its depth"):
+        highlight_peaks(no_depth, sets, offset)

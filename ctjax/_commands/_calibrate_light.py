@@ -63,6 +63,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_near_light, named_falloff
     from ..io._atomic import atomic_write_json
     from ..lobes import diffuse_lobe_named
+    from ..specular import highlight_alignment_line
 
     if args.model == "field":
         if args.diffuse != "lambertian":
@@ -104,6 +105,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
     print(_brdf_line(summary))
+    if "highlight_alignment" in summary:
+        print(highlight_alignment_line(summary["highlight_alignment"]))
     for warning in result.warnings:
         print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0

@@ -91,19 +91,12 @@ def run_fit(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from .._determined import Undetermined, add_undetermined
-    from .._status import Status
     from ..estimation import PAPER, TWO_SCALES, with_diffuse
     from ..estimation._capture_fit import fit_capture
     from ..io._atomic import atomic_write_json, atomic_write_npy
     from ..lobes import diffuse_lobe_named
     from ..observations import Observations
-    from ..specular import (
-        highlight_alignment_line,
-        highlight_alignment_summary,
-        sparkle_density_line,
-        sparkle_density_summary,
-    )
+    from ..specular import highlight_alignment_line, sparkle_density_line, sparkle_density_summary
 
     capture = load_capture(args)
     shape = None
@@ -153,13 +146,8 @@ def run_fit(args: argparse.Namespace) -> int:
             if key.startswith("albedo/"):
                 name = key.removeprefix("albedo/")
                 atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
-    alignment = highlight_alignment_summary(capture, observations.sets)
-    if alignment["status"] == "misoriented":  # the lobe is looked for about wrong normals
-        reason = f"{alignment['reason']} (ctjax.specular.highlight_alignment)"
-        add_undetermined(estimate, Undetermined("sigma", Status.misoriented, reason))
     result = estimate.to_json()
     result["sparkle_density"] = sparkle_density_summary(capture, observations.sets)
-    result["highlight_alignment"] = alignment
     if args.patch > 1:
         from ..estimation._patches import patch_summary
 

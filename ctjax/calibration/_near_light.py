@@ -52,6 +52,7 @@ from ..lobes import BRDF, Lambertian
 from ..lobes._diffuse import with_diffuse_lobe
 from ..observations import Observations
 from ..solvers import Solver
+from ..specular import flag_misoriented
 
 
 def falloff_choices(capture: "Capture | Observations") -> list[tuple[AbstractFalloff, ...]]:
@@ -155,7 +156,7 @@ def calibrate_near_light(
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     if albedo == "map":
-        return near_light_map(
+        fit = near_light_map(
             capture,
             calibration=calibration,
             falloff=falloff,
@@ -169,6 +170,7 @@ def calibrate_near_light(
             workers=workers,
             diffuse=diffuse,
         )
+        return _with_highlight_alignment(fit, capture)
     if right_views:
         raise CtjaxError("the right views are fitted with the albedo map (albedo='map')")
     started = time.perf_counter()
@@ -204,7 +206,18 @@ def calibrate_near_light(
     fit.seconds = {"total": time.perf_counter() - started}
     if not fit.converged:
         fit.warnings.append(f"the solver did not converge: {fit.status.message}")
-    return flag_model(fit)
+    return _with_highlight_alignment(flag_model(fit), capture)
+
+
+def _with_highlight_alignment(fit: Estimate, capture: Observations) -> Estimate:
+    """`fit` with the highlights' alignment under its light (`flag_misoriented`: H from the
+    fitted light's position where it is off the lens)."""
+    light = fit.model.light
+    position = getattr(light, "position_mm", None)
+    position = None if position is None else np.asarray(position, float)
+    if position is not None and not np.any(position):
+        position = None  # at the lens: H = V
+    return flag_misoriented(fit, capture.capture, capture.sets, position)
 
 
 def _at_the_lens(

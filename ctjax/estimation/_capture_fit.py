@@ -5,7 +5,7 @@ from .._errors import CtjaxError
 from .._result import Estimate
 from ..io import Capture
 from ..observations import Observations
-from ..specular import MaskOptions
+from ..specular import MaskOptions, flag_misoriented
 from ._brdf import PAPER, BRDFFamily
 from ._map_fit import fit_albedo_map
 from ._uniform_fit import DEFAULT_MASKS, fit_uniform
@@ -40,19 +40,25 @@ def fit_capture(
     frames (`fit_albedo_map`): the estimate for textured tissue. `albedo="uniform"`: the
     paper's model, one rho_tilde, fitted on the ring S~ of every frame (below).
     `right_views`: with the map, a stereo capture's right images too (`fit_albedo_map`).
+    Either way the estimate carries the highlights' alignment
+    (`ctjax.specular.flag_misoriented`): where one rotation of the normals would put the
+    highlights at N = H, the lobe is no measurement (`Status.misoriented`).
     """
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
+    if right_views and albedo != "map":
+        raise CtjaxError("the right views are fitted with the albedo map (--albedo map)")
+    obs = Observations.of(capture, masks)
     if albedo == "map":
-        return fit_albedo_map(
-            capture,
+        fit = fit_albedo_map(
+            obs,
             masks,
             family,
             tolerance=tolerance,
             max_points=max_points,
             right_views=right_views,
         )
-    if right_views:
-        raise CtjaxError("the right views are fitted with the albedo map (--albedo map)")
-    return fit_uniform(capture, masks, family, tolerance=tolerance)
+    else:
+        fit = fit_uniform(obs, masks, family, tolerance=tolerance)
+    return flag_misoriented(fit, obs.capture, obs.sets)

@@ -9,6 +9,7 @@ from ._capture_sets import MaskOptions as MaskOptions
 from ._capture_sets import capture_sets as capture_sets
 from ._highlight_alignment import HighlightAlignment as HighlightAlignment
 from ._highlight_alignment import HighlightPeaks as HighlightPeaks
+from ._highlight_alignment import flag_misoriented as flag_misoriented
 from ._highlight_alignment import highlight_alignment as highlight_alignment
 from ._highlight_alignment import highlight_alignment_line as highlight_alignment_line
 from ._highlight_alignment import highlight_alignment_summary as highlight_alignment_summary

@@ -32,7 +32,9 @@ import math
 import cv2
 import numpy as np
 
+from .._determined import Undetermined, add_undetermined
 from .._errors import CtjaxError, ParameterError
+from .._status import Status
 from ..io import Capture
 from ._capture_sets import MaskOptions, capture_sets
 from ._specular_set import SpecularSets
@@ -151,10 +153,13 @@ def _peaks(labels: np.ndarray, count: int, brightness: np.ndarray):
     return ys[first], xs[first]
 
 
-def highlight_peaks(capture: Capture, sets: list[SpecularSets]) -> HighlightPeaks:
+def highlight_peaks(capture: Capture, sets: list[SpecularSets], light_mm=None) -> HighlightPeaks:
     """The peak of every 8-connected piece of S, among the pixels with a normal, in every
     frame of `capture` (`sets`: one per frame): its brightest pixel (mean of the channels),
-    or the middle one of its clipped core (`_peaks`)."""
+    or the middle one of its clipped core (`_peaks`). H is V's with the light at the lens;
+    given `light_mm` (a point light's position in the camera frame, the capture's length
+    unit), it is the half vector of the light's direction and V's at the peak's surface
+    point (from the frame's depth; peaks without depth are dropped)."""
     if not capture.has_geometry:
         raise CtjaxError(f"{capture.root}: the highlights' normals need normals for every frame")
     if len(sets) != len(capture.frames):
@@ -162,6 +167,10 @@ def highlight_peaks(capture: Capture, sets: list[SpecularSets]) -> HighlightPeak
     frames, pixels, normals, halves = [], [], [], []
     for index, (frame, specular) in enumerate(zip(capture.frames, sets, strict=True)):
         valid = frame.geometry_mask & np.all(np.isfinite(frame.normals), axis=-1)
+        if light_mm is not None:
+            if frame.depth is None:
+                raise CtjaxError(f"frame {frame.name}: H from a near light needs its depth")
+            valid &= np.isfinite(frame.depth)
         pieces = (specular.specular & valid).astype(np.uint8)
         count, labels = cv2.connectedComponents(pieces, None, 8)
         if count < 2:
@@ -170,6 +179,10 @@ def highlight_peaks(capture: Capture, sets: list[SpecularSets]) -> HighlightPeak
         turn = _turn(frame)
         normal = _unit(frame.normals[ys, xs].astype(np.float64))
         half = -_rays(capture.camera, xs.astype(float), ys.astype(float))
+        if light_mm is not None:
+            ray = half / half[:, 2:]  # -V scaled to z = 1: depth is along z
+            point = ray * frame.depth[ys, xs].astype(np.float64)[:, None]
+            half = _unit(half + _unit(np.asarray(light_mm, np.float64) - point))
         frames.append(np.full(len(ys), index))
         pixels.append(np.stack([xs, ys], axis=-1))
         normals.append(normal @ turn.T)
@@ -253,12 +266,15 @@ def highlight_alignment(
     *,
     sets: list[SpecularSets] | None = None,
     min_highlights: int | None = None,
+    light_mm=None,
 ) -> HighlightAlignment:
     """Whether the highlights' peaks sit at N = H, and whether one rotation of the normals
     fitted on the first frames' peaks brings the later frames' there (module docstring).
 
     `sets`: S of every frame (default: `capture_sets(capture, masks)`); `min_highlights`:
-    the fewest peaks in each part for a verdict (default `MIN_HIGHLIGHTS`). Raises
+    the fewest peaks in each part for a verdict (default `MIN_HIGHLIGHTS`); `light_mm`: a
+    point light's position (camera frame, the capture's length unit) where it is not at the
+    lens (`highlight_peaks`). Raises
     `CtjaxError` for a capture without normals or with fewer than 2 frames."""
     min_highlights = MIN_HIGHLIGHTS if min_highlights is None else int(min_highlights)
     if min_highlights < 1:
@@ -270,7 +286,7 @@ def highlight_alignment(
         )
     if sets is None:
         sets = capture_sets(capture, MaskOptions() if masks is None else masks)
-    peaks = highlight_peaks(capture, sets)
+    peaks = highlight_peaks(capture, sets, light_mm)
     first = peaks.frame < first_frames(len(capture.frames))
     counts = (int(first.sum()), int((~first).sum()))
     angles = peaks.angles_deg()
@@ -322,14 +338,27 @@ def highlight_alignment(
     )
 
 
-def highlight_alignment_summary(capture: Capture, sets: list[SpecularSets]) -> dict:
+def highlight_alignment_summary(capture: Capture, sets: list[SpecularSets], light_mm=None) -> dict:
     """`ctjax fit`'s `highlight_alignment` block (`HighlightAlignment.to_json`); never raises
     for the capture's content: without normals, or with one frame, the block says why in
     `status` (`not_measured`) and `reason`."""
     try:
-        return highlight_alignment(capture, sets=sets).to_json()
+        return highlight_alignment(capture, sets=sets, light_mm=light_mm).to_json()
     except CtjaxError as error:
         return {"status": "not_measured", "reason": str(error)}
+
+
+def flag_misoriented(estimate, capture: Capture, sets: list[SpecularSets], light_mm=None):
+    """`estimate` (a fit with a specular lobe, on `capture` with the sets `sets`) with its
+    highlights' alignment in `details["highlight_alignment"]` and, where they are
+    `misoriented`, its lobe flagged as no measurement (`Status.misoriented`, a warning: the
+    lobe was fitted about normals that misplace the highlights)."""
+    block = highlight_alignment_summary(capture, sets, light_mm)
+    estimate.details["highlight_alignment"] = block
+    if block["status"] == "misoriented":
+        reason = f"{block['reason']} (ctjax.specular.highlight_alignment)"
+        add_undetermined(estimate, Undetermined("sigma", Status.misoriented, reason))
+    return estimate
 
 
 def highlight_alignment_line(block: dict) -> str:
