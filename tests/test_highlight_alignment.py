@@ -114,3 +114,20 @@ def test_h_from_a_near_lights_position(tmp_path):
     )
     with pytest.raises(CtjaxError, match="needs its depth"):
         highlight_peaks(no_depth, sets, offset)
+
+
+def test_a_clipped_cores_peak_is_its_middle():
+    """Pixels at the top (clipped) tie: the peak is the one nearest their centroid, not the
+    first in raster order; an unclipped piece's peak is its brightest pixel."""
+    from ctjax.specular._highlight_alignment import _peaks
+
+    brightness = np.zeros((20, 30))
+    brightness[2:9, 3:12] = 0.8
+    brightness[4:7, 5:10] = 1.0  # a clipped core, 3 x 5 pixels: its middle is (5, 7)
+    brightness[12:18, 15:25] = 0.5
+    brightness[14, 21] = 0.7
+    labels = np.zeros((20, 30), np.int32)
+    labels[2:9, 3:12] = 1
+    labels[12:18, 15:25] = 2
+    ys, xs = _peaks(labels, 3, brightness)
+    assert list(zip(ys.tolist(), xs.tolist(), strict=True)) == [(5, 7), (14, 21)]

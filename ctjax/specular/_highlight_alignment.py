@@ -2,11 +2,12 @@
 
 Under the right normals a highlight's brightest pixel lies where the surface's normal N is
 along the half vector H (with the light at the lens, H = V), however rough the surface: the
-lobe is largest there. `highlight_alignment` takes the brightest pixel of every connected
-piece of S in every frame, the angle there between N and H, and asks whether one rotation
-of every normal (in world coordinates, by the frames' poses) brings them to N = H:
-fitted on the first frames' highlights (Wahba's problem, closed form by SVD) and judged on
-the later frames', which it has not seen. Three outcomes:
+lobe is largest there. `highlight_alignment` takes the peak of every connected piece of S
+in every frame (its brightest pixel, or the middle of its clipped core), the angle there
+between N and H, and asks whether one rotation of every normal (in world coordinates, by
+the frames' poses) brings them to N = H: a tilt fitted to the first frames' peaks (robust
+to those far from it: `best_tilt`) and judged on the later frames', which it has not seen.
+Three outcomes:
 
 - `aligned`: the highlights' peaks lie within `ALIGNED_DEG` of N = H (median): the shape
   places them, and an intensity fit of the lobe about these normals can see it.
