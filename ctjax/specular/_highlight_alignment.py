@@ -253,7 +253,8 @@ def _all_pixels_angle_deg(capture: Capture, samples: int = 5000, seed: int = 0) 
         normal = _unit(frame.normals[ys, xs].astype(np.float64))
         half = -_rays(capture.camera, xs.astype(float), ys.astype(float))
         angles.append(np.degrees(np.arccos(np.clip(np.sum(normal * half, -1), -1, 1))))
-    return float(np.median(np.concatenate(angles))) if angles else math.nan
+    angles = np.concatenate(angles) if angles else np.zeros(0)
+    return float(np.median(angles)) if angles.size else math.nan
 
 
 def first_frames(count: int) -> int:
