@@ -227,7 +227,7 @@ def test_cook_torrance_refinement_explains_the_pixels_better(capture):
     assert np.all(np.isfinite(np.asarray(refined.normals)))
 
 
-def test_evaluate_command_writes_the_six_figures(capture, tmp_path):
+def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys):
     out = tmp_path / "evaluation.json"
     plots = tmp_path / "plots"
     argv = [
@@ -241,9 +241,15 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path):
         str(plots),
         "--light",
         "colocated",
+        "--facets",
     ]
     assert main(argv) == 0
     summary = json.loads(out.read_text())
+    # The lobe about every point's own facet, under the same light (tests/test_facets.py).
+    facets = summary["facets"]
+    assert facets["sigma"] > 0 and facets["F_tilde"] > 0
+    assert np.isfinite(facets["heldout_rgb_rmse"]) and np.isfinite(facets["ratio"])
+    assert "a lobe about every point's own facet" in capsys.readouterr().out
     for model in ("lambertian", "cook_torrance"):
         for key in ("rgb_rmse_calibration", "rgb_rmse_test", "sfs_error_mm"):
             assert np.isfinite(summary[f"{model}_{key}"]), (model, key)

@@ -48,6 +48,13 @@ def add_evaluate_parser(commands) -> None:
         action="store_true",
         help="RGB errors only: no shape from shading (it needs depth with relief to score)",
     )
+    evaluate.add_argument(
+        "--facets",
+        action="store_true",
+        help="also the lobe about every tracked point's own facet (its normal read from the "
+        "views where it shone), sigma and F_tilde chosen on the calibration frames, judged "
+        "on the test frames beside Lambert's under the same light (with the map)",
+    )
     add_diffuse_argument(evaluate, "Cook-Torrance's (near light): ")
     add_workers_argument(evaluate, "test frames' shapes from shading")
     evaluate.set_defaults(run=run_evaluate)
@@ -75,6 +82,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         workers=args.workers,
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
         diffuse=diffuse_lobe_named(args.diffuse),
+        facets=args.facets,
     )
     summary = evaluation.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
@@ -118,6 +126,17 @@ def run_evaluate(args: argparse.Namespace) -> int:
                 f"{100 * budget['gradient_share']:.0f}% with the image gradient "
                 f"({budget['misregistration_px']:.2f} px)"
             )
+    facets = summary.get("facets")
+    if facets is not None:
+        print(
+            f"a lobe about every point's own facet (sigma {facets['sigma']:g}, F_tilde "
+            f"{facets['F_tilde']:g}, chosen on the calibration frames"
+            f"{', at the end of its grid' if facets['at_bound'] else ''}): test RMSE "
+            f"{facets['heldout_rgb_rmse']:.2f} levels, {facets['ratio']:.3f}x Lambert's under "
+            f"the same light ({facets['lambertian_same_light_rgb_rmse']:.2f}; with its own "
+            f"normal chosen the same way {facets['lambertian_turned_normals_rgb_rmse']:.2f}); "
+            f"{100 * facets['views_with_a_facet']:.0f}% of the views took a facet"
+        )
     right = summary.get("right_views")
     if right is not None:
         figures = ", ".join(

@@ -19,6 +19,12 @@ def add_synth_parser(commands) -> None:
         "slope of roughness --sigma, lit by a sharp lobe; truth.json's sigma is the effective "
         "roughness of both (what a pixel-averaged model sees)",
     )
+    synth.add_argument(
+        "--sparkles-attached",
+        action="store_true",
+        help="sparkles whose facets belong to the tissue (the same facet at a surface point in "
+        "every frame, as on real wet tissue) instead of drawn anew each frame; implies --sparkles",
+    )
     synth.set_defaults(run=run_synth)
 
 
@@ -92,6 +98,7 @@ def _synth_options_from(args: argparse.Namespace):
         effects=effects,
         stereo_mm=getattr(args, "stereo", None),
         sparkles=getattr(args, "sparkles", False),
+        sparkles_attached=getattr(args, "sparkles_attached", False),
     )
 
 

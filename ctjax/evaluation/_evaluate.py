@@ -112,6 +112,9 @@ class Evaluation:
     # What is left of each model's test-frame residual under the map
     # (`ctjax.diagnostics.heldout_budget`'s JSON, by model name).
     residual_budget: dict | None = None
+    # The lobe about every point's own facet under Cook-Torrance's light
+    # (`ctjax.fitting.facet_lobe`'s JSON), where asked for.
+    facets: dict | None = None
 
     @property
     def light(self) -> str:
@@ -177,6 +180,8 @@ class Evaluation:
             out["residual_budget"] = self.residual_budget
         if self.right_views is not None:
             out["right_views"] = self.right_views
+        if self.facets is not None:
+            out["facets"] = self.facets
         for model in ("lambertian", "cook_torrance", "per_pixel"):
             if model == "per_pixel" and not any(s.per_pixel for s in self.shapes):
                 continue
@@ -373,6 +378,7 @@ def evaluate(
     progress: Callable[[str], None] = lambda message: None,
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
+    facets: bool = False,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
     test frames (RGB error and SfS).
@@ -394,7 +400,11 @@ def evaluate(
     cores, at most 4); the results do not depend on it. `diffuse`: Cook-Torrance's diffuse
     term (`ctjax.lobes.diffuse_lobes`), given to its estimator; where it is not Lambert's,
     that term alone under the same light is fitted too (`diffuse_same_light`), and the
-    gain is split into the light's, the diffuse term's and the lobe's."""
+    gain is split into the light's, the diffuse term's and the lobe's. `facets`: also the
+    lobe about every tracked point's own facet under Cook-Torrance's light
+    (`ctjax.fitting.facet_lobe`, with the map only): sigma and F_tilde chosen on the
+    calibration frames, the test frames' views predicted with each point's facet and albedo
+    chosen from its other views, beside Lambert's under the same light."""
     workers = checked_workers(workers)
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
     if missing:
@@ -445,6 +455,13 @@ def evaluate(
     if tracks is not None:
         budgets = _budgets(tracks, {"lambertian": lambertian, "cook_torrance": fitted})
     timings["rgb_error"] = time.perf_counter() - tic
+    facet = None
+    if facets:
+        tic = time.perf_counter()
+        progress("the lobe about every point's own facet (a grid of sigma and F_tilde)...")
+        facet, note = _facet_lobe(capture, tracks, fitted.model)
+        notes += [note] if note else []
+        timings["facets"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:
         tic = time.perf_counter()
@@ -500,7 +517,22 @@ def evaluate(
         right_views,
         same_diffuse,
         budgets,
+        facet,
     )
+
+
+def _facet_lobe(capture: Observations, tracks, model) -> tuple[dict | None, str | None]:
+    """`facet_lobe`'s JSON under `model`'s light on the split's tracks; or None and why not."""
+    from ..fitting import facet_lobe
+
+    if tracks is None:
+        return None, "facets not judged: they need the albedo map (--albedo map)"
+    if tuple(getattr(model, "effects", ())):
+        return None, "facets not judged: Cook-Torrance's model has image effects"
+    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
+    return facet_lobe(
+        tracks.train, tracks.test, tracks.judged, rotations, model.light
+    ).to_json(), None
 
 
 def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:

@@ -2,7 +2,8 @@
 highlights (`WhiterThanTissue`, the paper's `HLSThresholds`), the sets of one image
 (`specular_sets`) and of every frame of a capture (`capture_sets`); sigma from the density of
 the highlights over the half angle (`sparkle_density`); whether the highlights' peaks sit
-at N = H, or one rotation of the normals puts them there (`highlight_alignment`). Below the
+at N = H, or one rotation of the normals puts them there (`highlight_alignment`); whether
+they stay on the tissue from frame to frame (`highlight_persistence`). Below the
 observations and the estimators, which both use them."""
 
 from ._capture_sets import MaskOptions as MaskOptions
@@ -17,6 +18,8 @@ from ._highlight_alignment import highlight_peaks as highlight_peaks
 from ._highlights import HighlightRule as HighlightRule
 from ._highlights import HLSThresholds as HLSThresholds
 from ._highlights import WhiterThanTissue as WhiterThanTissue
+from ._persistence import HighlightPersistence as HighlightPersistence
+from ._persistence import highlight_persistence as highlight_persistence
 from ._sparkle_density import SparkleDensity as SparkleDensity
 from ._sparkle_density import sparkle_density as sparkle_density
 from ._sparkle_density import sparkle_density_line as sparkle_density_line

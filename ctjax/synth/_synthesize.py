@@ -29,7 +29,7 @@ from ..io._stereo import StereoRig
 from ..lights import ColocatedLight, PointLight
 from ..lobes import Lambertian, cook_torrance_brdf
 from ._organ import OrganSurface, cast_rays
-from ._texture import sample_texture, seeded_texture
+from ._texture import sample_field, sample_texture, seeded_texture
 from ._trajectory import exploration
 
 # Default tissue: reddish diffuse albedo, white highlights (F is the same in every channel).
@@ -72,7 +72,10 @@ class SynthOptions:
     (correlated over `SPARKLE_CORRELATION_PX`, drawn anew each frame), lit by a sharp lobe
     (`SPARKLE_MICRO_SIGMA`, the specular lobes' roughness); the stored normals stay the
     surface's. The lobe a pixel-averaged model sees has the effective roughness
-    `effective_sigma` (truth.json's `sigma`).
+    `effective_sigma` (truth.json's `sigma`). `sparkles_attached`: the facets belong to the
+    tissue (one tilt field over the world's (x, y), as the texture), so a sparkle stays on
+    its surface point from frame to frame while the scope's H stays near its facet, as on
+    real wet tissue (`benchmarks/facet_normals.py`); implies `sparkles`.
     """
 
     width: int = 320
@@ -92,8 +95,11 @@ class SynthOptions:
     # the same intrinsics; the light stays at the left lens. None: one camera.
     stereo_mm: float | None = None
     sparkles: bool = False
+    sparkles_attached: bool = False
 
     def __post_init__(self):
+        if self.sparkles_attached and not self.sparkles:
+            object.__setattr__(self, "sparkles", True)
         problems = []
         if self.width < 16 or self.height < 16:
             problems.append(f"image size {self.width}x{self.height} (at least 16x16)")
@@ -222,12 +228,33 @@ def _facet_normals(normals: np.ndarray, sigma: float, rng: np.random.Generator) 
     correlated over `SPARKLE_CORRELATION_PX`; NaN where the normal is."""
     import cv2
 
-    n = normals.astype(np.float64)
-    h, w = n.shape[:2]
+    h, w = normals.shape[:2]
     slopes = []
     for _ in range(2):
         z = cv2.GaussianBlur(rng.normal(size=(h, w)), (0, 0), SPARKLE_CORRELATION_PX)
         slopes.append(z / z.std() * sigma / np.sqrt(2))
+    return _tilted(normals, slopes)
+
+
+def _tissue_slopes(sigma: float, pixel_mm: float, rng: np.random.Generator) -> list:
+    """Two slope fields over the texture's world (x, y) square (float32, read by
+    `sample_texture`), Gaussian of variance sigma^2 / 2 each, correlated over
+    `SPARKLE_CORRELATION_PX` pixels at the working distance: facets of the tissue."""
+    import cv2
+
+    from ._texture import RESOLUTION, TEXEL_MM
+
+    slopes = []
+    for _ in range(2):
+        z = rng.normal(size=(RESOLUTION, RESOLUTION))
+        z = cv2.GaussianBlur(z, (0, 0), SPARKLE_CORRELATION_PX * pixel_mm / TEXEL_MM)
+        slopes.append((z / z.std() * sigma / np.sqrt(2)).astype(np.float32))
+    return slopes
+
+
+def _tilted(normals: np.ndarray, slopes) -> np.ndarray:
+    """(H, W, 3) float32: the normals tilted by two tangent slopes (H, W) each."""
+    n = normals.astype(np.float64)
     t1 = np.cross(n, np.array([0.0, 1.0, 0.0]))
     t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
     t2 = np.cross(n, t1)
@@ -286,6 +313,9 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     right_model = None if rig is None else _seen_from_the_right(lit_model, rig)
     right_images = {}
     top = 255 if options.bits == 8 else 65535
+    attached = None
+    if options.sparkles_attached:
+        attached = _tissue_slopes(options.sigma, pixel_mm, sparkle_rng)
 
     def view(model, pose, index):
         """One camera's linear image of frame `index` at `pose`, and its geometry."""
@@ -301,7 +331,9 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         if options.texture_contrast != 1:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
         facets = None
-        if sparkle_rng is not None:
+        if attached is not None:
+            facets = _tilted(normals, [sample_field(f, points_world) for f in attached])
+        elif sparkle_rng is not None:
             facets = _facet_normals(normals, options.sigma, sparkle_rng)
         linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map, index, facets))
         noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
@@ -354,9 +386,15 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
             "micro_sigma": SPARKLE_MICRO_SIGMA,
             "correlation_px": SPARKLE_CORRELATION_PX,
             "note": "every pixel one facet, the surface's normal (normals/) tilted by a "
-            "Beckmann slope of roughness facet_sigma, drawn anew each frame, lit by a lobe of "
-            "roughness micro_sigma; sigma is the effective roughness, "
+            "Beckmann slope of roughness facet_sigma, "
+            + (
+                "one field over the tissue (the same facet at a surface point in every frame)"
+                if options.sparkles_attached
+                else "drawn anew each frame"
+            )
+            + ", lit by a lobe of roughness micro_sigma; sigma is the effective roughness, "
             "hypot(facet_sigma, micro_sigma), of the lobe a pixel-averaged model sees",
+            "attached": bool(options.sparkles_attached),
         }
     if rig is not None:
         truth["stereo"] = {"baseline_mm": rig.baseline_mm, "light": "at the left lens"}

@@ -109,8 +109,19 @@ def _texture_of(entropy, spawn_key, pool_size) -> np.ndarray:
 
 def sample_texture(texture: np.ndarray, points_world: np.ndarray) -> np.ndarray:
     """Bilinear lookup of the texture at world (x, y) points (H, W, 3); 1 where NaN."""
+    sampled = _remapped(texture, points_world)
+    return np.where(np.isfinite(points_world[..., :1]), sampled, 1.0).astype(np.float32)
+
+
+def sample_field(field: np.ndarray, points_world: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a one-channel field over the texture's square (RESOLUTION^2) at
+    world (x, y) points (H, W); 0 where NaN."""
+    sampled = _remapped(field, points_world)
+    return np.where(np.isfinite(points_world[..., 0]), sampled, 0.0).astype(np.float32)
+
+
+def _remapped(image: np.ndarray, points_world: np.ndarray) -> np.ndarray:
     scale = (RESOLUTION - 1) / (2 * EXTENT_MM)
     map_x = ((points_world[..., 0] + EXTENT_MM) * scale).astype(np.float32)
     map_y = ((points_world[..., 1] + EXTENT_MM) * scale).astype(np.float32)
-    sampled = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    return np.where(np.isfinite(points_world[..., :1]), sampled, 1.0).astype(np.float32)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)

@@ -1,0 +1,329 @@
+"""Facets: the specular lobe about each surface point's own normal, read from the views in
+which the point shone.
+
+Wet tissue's highlights are sparkles: facets finer than any reconstruction, each lit where
+its own normal lies along H. A lobe about the reconstruction's smooth normals puts its
+highlight where those normals meet H and moves it over the surface as the scope moves;
+the sparkles stay on their facets (on the shared real sequences a pixel of S lands in S of
+the next frame 64-99% of the time, against 1-6% for a pixel at random:
+`benchmarks/facet_normals.py`). So each tracked point gets its own normal for the lobe
+(the diffuse term keeps the reconstruction's), chosen among "no lobe", the
+reconstruction's normal and H of each of the point's other views (the facet that would
+have made that view the point's peak), by the least squares of those views with the
+point's albedo fitted; a facet other than "no lobe" must lower them by more than
+`penalty` (2-level)^2 units, an AIC-like price for its two angles. The lobe's sigma and
+F_tilde stay global.
+
+Judged as `heldout_map_rmse` judges a model (each view predicted from the point's other
+views, the albedo a nuisance), with the facet a second nuisance of the lobe: the facet
+and the albedo of a judged view are chosen without it. `facet_lobe` picks sigma and one
+grey F_tilde from a grid by that protocol on the calibration tracks alone, then judges
+the held-out views; `turned="diffuse"` gives the Lambertian model the same freedom for
+its own normal, the fair comparison.
+"""
+
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import ParameterError
+from .._model import ShadingModel
+from .._vector import Vec3
+from ..lobes._paper import cook_torrance_brdf
+from ._map_least_squares import OTHER_VIEWS_SHARE, TrackSamples, diffuse_lobe
+from ._parameters import strongly_typed
+
+# The price of a facet, in units of (2 levels)^2 (about the real sequences' noise floor,
+# 1.7-2.5 levels): AIC's 2 per parameter, two angles.
+FACET_PENALTY = 4.0
+_LEVEL = 2.0 / 255
+FACET_SIGMAS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45)
+FACET_F_TILDES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+_POINTS_AT_ONCE = 512  # points per batch of `lax.map`: (M + 2) x 4M lobe evaluations each
+
+
+def _half_vectors(model, rotations, point, pixel, weight, frame):
+    """H of each of one point's views (M, 3), world coordinates, at the view's (bilinear)
+    point: the facet that would make that view the point's peak."""
+    at = jnp.sum(point * weight[..., None], 0)  # (M, 3): each view's point, its camera frame
+    to_eye = -at / jnp.linalg.norm(at, axis=-1, keepdims=True)
+    uv = (jnp.sum(pixel[0] * weight, 0), jnp.sum(pixel[1] * weight, 0))
+
+    def half(x, v, u, vv):
+        light, _ = model.light.illuminate(Vec3.from_array(x), Vec3.from_array(v), (u, vv))
+        h = light.to_array() + v
+        return h / jnp.linalg.norm(h)
+
+    return jnp.einsum("mij,mj->mi", rotations[frame], jax.vmap(half)(at, to_eye, *uv))
+
+
+def _one_point(
+    model,
+    turned,
+    penalty,
+    rotations,
+    point,
+    normal,
+    pixel,
+    weight,
+    values,
+    w,
+    judged,
+    frame,
+    facets,
+):
+    """One tracked point (its M views): each judged view's residual (C, M) with the facet and
+    the albedo chosen from the point's other views, the counted views (M,) and the facet
+    taken per view (M,: -1 no lobe, M the reconstruction's normal, j H of view j);
+    `facets` (M, 3): the candidate facets in world coordinates (`_half_vectors`)."""
+    diffuse = diffuse_lobe(model)
+    lobes = len(model.brdf.lobes)
+    others = [k for k in range(lobes) if k != diffuse]
+    moved = others if turned == "lobe" else [diffuse]
+    gains = model.brdf.weights  # (K, C)
+    corners, views = weight.shape
+
+    def columns(normal_at):  # (4, M, 3) normals -> (K, M), bilinear over the corners
+        def one(p, n, u, v):
+            return model.columns(Vec3.from_array(p), Vec3.from_array(n), (u, v))
+
+        c = jax.vmap(one)(
+            point.reshape(-1, 3),
+            normal_at.reshape(-1, 3),
+            pixel[0].reshape(-1),
+            pixel[1].reshape(-1),
+        )
+        return jnp.sum(c.reshape(corners, views, lobes) * weight[..., None], 0).T
+
+    smooth = columns(normal)
+    rotation = rotations[frame]  # (M, 3, 3): camera-to-world
+
+    def about(facet):  # the turned lobes' columns about one world direction
+        local = jnp.einsum("mji,j->mi", rotation, facet)
+        c = columns(jnp.broadcast_to(local, point.shape))
+        return smooth.at[jnp.array(moved)].set(c[jnp.array(moved)])
+
+    off = smooth.at[jnp.array(others)].set(0.0) if others else smooth
+    candidates = jnp.concatenate([off[None], smooth[None], jax.vmap(about)(facets)])  # (M+2, K, M)
+
+    def per_view(c):  # every view's prediction with the albedo fitted to the other views
+        a = c[diffuse]
+        rest = sum((c[k][None] * gains[k][:, None] for k in others), jnp.zeros_like(values))
+        target = values - rest  # (C, M)
+        s_aa, s_at, s_tt = (
+            jnp.sum(x, -1, keepdims=True) for x in (w * a * a, w * a * target, w * target * target)
+        )
+        o_aa = s_aa - w * a * a  # (M,): without view m
+        o_at, o_tt = s_at - w * a * target, s_tt - w * target * target
+        albedo = jnp.maximum(o_at / jnp.where(o_aa > 0, o_aa, 1.0), 0.0)
+        cost = jnp.sum(o_tt - 2 * albedo * o_at + albedo * albedo * o_aa, 0)  # (M,)
+        return cost, target - a * albedo, o_aa
+
+    cost, residual, o_aa = jax.vmap(per_view)(candidates)
+    # A facet from view j is there for the judged view m only if j is another counted view.
+    usable = (w > 0)[None, :] & ~jnp.eye(views, dtype=bool)  # (j, m)
+    allowed = jnp.concatenate([jnp.ones((2, views), bool), usable])
+    price = jnp.concatenate([jnp.zeros(2), jnp.full(views, penalty)])
+    best = jnp.argmin(jnp.where(allowed, cost + price[:, None], jnp.inf), 0)  # ties: no lobe
+    index = jnp.broadcast_to(best[None, None, :], (1, *residual.shape[1:]))
+    chosen = jnp.take_along_axis(residual, index, 0)[0]  # (C, M)
+    a = smooth[diffuse]
+    ok = judged & (w > 0) & (o_aa[0] >= OTHER_VIEWS_SHARE * w * a * a) & (o_aa[0] > 0)
+    return jnp.where(ok, chosen, 0.0), jnp.where(ok, w, 0.0), jnp.where(ok, best - 1, -1)
+
+
+@eqx.filter_jit
+def _facet_views(model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle):
+    views, points = samples.weight.shape
+    shaped = lambda v: v.reshape(4, views, points)  # noqa: E731
+    point = jnp.stack(
+        [shaped(samples.point.x), shaped(samples.point.y), shaped(samples.point.z)], -1
+    )
+    normal = jnp.stack(
+        [shaped(c) for c in (samples.normal.x, samples.normal.y, samples.normal.z)], -1
+    )
+    pixel = jnp.stack([shaped(samples.pixel[0]), shaped(samples.pixel[1])], 0)  # (2, 4, M, P)
+    per_point = (
+        jnp.moveaxis(point, 2, 0),
+        jnp.moveaxis(normal, 2, 0),
+        jnp.moveaxis(pixel, 3, 0),
+        jnp.moveaxis(samples.corner_weight, 2, 0),
+        jnp.moveaxis(samples.values, 2, 0),
+        samples.weight.T,
+        judged.T,
+        jnp.maximum(samples.site.frame, 0).T,
+    )
+
+    facets = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(
+        per_point[0], per_point[2], per_point[3], per_point[7]
+    )
+    if shuffle is not None:  # the control: every point's candidates another point's
+        facets = facets[shuffle]
+    per_point = (*per_point, facets)
+
+    def one(arrays):
+        return _one_point(model, turned, penalty, rotations, *arrays)
+
+    residual, w, best = jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE)
+    return jnp.moveaxis(residual, 0, 2), w.T, best.T
+
+
+class FacetJudgement(eqx.Module):
+    """A model judged with a facet per point: `rmse` (8-bit levels) over the judged views,
+    `with_facet` the share of them whose facet is not "no lobe", `residual` (C, M, P;
+    levels, 0 where not judged), `weight` (M, P) and `facet` (M, P: -1 no lobe or not
+    judged, M the reconstruction's normal, j H of view j)."""
+
+    rmse: float
+    with_facet: float
+    residual: np.ndarray
+    weight: np.ndarray
+    facet: np.ndarray
+
+
+def facet_heldout(
+    model: ShadingModel,
+    samples: TrackSamples,
+    judged,
+    rotations,
+    *,
+    penalty: float = FACET_PENALTY,
+    turned: str = "lobe",
+    shuffle_seed: int | None = None,
+) -> FacetJudgement:
+    """Judge `model` (fixed) on the `judged` views (M, P) of `samples`, each predicted with
+    the point's facet and albedo chosen from its other views (see the module).
+    `rotations` (F, 3, 3): every frame's camera-to-world rotation (`samples.site.frame`
+    indexes it). `turned`: `"lobe"` (the lobes' normal chosen) or `"diffuse"` (the diffuse
+    term's: the same freedom for a model without a lobe). `shuffle_seed`: the control, every
+    point's candidate facets those of another point (a permutation of that seed): whether a
+    point's own views carry what the facets gain."""
+    if turned not in ("lobe", "diffuse"):
+        raise ParameterError(f"turned must be 'lobe' or 'diffuse', got {turned!r}")
+    if tuple(getattr(model, "effects", ())):
+        raise ParameterError("facets judge a model without image effects")
+    if samples.eye is not None:
+        raise ParameterError("facets need every view seen from the light's lens (no right views)")
+    model = strongly_typed(model)
+    dtype = samples.weight.dtype
+    rotations = jnp.asarray(np.asarray(rotations), dtype)
+    judged = jnp.asarray(judged, bool)
+    shuffle = None
+    if shuffle_seed is not None:
+        points = samples.weight.shape[1]
+        shuffle = jnp.asarray(np.random.default_rng(shuffle_seed).permutation(points))
+    price = jnp.asarray(penalty * _LEVEL**2, dtype)
+    residual, weight, facet = _facet_views(
+        model, samples, judged, rotations, price, turned, shuffle
+    )
+    residual, weight, facet = (np.asarray(x) for x in (residual, weight, facet))
+    total = float(np.sum(weight)) * residual.shape[0]
+    ssr = float(np.sum(weight * residual * residual))
+    counted = weight > 0
+    return FacetJudgement(
+        255 * math.sqrt(ssr / total) if total > 0 else math.nan,
+        float(np.mean(facet[counted] >= 0)) if counted.any() else math.nan,
+        255 * residual,
+        weight,
+        facet,
+    )
+
+
+class FacetLobe(eqx.Module):
+    """The lobe about every point's own facet (`facet_lobe`): `sigma` and `F_tilde` (grey)
+    chosen on the calibration tracks, `calibration_rmse` (grid point -> RMSE, levels),
+    `at_bound` (the choice at an end of its grid), the held-out RMSE of the lobe with facets
+    (`rmse`), of the Lambertian model under the same light (`lambertian_rmse`) and of the
+    Lambertian model with its own normal chosen the same way (`lambertian_turned_rmse`), the
+    share of judged views with a facet (`with_facet`)."""
+
+    sigma: float
+    F_tilde: float
+    calibration_rmse: dict
+    at_bound: bool
+    rmse: float
+    lambertian_rmse: float
+    lambertian_turned_rmse: float
+    with_facet: float
+
+    @property
+    def ratio(self) -> float:
+        """Held-out RMSE with facets over the Lambertian model's under the same light."""
+        return self.rmse / self.lambertian_rmse
+
+    def to_json(self) -> dict:
+        return {
+            "sigma": self.sigma,
+            "F_tilde": self.F_tilde,
+            "at_bound": self.at_bound,
+            "heldout_rgb_rmse": self.rmse,
+            "lambertian_same_light_rgb_rmse": self.lambertian_rmse,
+            "lambertian_turned_normals_rgb_rmse": self.lambertian_turned_rmse,
+            "ratio": self.ratio,
+            "views_with_a_facet": self.with_facet,
+            "calibration_rgb_rmse": {
+                f"sigma={s:g},F_tilde={f:g}": r for (s, f), r in self.calibration_rmse.items()
+            },
+        }
+
+
+def facet_model(light, sigma: float, F_tilde: float) -> ShadingModel:
+    """The paper's BRDF (grey F_tilde) under `light`, for the facet protocol."""
+    return strongly_typed(ShadingModel(cook_torrance_brdf(1.0, F_tilde, sigma), light))
+
+
+def facet_lobe(
+    train: TrackSamples,
+    test: TrackSamples,
+    judged,
+    rotations,
+    light,
+    *,
+    sigmas: Sequence[float] = FACET_SIGMAS,
+    F_tildes: Sequence[float] = FACET_F_TILDES,
+    penalty: float = FACET_PENALTY,
+    shuffle_seed: int | None = None,
+) -> FacetLobe:
+    """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
+    protocol on `train` (every calibration view judged from the point's other calibration
+    views), then the `judged` views of `test` (M, P) predicted, beside the Lambertian model
+    under the same `light`, without and with its own normal chosen the same way.
+    `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike."""
+    if not sigmas or not F_tildes:
+        raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
+    calibration = {}
+    for sigma in sigmas:
+        for f in F_tildes:
+            model = facet_model(light, sigma, f)
+            judgement = facet_heldout(
+                model,
+                train,
+                train.weight > 0,
+                rotations,
+                penalty=penalty,
+                shuffle_seed=shuffle_seed,
+            )
+            calibration[(float(sigma), float(f))] = judgement.rmse
+    sigma, f = min(calibration, key=calibration.get)
+    at_bound = sigma in (min(sigmas), max(sigmas)) or f in (min(F_tildes), max(F_tildes))
+    lobe = facet_heldout(
+        facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
+        shuffle_seed=shuffle_seed,
+    )  # fmt: skip
+    lambertian = facet_model(light, sigma, 0.0)
+    plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty)
+    turned = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, turned="diffuse")
+    return FacetLobe(
+        sigma,
+        f,
+        calibration,
+        bool(at_bound and len(sigmas) * len(F_tildes) > 1),
+        lobe.rmse,
+        plain.rmse,
+        turned.rmse,
+        lobe.with_facet,
+    )

@@ -1,0 +1,103 @@
+"""The lobe about every point's own facet (`ctjax.fitting.facet_lobe`) and whether the
+highlights stay on the tissue (`ctjax.specular.highlight_persistence`)."""
+
+import numpy as np
+import pytest
+
+from ctjax import ColocatedLight, named_parameters
+from ctjax._errors import ParameterError
+from ctjax.effects import CameraGamma
+from ctjax.fitting import facet_heldout, facet_lobe
+from ctjax.fitting._facets import facet_model
+from ctjax.heldout import HeldOutTracks
+from ctjax.io import load_capture
+from ctjax.specular import highlight_persistence
+from ctjax.synth import SynthOptions, synthesize
+
+SMALL = dict(width=128, height=96, frames=6, seed=1, rho_tilde=(0.8, 0.5, 0.4))
+
+
+def _rotations(capture):
+    return np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
+
+
+def _lobe(path, **options):
+    synthesize(path, SynthOptions(**{**SMALL, **options}))
+    capture = load_capture(path)
+    tracks = HeldOutTracks.split(capture)
+    return (
+        tracks,
+        capture,
+        facet_lobe(
+            tracks.train,
+            tracks.test,
+            tracks.judged,
+            _rotations(capture),
+            ColocatedLight(),
+            sigmas=(0.1, 0.2, 0.3),
+            F_tildes=(0.005, 0.01, 0.02),
+        ),
+    )
+
+
+def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_path):
+    """A lobe about the surface's own normal (no sparkles): the facet protocol takes the
+    reconstruction's normal as the facet, the grid picks the true sigma and F_tilde's
+    nearest values on the calibration frames, and the held-out views are predicted better
+    than by Lambert under the same light (measured: 1.25 against 1.32 levels)."""
+    _, _, lobe = _lobe(tmp_path / "c", F_tilde=(0.012,) * 3, sigma=0.2)
+    assert (lobe.sigma, lobe.F_tilde) == (0.2, 0.01)
+    assert not lobe.at_bound
+    assert lobe.ratio < 0.97
+    assert lobe.rmse < lobe.lambertian_turned_rmse
+    out = lobe.to_json()
+    assert out["ratio"] == pytest.approx(lobe.rmse / lobe.lambertian_rmse)
+    assert len(out["calibration_rgb_rmse"]) == 9
+
+
+def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
+    """Without a lobe, a facet per point is freedom with nothing to explain: the penalty
+    keeps nearly every point at "no lobe" and the held-out error where Lambert's is."""
+    tracks, capture, lobe = _lobe(tmp_path / "c", F_tilde=(0.0,) * 3)
+    assert lobe.with_facet < 0.1
+    assert lobe.ratio == pytest.approx(1.0, abs=0.01)
+    # The judged views' residuals, the facet each took, as the RMSE says.
+    model = facet_model(ColocatedLight(), lobe.sigma, lobe.F_tilde)
+    judged = facet_heldout(model, tracks.test, tracks.judged, _rotations(capture))
+    counted = judged.weight > 0
+    assert counted.sum() > 100 and not counted[~np.asarray(tracks.judged)].any()
+    assert judged.rmse == pytest.approx(lobe.rmse)
+    assert np.all(judged.facet[~counted] == -1)
+    assert np.all(judged.facet < tracks.test.weight.shape[0])
+
+
+def test_sparkles_attached_to_the_tissue_stay_where_they_shone(tmp_path):
+    """`synth --sparkles-attached`: a pixel of S lands in S of the next frame far more often
+    than a pixel at random; sparkles drawn anew each frame hardly more than chance."""
+    found = {}
+    for attached in (True, False):
+        path = tmp_path / str(attached)
+        options = dict(width=128, height=96, frames=4, seed=3, texture=False)
+        synthesize(path, SynthOptions(**options, sparkles=True, sparkles_attached=attached))
+        found[attached] = highlight_persistence(load_capture(path))
+    assert found[True].lift > 5
+    assert found[True].lands[1] > 3 * found[False].lands[1]
+    assert found[False].lift < 0.5 * found[True].lift
+    assert set(found[True].to_json()["by_gap"]) == {"1", "2", "3"}
+
+
+def test_facets_refuse_what_they_cannot_judge(tmp_path):
+    synthesize(tmp_path / "c", SynthOptions(width=64, height=48, frames=3, seed=0))
+    capture = load_capture(tmp_path / "c")
+    tracks = HeldOutTracks.split(capture)
+    model = facet_model(ColocatedLight(), 0.2, 0.1)
+    with pytest.raises(ParameterError, match="turned"):
+        facet_heldout(model, tracks.test, tracks.judged, _rotations(capture), turned="both")
+    gamma = type(model)(model.brdf, model.light, effects=(CameraGamma(2.2),))
+    with pytest.raises(ParameterError, match="image effects"):
+        facet_heldout(gamma, tracks.test, tracks.judged, _rotations(capture))
+    with pytest.raises(ParameterError, match="at least one sigma"):
+        facet_lobe(
+            tracks.train, tracks.test, tracks.judged, _rotations(capture), model.light, sigmas=()
+        )
+    assert named_parameters(model.brdf)["sigma"] == pytest.approx(0.2)
