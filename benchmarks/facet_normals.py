@@ -31,12 +31,11 @@ import time
 from pathlib import Path
 
 import jax
-import numpy as np
 from _results import emit
 
 from ctjax import ColocatedLight
 from ctjax.calibration import calibrate_near_light
-from ctjax.fitting import facet_lobe
+from ctjax.fitting import split_facet_lobe
 from ctjax.fitting._facets import FACET_PENALTY
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -71,13 +70,9 @@ def main():
         light = calibrate_near_light(tracks.capture, calibration=calibration).model.light
     else:
         light = ColocatedLight()
-    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
     row = {"capture": str(args.capture), "frames": args.frames, "light": args.light}
     for name, seed in (("facets", None), ("control", 0))[: 2 if args.control else 1]:
-        lobe = facet_lobe(
-            tracks.train, tracks.test, tracks.judged, rotations, light,
-            penalty=args.penalty, shuffle_seed=seed,
-        )  # fmt: skip
+        lobe = split_facet_lobe(tracks, light, penalty=args.penalty, shuffle_seed=seed)
         out = lobe.to_json()
         out.pop("calibration_rgb_rmse")
         row[name] = out

@@ -459,7 +459,7 @@ def evaluate(
     if facets:
         tic = time.perf_counter()
         progress("the lobe about every point's own facet (a grid of sigma and F_tilde)...")
-        facet, note = _facet_lobe(capture, tracks, fitted.model)
+        facet, note = _facet_lobe(tracks, fitted.model)
         notes += [note] if note else []
         timings["facets"] = time.perf_counter() - tic
     right_views = None
@@ -521,18 +521,15 @@ def evaluate(
     )
 
 
-def _facet_lobe(capture: Observations, tracks, model) -> tuple[dict | None, str | None]:
+def _facet_lobe(tracks, model) -> tuple[dict | None, str | None]:
     """`facet_lobe`'s JSON under `model`'s light on the split's tracks; or None and why not."""
-    from ..fitting import facet_lobe
+    from ..fitting import split_facet_lobe
 
     if tracks is None:
         return None, "facets not judged: they need the albedo map (--albedo map)"
     if tuple(getattr(model, "effects", ())):
         return None, "facets not judged: Cook-Torrance's model has image effects"
-    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
-    return facet_lobe(
-        tracks.train, tracks.test, tracks.judged, rotations, model.light
-    ).to_json(), None
+    return split_facet_lobe(tracks, model.light).to_json(), None
 
 
 def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:

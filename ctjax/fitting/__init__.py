@@ -9,6 +9,7 @@ from ._facets import FacetJudgement as FacetJudgement
 from ._facets import FacetLobe as FacetLobe
 from ._facets import facet_heldout as facet_heldout
 from ._facets import facet_lobe as facet_lobe
+from ._facets import split_facet_lobe as split_facet_lobe
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns

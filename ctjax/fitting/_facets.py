@@ -327,3 +327,11 @@ def facet_lobe(
         turned.rmse,
         lobe.with_facet,
     )
+
+
+def split_facet_lobe(split, light, **options) -> FacetLobe:
+    """`facet_lobe` on a held-out split (`ctjax.heldout.HeldOutTracks`) under `light`."""
+    observations = split.capture
+    capture = getattr(observations, "capture", observations)
+    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
+    return facet_lobe(split.train, split.test, split.judged, rotations, light, **options)
