@@ -193,8 +193,12 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
     assert main([*argv[:6], "--max-tracks", "500"]) == 2
     assert "--max-tracks is for the albedo map" in capsys.readouterr().err
     # The tracks' cap: at most that many points followed.
-    assert main(["fit", str(root), "--json", str(out), "--max-tracks", "500"]) == 0
-    assert 400 < json.loads(out.read_text())["n_points"] <= 500
+    assert main(["fit", str(root), "--json", str(out), "--max-tracks", "500", "--facets"]) == 0
+    fitted = json.loads(out.read_text())
+    assert 400 < fitted["n_points"] <= 500
+    # The lobe about every point's own facet (tests/test_facets.py), beside the fit's.
+    assert np.isfinite(fitted["facets"]["heldout_rgb_rmse"])
+    assert "a lobe about every point's own facet" in capsys.readouterr().out
     (root.parent / "nopose").mkdir()
     for item in root.iterdir():
         if item.name != "poses.json":
@@ -204,6 +208,8 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
     # Without poses the default is the paper's uniform albedo.
     assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--ring-px", "10"]) == 0
     assert json.loads(out.read_text())["albedo"] == "uniform"
+    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--facets"]) == 2
+    assert "--facets needs the albedo map" in capsys.readouterr().err
 
 
 def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):

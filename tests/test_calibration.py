@@ -31,7 +31,7 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     assert result.noise_floor == pytest.approx(NOISE_FLOOR, rel=0.1)
 
 
-def test_calibrate_light_command_with_falloffs(tmp_path):
+def test_calibrate_light_command_with_falloffs(tmp_path, capsys):
     options = SynthOptions(
         **SMALL,
         effects={"light_offset": (-3.0, 7.0, 1.0), "inverse_square": True, "spot_falloff": 3.0},
@@ -39,8 +39,13 @@ def test_calibrate_light_command_with_falloffs(tmp_path):
     root = synthesize(tmp_path / "c", options)
     out = tmp_path / "light.json"
     argv = ["calibrate-light", str(root), "--model", "near", "--json", str(out)]
-    assert main([*argv, "--falloff", "inverse_square+spot"]) == 0
+    assert main([*argv, "--falloff", "inverse_square+spot", "--facets"]) == 0
     result = json.loads(out.read_text())
+    # The lobe about every point's own facet under the fitted light (tests/test_facets.py).
+    assert result["facets"]["sigma"] > 0 and np.isfinite(result["facets"]["ratio"])
+    assert "a lobe about every point's own facet" in capsys.readouterr().out
+    assert main([*argv[:-2], "--model", "field", "--json", str(out), "--facets"]) == 2
+    assert "--facets is for the near light" in capsys.readouterr().err
     np.testing.assert_allclose(result["offset_mm"], [-3.0, 7.0, 1.0], atol=1.0)
     assert set(result["falloff"]) == {"inverse_square", "spot"}
     assert result["falloff"]["spot"]["exponent"] == pytest.approx(3.0, rel=0.1)

@@ -56,6 +56,13 @@ def add_calibrate_light_parser(commands) -> None:
         "the right camera, which move V and keep L (a falloff cannot mimic them)",
     )
     add_workers_argument(light, "near: falloff sets")
+    light.add_argument(
+        "--facets",
+        action="store_true",
+        help="near: also the lobe about every tracked point's own facet (its normal read from "
+        "the views where it shone) under the fitted light, sigma and F_tilde chosen on the "
+        "calibration frames, judged on the held-out ones beside Lambert's (with the map)",
+    )
     light.set_defaults(run=run_calibrate_light)
 
 
@@ -77,6 +84,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
             )
         if args.workers is not None:
             raise CtjaxError("--workers is for the near light's falloff sets (--model near)")
+        if args.facets:
+            raise CtjaxError("--facets is for the near light (--model near)")
         return _calibrate_light_field(args)
     observations = load_observations(args)
     capture = observations.capture
@@ -92,6 +101,12 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         diffuse=diffuse_lobe_named(args.diffuse),
     )
     summary = result.to_json()
+    if args.facets:
+        if summary["albedo"] != "map":
+            raise CtjaxError("--facets needs the albedo map (depth and poses in every frame)")
+        from ..fitting import facets_of
+
+        summary["facets"] = facets_of(observations, result.model.light, args.calib)
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
@@ -107,6 +122,10 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     print(_brdf_line(summary))
     if "highlight_alignment" in summary:
         print(highlight_alignment_line(summary["highlight_alignment"]))
+    if "facets" in summary:
+        from ..fitting import facet_lobe_line
+
+        print(facet_lobe_line(summary["facets"]))
     for warning in result.warnings:
         print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0

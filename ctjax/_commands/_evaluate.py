@@ -126,17 +126,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
                 f"{100 * budget['gradient_share']:.0f}% with the image gradient "
                 f"({budget['misregistration_px']:.2f} px)"
             )
-    facets = summary.get("facets")
-    if facets is not None:
-        print(
-            f"a lobe about every point's own facet (sigma {facets['sigma']:g}, F_tilde "
-            f"{facets['F_tilde']:g}, chosen on the calibration frames"
-            f"{', at the end of its grid' if facets['at_bound'] else ''}): test RMSE "
-            f"{facets['heldout_rgb_rmse']:.2f} levels, {facets['ratio']:.3f}x Lambert's under "
-            f"the same light ({facets['lambertian_same_light_rgb_rmse']:.2f}; with its own "
-            f"normal chosen the same way {facets['lambertian_turned_normals_rgb_rmse']:.2f}); "
-            f"{100 * facets['views_with_a_facet']:.0f}% of the views took a facet"
-        )
+    if "facets" in summary:
+        from ..fitting import facet_lobe_line
+
+        print(facet_lobe_line(summary["facets"]))
     right = summary.get("right_views")
     if right is not None:
         figures = ", ".join(

@@ -335,3 +335,25 @@ def split_facet_lobe(split, light, **options) -> FacetLobe:
     capture = getattr(observations, "capture", observations)
     rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
     return facet_lobe(split.train, split.test, split.judged, rotations, light, **options)
+
+
+def facet_lobe_line(summary: dict) -> str:
+    """One line for a command's output from `FacetLobe.to_json()`."""
+    bound = ", at the end of its grid" if summary["at_bound"] else ""
+    return (
+        f"a lobe about every point's own facet (sigma {summary['sigma']:g}, F_tilde "
+        f"{summary['F_tilde']:g}, chosen on the calibration frames{bound}): held-out RMSE "
+        f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
+        f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
+        f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
+        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet"
+    )
+
+
+def facets_of(observations, light, calibration: int | None = None) -> dict:
+    """`split_facet_lobe`'s JSON on `observations` (`ctjax.observations.Observations`)
+    split into calibration and held-out frames as `HeldOutTracks.split` splits them, for a
+    command's `--facets`."""
+    from ..heldout import HeldOutTracks
+
+    return split_facet_lobe(HeldOutTracks.split(observations, calibration), light).to_json()
