@@ -16,13 +16,13 @@ Two measurements, each printed as one JSON line.
    light (`--light near`: `calibrate_near_light`'s, for both; `colocated`: the paper's).
    `--control`: the same with every point's candidates another point's.
 
-Measured (2026-11-28, 12 frames at 640 px, `ctjax reconstruct`; near light): the shared
-sinus: S lands in S one frame on 0.88 (0.007 at random); facets sigma 0.1, F_tilde 0.01,
-test 17.91 against Lambert's 22.09 levels (0.811x; Lambert with its own normal chosen the
-same way 0.960x; control 0.975x); even / odd frames 0.862x / 0.804x (sigma 0.15 / 0.1);
-the paper's light 0.751x. The cholecystectomy video: 0.64 (0.045); 0.993x (control
-0.998x). The SurgT da Vinci clip (`reconstruct --stereo pairs`): 0.99 (0.055), its camera
-barely moving; 0.985x (control 0.984x). docs/real-video.md, "Facets".
+Measured (2026-11-28, 12 frames at 640 px, `ctjax reconstruct`; near light; the test's
+facets turned by two angles): the shared sinus: S lands in S one frame on 0.88 (0.007 at
+random); facets sigma 0.1, F_tilde 0.01, test 17.70 against Lambert's 22.09 levels
+(0.801x; Lambert with its own normal chosen the same way 0.925x; control 0.965x); even /
+odd frames 0.846x / 0.803x (sigma 0.15 / 0.1). The cholecystectomy video: 0.64 (0.045);
+0.990x (control 0.997x). The SurgT da Vinci clip (`reconstruct --stereo pairs`): 0.99
+(0.055), its camera barely moving; 0.985x (control 0.983x). docs/real-video.md, "Facets".
 """
 
 import argparse

@@ -34,6 +34,7 @@ from .._errors import ParameterError
 from .._model import ShadingModel
 from .._vector import Vec3
 from ..lobes._paper import cook_torrance_brdf
+from ..solvers import DenseLM, least_squares
 from ._map_least_squares import OTHER_VIEWS_SHARE, TrackSamples, diffuse_lobe
 from ._parameters import strongly_typed
 
@@ -43,6 +44,9 @@ FACET_PENALTY = 4.0
 _LEVEL = 2.0 / 255
 FACET_SIGMAS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45)
 FACET_F_TILDES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+# The held-out judgement's facets, each chosen H then turned by two angles (LM steps): the
+# views' own H are as coarse as a sharp lobe (1-4 degrees apart on the real sequences).
+FACET_REFINE_STEPS = 10
 _POINTS_AT_ONCE = 512  # points per batch of `lax.map`: (M + 2) x 4M lobe evaluations each
 
 
@@ -75,6 +79,7 @@ def _one_point(
     judged,
     frame,
     facets,
+    refine_steps=0,
 ):
     """One tracked point (its M views): each judged view's residual (C, M) with the facet and
     the albedo chosen from the point's other views, the counted views (M,) and the facet
@@ -131,13 +136,56 @@ def _one_point(
     best = jnp.argmin(jnp.where(allowed, cost + price[:, None], jnp.inf), 0)  # ties: no lobe
     index = jnp.broadcast_to(best[None, None, :], (1, *residual.shape[1:]))
     chosen = jnp.take_along_axis(residual, index, 0)[0]  # (C, M)
+    if refine_steps:  # each chosen H turned by two angles to fit the other views better
+
+        def turned_from(m):
+            start = facets[jnp.maximum(best[m] - 2, 0)]
+            return _refined(about, m, start, values, w, diffuse, others, gains, refine_steps)
+
+        refined = jax.vmap(turned_from)(jnp.arange(views))
+        chosen = jnp.where((best >= 2)[None, :], refined.T, chosen)
     a = smooth[diffuse]
     ok = judged & (w > 0) & (o_aa[0] >= OTHER_VIEWS_SHARE * w * a * a) & (o_aa[0] > 0)
     return jnp.where(ok, chosen, 0.0), jnp.where(ok, w, 0.0), jnp.where(ok, best - 1, -1)
 
 
+# The refined facet's prior: a Gaussian of this width (radians) about the view's H, worth
+# one (2-level) unit of residual there.
+_REFINE_PRIOR_RAD = 0.05
+
+
+def _refined(about, m, start, values, w, diffuse, others, gains, steps):
+    """View m's residual (C,) with the facet started at `start` (world) turned by two
+    angles to fit the point's other views (the albedo in closed form, a prior about
+    `start`: `_REFINE_PRIOR_RAD`)."""
+    helper = jnp.where(jnp.abs(start[0]) < 0.9, jnp.array([1.0, 0, 0]), jnp.array([0, 1.0, 0]))
+    t1 = jnp.cross(start, helper.astype(start.dtype))
+    t1 = t1 / jnp.linalg.norm(t1)
+    t2 = jnp.cross(start, t1)
+    keep = jnp.where((w > 0) & (jnp.arange(w.shape[0]) != m), w, 0.0)
+
+    def predict(x):
+        facet = start + x[0] * t1 + x[1] * t2
+        c = about(facet / jnp.linalg.norm(facet))
+        a = c[diffuse]
+        rest = sum((c[k][None] * gains[k][:, None] for k in others), jnp.zeros_like(values))
+        target = values - rest
+        albedo = jnp.sum(keep * a * target, -1, keepdims=True)
+        albedo = jnp.maximum(albedo / jnp.maximum(jnp.sum(keep * a * a), 1e-30), 0.0)
+        return target - a * albedo  # (C, M)
+
+    def residuals(x):
+        r = jnp.sqrt(keep) * predict(x)
+        return jnp.concatenate([r.reshape(-1), _LEVEL * x / _REFINE_PRIOR_RAD])
+
+    x = least_squares(residuals, DenseLM(), jnp.zeros(2, values.dtype), steps)[0]
+    return predict(x)[:, m]
+
+
 @eqx.filter_jit
-def _facet_views(model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle):
+def _facet_views(
+    model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle, refine_steps
+):
     views, points = samples.weight.shape
     shaped = lambda v: v.reshape(4, views, points)  # noqa: E731
     point = jnp.stack(
@@ -166,7 +214,7 @@ def _facet_views(model, samples: TrackSamples, judged, rotations, penalty, turne
     per_point = (*per_point, facets)
 
     def one(arrays):
-        return _one_point(model, turned, penalty, rotations, *arrays)
+        return _one_point(model, turned, penalty, rotations, *arrays, refine_steps)
 
     residual, w, best = jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE)
     return jnp.moveaxis(residual, 0, 2), w.T, best.T
@@ -194,6 +242,7 @@ def facet_heldout(
     penalty: float = FACET_PENALTY,
     turned: str = "lobe",
     shuffle_seed: int | None = None,
+    refine_steps: int = 0,
 ) -> FacetJudgement:
     """Judge `model` (fixed) on the `judged` views (M, P) of `samples`, each predicted with
     the point's facet and albedo chosen from its other views (see the module).
@@ -201,7 +250,8 @@ def facet_heldout(
     indexes it). `turned`: `"lobe"` (the lobes' normal chosen) or `"diffuse"` (the diffuse
     term's: the same freedom for a model without a lobe). `shuffle_seed`: the control, every
     point's candidate facets those of another point (a permutation of that seed): whether a
-    point's own views carry what the facets gain."""
+    point's own views carry what the facets gain. `refine_steps`: each chosen H then turned
+    by two angles (Levenberg-Marquardt, at most that many steps) to fit the other views."""
     if turned not in ("lobe", "diffuse"):
         raise ParameterError(f"turned must be 'lobe' or 'diffuse', got {turned!r}")
     if tuple(getattr(model, "effects", ())):
@@ -218,7 +268,7 @@ def facet_heldout(
         shuffle = jnp.asarray(np.random.default_rng(shuffle_seed).permutation(points))
     price = jnp.asarray(penalty * _LEVEL**2, dtype)
     residual, weight, facet = _facet_views(
-        model, samples, judged, rotations, price, turned, shuffle
+        model, samples, judged, rotations, price, turned, shuffle, refine_steps
     )
     residual, weight, facet = (np.asarray(x) for x in (residual, weight, facet))
     total = float(np.sum(weight)) * residual.shape[0]
@@ -287,12 +337,15 @@ def facet_lobe(
     F_tildes: Sequence[float] = FACET_F_TILDES,
     penalty: float = FACET_PENALTY,
     shuffle_seed: int | None = None,
+    refine_steps: int = FACET_REFINE_STEPS,
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
     views), then the `judged` views of `test` (M, P) predicted, beside the Lambertian model
     under the same `light`, without and with its own normal chosen the same way.
-    `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike."""
+    `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike.
+    `refine_steps`: the held-out judgement's facets (for both models) turned by two angles
+    from the chosen H (`facet_heldout`); the grid's are the views' H as they are."""
     if not sigmas or not F_tildes:
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
     calibration = {}
@@ -312,11 +365,14 @@ def facet_lobe(
     at_bound = sigma in (min(sigmas), max(sigmas)) or f in (min(F_tildes), max(F_tildes))
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
-        shuffle_seed=shuffle_seed,
+        shuffle_seed=shuffle_seed, refine_steps=refine_steps,
     )  # fmt: skip
     lambertian = facet_model(light, sigma, 0.0)
     plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty)
-    turned = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, turned="diffuse")
+    turned = facet_heldout(
+        lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
+        refine_steps=refine_steps,
+    )  # fmt: skip
     return FacetLobe(
         sigma,
         f,
