@@ -35,7 +35,6 @@ from _results import emit
 
 from ctjax import ColocatedLight
 from ctjax.calibration import calibrate_near_light
-from ctjax.fitting import split_facet_lobe
 from ctjax.fitting._facets import FACET_PENALTY
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -72,7 +71,7 @@ def main():
         light = ColocatedLight()
     row = {"capture": str(args.capture), "frames": args.frames, "light": args.light}
     for name, seed in (("facets", None), ("control", 0))[: 2 if args.control else 1]:
-        lobe = split_facet_lobe(tracks, light, penalty=args.penalty, shuffle_seed=seed)
+        lobe = tracks.facet_lobe(light, penalty=args.penalty, shuffle_seed=seed)
         out = lobe.to_json()
         out.pop("calibration_rgb_rmse")
         row[name] = out

@@ -17,6 +17,7 @@ from ._convert import on_device
 from ._errors import CtjaxError
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
+from .fitting._facets import facet_lobe
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
 from .fitting._map_least_squares import TrackSamples, fit_model_map, heldout_map_rmse
 from .fitting._parameters import free_parameters
@@ -279,6 +280,13 @@ class HeldOutTracks:
     @property
     def frames(self) -> dict[str, list[int]]:
         return {"calibration": self.calibration, "heldout": self.heldout}
+
+    def facet_lobe(self, light, **options):
+        """The lobe about every tracked point's own facet under `light`
+        (`ctjax.fitting.facet_lobe`): chosen on `train`, judged on the held-out views."""
+        frames = self.capture.capture.frames
+        rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
+        return facet_lobe(self.train, self.test, self.judged, rotations, light, **options)
 
     def heldout_rmse(self, model) -> float:
         """RMSE (8-bit levels) of `model` on the held-out views (see the class doc; its

@@ -104,9 +104,10 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     if args.facets:
         if summary["albedo"] != "map":
             raise CtjaxError("--facets needs the albedo map (depth and poses in every frame)")
-        from ..fitting import facets_of
+        from ..heldout import HeldOutTracks
 
-        summary["facets"] = facets_of(observations, result.model.light, args.calib)
+        split = HeldOutTracks.split(observations, args.calib)
+        summary["facets"] = split.facet_lobe(result.model.light).to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):

@@ -165,9 +165,10 @@ def run_fit(args: argparse.Namespace) -> int:
     if args.facets:
         if result["albedo"] != "map":
             raise CtjaxError("--facets needs the albedo map (depth and poses in every frame)")
-        from ..fitting import facets_of
+        from ..heldout import HeldOutTracks
 
-        result["facets"] = facets_of(observations, estimate.model.light)
+        split = HeldOutTracks.split(observations)
+        result["facets"] = split.facet_lobe(estimate.model.light).to_json()
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
     keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status", *family.names)
     print(json.dumps({k: result[k] for k in result if k in keys}))

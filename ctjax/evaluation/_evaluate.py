@@ -523,13 +523,11 @@ def evaluate(
 
 def _facet_lobe(tracks, model) -> tuple[dict | None, str | None]:
     """`facet_lobe`'s JSON under `model`'s light on the split's tracks; or None and why not."""
-    from ..fitting import split_facet_lobe
-
     if tracks is None:
         return None, "facets not judged: they need the albedo map (--albedo map)"
     if tuple(getattr(model, "effects", ())):
         return None, "facets not judged: Cook-Torrance's model has image effects"
-    return split_facet_lobe(tracks, model.light).to_json(), None
+    return tracks.facet_lobe(model.light).to_json(), None
 
 
 def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:

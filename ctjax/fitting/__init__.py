@@ -10,8 +10,6 @@ from ._facets import FacetLobe as FacetLobe
 from ._facets import facet_heldout as facet_heldout
 from ._facets import facet_lobe as facet_lobe
 from ._facets import facet_lobe_line as facet_lobe_line
-from ._facets import facets_of as facets_of
-from ._facets import split_facet_lobe as split_facet_lobe
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns

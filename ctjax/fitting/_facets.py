@@ -385,14 +385,6 @@ def facet_lobe(
     )
 
 
-def split_facet_lobe(split, light, **options) -> FacetLobe:
-    """`facet_lobe` on a held-out split (`ctjax.heldout.HeldOutTracks`) under `light`."""
-    observations = split.capture
-    capture = getattr(observations, "capture", observations)
-    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
-    return facet_lobe(split.train, split.test, split.judged, rotations, light, **options)
-
-
 def facet_lobe_line(summary: dict) -> str:
     """One line for a command's output from `FacetLobe.to_json()`."""
     bound = ", at the end of its grid" if summary["at_bound"] else ""
@@ -404,12 +396,3 @@ def facet_lobe_line(summary: dict) -> str:
         f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
         f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet"
     )
-
-
-def facets_of(observations, light, calibration: int | None = None) -> dict:
-    """`split_facet_lobe`'s JSON on `observations` (`ctjax.observations.Observations`)
-    split into calibration and held-out frames as `HeldOutTracks.split` splits them, for a
-    command's `--facets`."""
-    from ..heldout import HeldOutTracks
-
-    return split_facet_lobe(HeldOutTracks.split(observations, calibration), light).to_json()
