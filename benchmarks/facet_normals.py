@@ -23,6 +23,9 @@ random); facets sigma 0.1, F_tilde 0.01, test 17.70 against Lambert's 22.09 leve
 odd frames 0.846x / 0.803x (sigma 0.15 / 0.1). The cholecystectomy video: 0.64 (0.045);
 0.990x (control 0.997x). The SurgT da Vinci clip (`reconstruct --stereo pairs`): 0.99
 (0.055), its camera barely moving; 0.985x (control 0.983x). docs/real-video.md, "Facets".
+The status (the grid again on the even and the odd calibration frames, 2026-11-28): sinus
+successful (both halves 0.1, 0.01), its even frames unstable (0.3 / 0.45), its odd frames
+successful, cholecystectomy no_lobe (gain -0.42%), SurgT at_bound (F_tilde 0.2).
 """
 
 import argparse

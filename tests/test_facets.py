@@ -8,7 +8,13 @@ from ctjax import ColocatedLight, named_parameters
 from ctjax._errors import ParameterError
 from ctjax.effects import CameraGamma
 from ctjax.fitting import facet_heldout, facet_lobe
-from ctjax.fitting._facets import FACET_REFINE_STEPS, facet_model
+from ctjax.fitting._facets import (
+    FACET_F_TILDES,
+    FACET_REFINE_STEPS,
+    FACET_SIGMAS,
+    _facet_status,
+    facet_model,
+)
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
 from ctjax.specular import highlight_persistence
@@ -45,7 +51,7 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     reconstruction's normal as the facet, the grid picks the true sigma and F_tilde's
     nearest values on the calibration frames, and the held-out views are predicted better
     than by Lambert under the same light (measured: 1.25 against 1.32 levels)."""
-    _, _, lobe = _lobe(tmp_path / "c", F_tilde=(0.012,) * 3, sigma=0.2)
+    _, _, lobe = _lobe(tmp_path / "c", F_tilde=(0.012,) * 3, sigma=0.2, frames=9)
     assert (lobe.sigma, lobe.F_tilde) == (0.2, 0.01)
     assert not lobe.at_bound
     assert lobe.ratio < 0.97
@@ -53,6 +59,10 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     out = lobe.to_json()
     assert out["ratio"] == pytest.approx(lobe.rmse / lobe.lambertian_rmse)
     assert len(out["calibration_rgb_rmse"]) == 9
+    # Determined: the even and the odd calibration frames alone pick the same sigma.
+    assert [half[0] for half in lobe.halves] == [0.2, 0.2]
+    assert lobe.status == "successful" and lobe.gain > 0.005
+    assert out["peak"] == pytest.approx(0.01 / 0.2**2) and out["undetermined"] == []
 
 
 def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
@@ -61,6 +71,8 @@ def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
     tracks, capture, lobe = _lobe(tmp_path / "c", F_tilde=(0.0,) * 3)
     assert lobe.with_facet < 0.1
     assert lobe.ratio == pytest.approx(1.0, abs=0.01)
+    assert lobe.status == "no_lobe" and lobe.gain < 0.005
+    assert "not determined" in lobe.undetermined[0]["reason"]
     # The judged views' residuals, the facet each took, as the RMSE says.
     model = facet_model(ColocatedLight(), lobe.sigma, lobe.F_tilde)
     judged = facet_heldout(
@@ -70,7 +82,11 @@ def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
     assert counted.sum() > 100 and not counted[~np.asarray(tracks.judged)].any()
     assert judged.rmse == pytest.approx(lobe.rmse)
     assert np.all(judged.facet[~counted] == -1)
-    assert np.all(judged.facet < tracks.test.weight.shape[0])
+    views = tracks.test.weight.shape[0]
+    assert np.all(judged.facet <= views)  # M: the reconstruction's normal
+    # A view never takes its own H (the facet is chosen from the point's other views).
+    view, _ = np.nonzero((judged.facet >= 0) & (judged.facet < views))
+    assert np.all(judged.facet[(judged.facet >= 0) & (judged.facet < views)] != view)
 
 
 def test_turning_the_views_h_predicts_attached_sparkles_better(tmp_path):
@@ -123,3 +139,20 @@ def test_facets_refuse_what_they_cannot_judge(tmp_path):
             tracks.train, tracks.test, tracks.judged, _rotations(capture), model.light, sigmas=()
         )
     assert named_parameters(model.brdf)["sigma"] == pytest.approx(0.2)
+
+
+def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
+    """`FacetLobe.status` (`ctjax._determined`'s statuses): halves apart, an end of the
+    grid, no gain against Lambert with its own normal."""
+    grid = (FACET_SIGMAS, FACET_F_TILDES)
+    assert _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.1, 0.02))) == ("successful", ())
+    status, reasons = _facet_status(0.15, 0.02, *grid, 0.06, ((0.3, 0.1), (0.45, 0.002)))
+    assert (
+        status == "unstable"
+        and "0.3 on the even frames and 0.45 on the odd" in reasons[0]["reason"]
+    )
+    status, reasons = _facet_status(0.15, 0.2, *grid, 0.06, None)
+    assert status == "at_bound" and reasons[0]["parameter"] == "F_tilde"
+    status, reasons = _facet_status(0.05, 0.01, *grid, 0.06, None)
+    assert status == "at_bound" and reasons[0]["parameter"] == "sigma"
+    assert _facet_status(0.1, 0.01, *grid, 0.001, None)[0] == "no_lobe"

@@ -30,8 +30,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._buckets import padded
+from .._determined import MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
 from .._errors import ParameterError
 from .._model import ShadingModel
+from .._status import Status
 from .._vector import Vec3
 from ..lobes._paper import cook_torrance_brdf
 from ..solvers import DenseLM, least_squares
@@ -65,31 +68,14 @@ def _half_vectors(model, rotations, point, pixel, weight, frame):
     return jnp.einsum("mij,mj->mi", rotations[frame], jax.vmap(half)(at, to_eye, *uv))
 
 
-def _one_point(
-    model,
-    turned,
-    penalty,
-    rotations,
-    point,
-    normal,
-    pixel,
-    weight,
-    values,
-    w,
-    judged,
-    frame,
-    facets,
-    refine_steps=0,
-):
-    """One tracked point (its M views): each judged view's residual (C, M) with the facet and
-    the albedo chosen from the point's other views, the counted views (M,) and the facet
-    taken per view (M,: -1 no lobe, M the reconstruction's normal, j H of view j);
-    `facets` (M, 3): the candidate facets in world coordinates (`_half_vectors`)."""
+def _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame):
+    """One tracked point's lobe columns (K, M) about its reconstruction's normals
+    (`smooth`) and `about(facet)`: the same with the turned lobes (`turned`) about one
+    world direction."""
     diffuse = diffuse_lobe(model)
     lobes = len(model.brdf.lobes)
     others = [k for k in range(lobes) if k != diffuse]
     moved = others if turned == "lobe" else [diffuse]
-    gains = model.brdf.weights  # (K, C)
     corners, views = weight.shape
 
     def columns(normal_at):  # (4, M, 3) normals -> (K, M), bilinear over the corners
@@ -107,46 +93,73 @@ def _one_point(
     smooth = columns(normal)
     rotation = rotations[frame]  # (M, 3, 3): camera-to-world
 
-    def about(facet):  # the turned lobes' columns about one world direction
+    def about(facet):
         local = jnp.einsum("mji,j->mi", rotation, facet)
         c = columns(jnp.broadcast_to(local, point.shape))
         return smooth.at[jnp.array(moved)].set(c[jnp.array(moved)])
 
+    return smooth, about
+
+
+def _one_point(
+    model, turned, penalty, rotations, gains, point, normal, pixel, weight, values, w, judged,
+    frame, facets,
+):  # fmt: skip
+    """One tracked point (its M views), for each set of lobe weights `gains` (G, K, C):
+    each judged view's residual (G, C, M) with the facet and the albedo chosen from the
+    point's other views, the counted views (G, M) and the candidate taken per view (G, M:
+    -1 not judged, 0 no lobe, 1 the reconstruction's normal, 2 + j H of view j); `facets`
+    (M, 3): the candidate facets in world coordinates (`_half_vectors`). The lobes' columns
+    do not depend on their weights: every set shares them."""
+    diffuse = diffuse_lobe(model)
+    others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
+    views = w.shape[0]
+    smooth, about = _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
     off = smooth.at[jnp.array(others)].set(0.0) if others else smooth
     candidates = jnp.concatenate([off[None], smooth[None], jax.vmap(about)(facets)])  # (M+2, K, M)
-
-    def per_view(c):  # every view's prediction with the albedo fitted to the other views
-        a = c[diffuse]
-        rest = sum((c[k][None] * gains[k][:, None] for k in others), jnp.zeros_like(values))
-        target = values - rest  # (C, M)
-        s_aa, s_at, s_tt = (
-            jnp.sum(x, -1, keepdims=True) for x in (w * a * a, w * a * target, w * target * target)
-        )
-        o_aa = s_aa - w * a * a  # (M,): without view m
-        o_at, o_tt = s_at - w * a * target, s_tt - w * target * target
-        albedo = jnp.maximum(o_at / jnp.where(o_aa > 0, o_aa, 1.0), 0.0)
-        cost = jnp.sum(o_tt - 2 * albedo * o_at + albedo * albedo * o_aa, 0)  # (M,)
-        return cost, target - a * albedo, o_aa
-
-    cost, residual, o_aa = jax.vmap(per_view)(candidates)
+    a = smooth[diffuse]
     # A facet from view j is there for the judged view m only if j is another counted view.
     usable = (w > 0)[None, :] & ~jnp.eye(views, dtype=bool)  # (j, m)
     allowed = jnp.concatenate([jnp.ones((2, views), bool), usable])
     price = jnp.concatenate([jnp.zeros(2), jnp.full(views, penalty)])
-    best = jnp.argmin(jnp.where(allowed, cost + price[:, None], jnp.inf), 0)  # ties: no lobe
-    index = jnp.broadcast_to(best[None, None, :], (1, *residual.shape[1:]))
-    chosen = jnp.take_along_axis(residual, index, 0)[0]  # (C, M)
-    if refine_steps:  # each chosen H turned by two angles to fit the other views better
 
-        def turned_from(m):
-            start = facets[jnp.maximum(best[m] - 2, 0)]
-            return _refined(about, m, start, values, w, diffuse, others, gains, refine_steps)
+    def choose(g):  # (K, C): one set of lobe weights
+        def per_view(c):  # every view's prediction with the albedo fitted to the other views
+            a = c[diffuse]
+            rest = sum((c[k][None] * g[k][:, None] for k in others), jnp.zeros_like(values))
+            target = values - rest  # (C, M)
+            s_aa, s_at, s_tt = (
+                jnp.sum(x, -1, keepdims=True)
+                for x in (w * a * a, w * a * target, w * target * target)
+            )
+            o_aa = s_aa - w * a * a  # (M,): without view m
+            o_at, o_tt = s_at - w * a * target, s_tt - w * target * target
+            albedo = jnp.maximum(o_at / jnp.where(o_aa > 0, o_aa, 1.0), 0.0)
+            cost = jnp.sum(o_tt - 2 * albedo * o_at + albedo * albedo * o_aa, 0)  # (M,)
+            return cost, target - a * albedo, o_aa
 
-        refined = jax.vmap(turned_from)(jnp.arange(views))
-        chosen = jnp.where((best >= 2)[None, :], refined.T, chosen)
-    a = smooth[diffuse]
-    ok = judged & (w > 0) & (o_aa[0] >= OTHER_VIEWS_SHARE * w * a * a) & (o_aa[0] > 0)
-    return jnp.where(ok, chosen, 0.0), jnp.where(ok, w, 0.0), jnp.where(ok, best - 1, -1)
+        cost, residual, o_aa = jax.vmap(per_view)(candidates)
+        best = jnp.argmin(jnp.where(allowed, cost + price[:, None], jnp.inf), 0)  # ties: none
+        index = jnp.broadcast_to(best[None, None, :], (1, *residual.shape[1:]))
+        chosen = jnp.take_along_axis(residual, index, 0)[0]  # (C, M)
+        ok = judged & (w > 0) & (o_aa[0] >= OTHER_VIEWS_SHARE * w * a * a) & (o_aa[0] > 0)
+        return jnp.where(ok, chosen, 0.0), jnp.where(ok, w, 0.0), jnp.where(ok, best, -1)
+
+    return jax.vmap(choose)(gains)
+
+
+def _turned_view(
+    model, turned, rotations, point, normal, pixel, weight, values, w, judged, frame, facets,
+    view, start, steps,
+):  # fmt: skip
+    """View `view`'s residual (C,) of one tracked point with the facet H of view `start`
+    turned by two angles to fit the point's other views (`_refined`)."""
+    diffuse = diffuse_lobe(model)
+    others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
+    _, about = _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
+    return _refined(
+        about, view, facets[start], values, w, diffuse, others, model.brdf.weights, steps
+    )
 
 
 # The refined facet's prior: a Gaussian of this width (radians) about the view's H, worth
@@ -182,10 +195,9 @@ def _refined(about, m, start, values, w, diffuse, others, gains, steps):
     return predict(x)[:, m]
 
 
-@eqx.filter_jit
-def _facet_views(
-    model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle, refine_steps
-):
+def _per_point(model, samples: TrackSamples, judged, rotations, shuffle):
+    """`samples` regrouped per tracked point (leading axis P), with each point's candidate
+    facets (M, 3) last."""
     views, points = samples.weight.shape
     shaped = lambda v: v.reshape(4, views, points)  # noqa: E731
     point = jnp.stack(
@@ -205,19 +217,42 @@ def _facet_views(
         judged.T,
         jnp.maximum(samples.site.frame, 0).T,
     )
-
     facets = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(
         per_point[0], per_point[2], per_point[3], per_point[7]
     )
     if shuffle is not None:  # the control: every point's candidates another point's
         facets = facets[shuffle]
-    per_point = (*per_point, facets)
+    return (*per_point, facets)
+
+
+@eqx.filter_jit
+def _facet_views(
+    model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle, gains
+):
+    """For each set of lobe weights `gains` (G, K, C): every judged view's residual
+    (G, C, M, P), counted weight (G, M, P) and candidate taken (G, M, P; `_one_point`)."""
+    per_point = _per_point(model, samples, judged, rotations, shuffle)
 
     def one(arrays):
-        return _one_point(model, turned, penalty, rotations, *arrays, refine_steps)
+        return _one_point(model, turned, penalty, rotations, gains, *arrays)
 
     residual, w, best = jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE)
-    return jnp.moveaxis(residual, 0, 2), w.T, best.T
+    return jnp.moveaxis(residual, 0, -1), jnp.moveaxis(w, 0, -1), jnp.moveaxis(best, 0, -1)
+
+
+@eqx.filter_jit
+def _turned_views(
+    model, samples: TrackSamples, judged, rotations, turned: str, shuffle, pairs, steps: int
+):
+    """The residuals (N, C) of the views `pairs` (N, 3: point, view, the view whose H it
+    took) with that H turned (`_turned_view`)."""
+    per_point = _per_point(model, samples, judged, rotations, shuffle)
+
+    def one(pair):
+        arrays = [x[pair[0]] for x in per_point]
+        return _turned_view(model, turned, rotations, *arrays, pair[1], pair[2], steps)
+
+    return jax.lax.map(one, pairs, batch_size=_POINTS_AT_ONCE)
 
 
 class FacetJudgement(eqx.Module):
@@ -258,19 +293,54 @@ def facet_heldout(
         raise ParameterError("facets judge a model without image effects")
     if samples.eye is not None:
         raise ParameterError("facets need every view seen from the light's lens (no right views)")
+    return _judgements(model, samples, judged, rotations, None, penalty, turned, shuffle_seed,
+                       refine_steps)[0]  # fmt: skip
+
+
+def _judgements(
+    model, samples, judged, rotations, F_tildes, penalty, turned, shuffle_seed, refine_steps
+) -> list[FacetJudgement]:
+    """`facet_heldout` for `model`'s lobe weights (`F_tildes` None) or for each grey
+    F_tilde of `F_tildes` in turn (the lobes' columns shared; not turned)."""
     model = strongly_typed(model)
     dtype = samples.weight.dtype
     rotations = jnp.asarray(np.asarray(rotations), dtype)
     judged = jnp.asarray(judged, bool)
+    gains = jnp.asarray(model.brdf.weights, dtype)[None]
+    if F_tildes is not None:  # (G, K, C): every lobe but the diffuse one at each F_tilde
+        diffuse = diffuse_lobe(model)
+        gains = jnp.stack(
+            [gains[0].at[:].set(f).at[diffuse].set(gains[0, diffuse]) for f in F_tildes]
+        )
+        refine_steps = 0
     shuffle = None
     if shuffle_seed is not None:
         points = samples.weight.shape[1]
         shuffle = jnp.asarray(np.random.default_rng(shuffle_seed).permutation(points))
     price = jnp.asarray(penalty * _LEVEL**2, dtype)
-    residual, weight, facet = _facet_views(
-        model, samples, judged, rotations, price, turned, shuffle, refine_steps
-    )
-    residual, weight, facet = (np.asarray(x) for x in (residual, weight, facet))
+    views = _facet_views(model, samples, judged, rotations, price, turned, shuffle, gains)
+    return [
+        _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, *one)
+        for one in zip(*(np.array(x) for x in views), strict=True)
+    ]
+
+
+def _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, residual, weight,
+            best) -> FacetJudgement:  # fmt: skip
+    """One set of lobe weights' `FacetJudgement` from `_facet_views`' arrays, the views
+    that took another view's H turned first (`refine_steps`)."""
+    if refine_steps:  # only the views that took another view's H are turned
+        view, point = np.nonzero(best >= 2)
+        if view.size:
+            pairs = np.stack([point, view, best[view, point] - 2], -1).astype(np.int32)
+            padded_pairs, _ = padded(pairs, len(pairs))
+            turned_residual = _turned_views(
+                model, samples, judged, rotations, turned, shuffle,
+                jnp.asarray(padded_pairs), int(refine_steps),
+            )  # fmt: skip
+            residual[:, view, point] = np.asarray(turned_residual)[: len(pairs)].T
+    views = best.shape[0]
+    facet = np.where(best <= 0, -1, np.where(best == 1, views, best - 2))
     total = float(np.sum(weight)) * residual.shape[0]
     ssr = float(np.sum(weight * residual * residual))
     counted = weight > 0
@@ -289,7 +359,13 @@ class FacetLobe(eqx.Module):
     `at_bound` (the choice at an end of its grid), the held-out RMSE of the lobe with facets
     (`rmse`), of the Lambertian model under the same light (`lambertian_rmse`) and of the
     Lambertian model with its own normal chosen the same way (`lambertian_turned_rmse`), the
-    share of judged views with a facet (`with_facet`)."""
+    share of judged views with a facet (`with_facet`).
+
+    Whether the data determine it: `halves` ((sigma, F_tilde) chosen on the even
+    calibration frames alone, then on the odd; None with fewer than 4), `gain` (the lobe's
+    relative RMSE decrease on the calibration frames against Lambert with its own normal
+    chosen the same way), `status` (`"successful"` or the first of `ctjax._determined`'s
+    statuses that applies) and `undetermined` (each reason, as `Estimate.details`)."""
 
     sigma: float
     F_tilde: float
@@ -299,17 +375,39 @@ class FacetLobe(eqx.Module):
     lambertian_rmse: float
     lambertian_turned_rmse: float
     with_facet: float
+    halves: tuple | None = None
+    gain: float = math.nan
+    status: str = "successful"
+    undetermined: tuple = ()
 
     @property
     def ratio(self) -> float:
         """Held-out RMSE with facets over the Lambertian model's under the same light."""
         return self.rmse / self.lambertian_rmse
 
+    @property
+    def peak(self) -> float:
+        """F_tilde / sigma^2: the lobe's height at N = H (Beckmann's D(0) = 1 / (pi
+        sigma^2)), what a sparkle's brightness measures when the views are too far apart to
+        resolve its width."""
+        return self.F_tilde / self.sigma**2
+
     def to_json(self) -> dict:
+        halves = None
+        if self.halves is not None:
+            halves = {
+                part: {"sigma": s, "F_tilde": f, "peak": f / s**2}
+                for part, (s, f) in zip(("even_frames", "odd_frames"), self.halves, strict=True)
+            }
         return {
             "sigma": self.sigma,
             "F_tilde": self.F_tilde,
+            "peak": self.peak,
+            "status": self.status,
+            "undetermined": list(self.undetermined),
             "at_bound": self.at_bound,
+            "halves": halves,
+            "calibration_gain": self.gain,
             "heldout_rgb_rmse": self.rmse,
             "lambertian_same_light_rgb_rmse": self.lambertian_rmse,
             "lambertian_turned_normals_rgb_rmse": self.lambertian_turned_rmse,
@@ -326,6 +424,69 @@ def facet_model(light, sigma: float, F_tilde: float) -> ShadingModel:
     return strongly_typed(ShadingModel(cook_torrance_brdf(1.0, F_tilde, sigma), light))
 
 
+# The halves need two calibration frames each.
+_MIN_FRAMES_FOR_HALVES = 4
+
+
+def _half(samples: TrackSamples, parity: int) -> TrackSamples:
+    """`samples` with the views of the other parity's frames weighted 0 (the same compiled
+    programs)."""
+    frame = np.asarray(samples.site.frame)
+    keep = (frame >= 0) & (frame % 2 == parity)
+    weight = jnp.asarray(np.where(keep, np.asarray(samples.weight), 0), samples.weight.dtype)
+    return eqx.tree_at(lambda s: s.weight, samples, weight)
+
+
+def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed) -> dict:
+    """Every grid point's calibration RMSE: each view of `train` judged from its point's
+    other views (one pass per sigma: the F_tildes share its columns)."""
+    out = {}
+    for sigma in sigmas:
+        judgements = _judgements(
+            facet_model(light, sigma, F_tildes[0]), train, train.weight > 0, rotations,
+            F_tildes, penalty, "lobe", shuffle_seed, 0,
+        )  # fmt: skip
+        for f, judgement in zip(F_tildes, judgements, strict=True):
+            out[(float(sigma), float(f))] = judgement.rmse
+    return out
+
+
+def _facet_status(sigma, f, sigmas, F_tildes, gain, halves) -> tuple[str, tuple]:
+    """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
+    grid, a gain under `MIN_LOBE_GAIN`, halves apart; F_tilde at an end of its grid."""
+    if gain < MIN_LOBE_GAIN:  # NaN (nothing to compare with) passes
+        return Status.no_lobe.name, (
+            Undetermined(
+                "F_tilde",
+                Status.no_lobe,
+                f"on the calibration frames the facet lobe lowers the RMSE by {gain:.2%} "
+                "against Lambert with its own normal chosen the same way (under "
+                f"{MIN_LOBE_GAIN:.1%}): no specular lobe is found, and sigma = {sigma:g} is "
+                "not determined by the data",
+            ).to_json(),
+        )
+    found = undetermined(
+        {"sigma": sigma},
+        {},
+        {"sigma": (min(sigmas), max(sigmas))} if len(sigmas) > 1 else {},
+        halves=None if halves is None else {"sigma": (halves[0][0], halves[1][0])},
+    )
+    if len(F_tildes) > 1 and f in (min(F_tildes), max(F_tildes)):
+        end = "top" if f == max(F_tildes) else "bottom"
+        found.append(
+            Undetermined(
+                "F_tilde",
+                Status.at_bound,
+                f"F_tilde = {f:g} is at the {end} of its grid ({min(F_tildes):g}, "
+                f"{max(F_tildes):g}): no measurement of the lobe's weight",
+            )
+        )
+    if not found:
+        return Status.successful.name, ()
+    first = min((u.status for u in found), key=PRIORITY.index)
+    return first.name, tuple(u.to_json() for u in found)
+
+
 def facet_lobe(
     train: TrackSamples,
     test: TrackSamples,
@@ -338,6 +499,7 @@ def facet_lobe(
     penalty: float = FACET_PENALTY,
     shuffle_seed: int | None = None,
     refine_steps: int = FACET_REFINE_STEPS,
+    halves: bool = True,
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
@@ -345,29 +507,34 @@ def facet_lobe(
     under the same `light`, without and with its own normal chosen the same way.
     `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike.
     `refine_steps`: the held-out judgement's facets (for both models) turned by two angles
-    from the chosen H (`facet_heldout`); the grid's are the views' H as they are."""
+    from the chosen H (`facet_heldout`); the grid's are the views' H as they are.
+    `halves`: the grid again on the even and on the odd calibration frames alone (the
+    other half's views weighted 0), whose sigmas a determined lobe's agree between
+    (`FacetLobe.status`)."""
     if not sigmas or not F_tildes:
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
-    calibration = {}
-    for sigma in sigmas:
-        for f in F_tildes:
-            model = facet_model(light, sigma, f)
-            judgement = facet_heldout(
-                model,
-                train,
-                train.weight > 0,
-                rotations,
-                penalty=penalty,
-                shuffle_seed=shuffle_seed,
-            )
-            calibration[(float(sigma), float(f))] = judgement.rmse
+    grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed)
+    calibration = _grid(train, *grid)
     sigma, f = min(calibration, key=calibration.get)
     at_bound = sigma in (min(sigmas), max(sigmas)) or f in (min(F_tildes), max(F_tildes))
+    split = None
+    frames = np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0])
+    if halves and len(frames) >= _MIN_FRAMES_FOR_HALVES:
+        split = []
+        for parity in (0, 1):
+            part = _grid(_half(train, parity), *grid)
+            split.append(min(part, key=part.get))
+        split = tuple(split)
+    lambertian = facet_model(light, sigma, 0.0)
+    own_normal = facet_heldout(
+        lambertian, train, train.weight > 0, rotations, penalty=penalty, turned="diffuse"
+    )
+    gain = 1 - calibration[(sigma, f)] / own_normal.rmse if own_normal.rmse > 0 else math.nan
+    status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split)
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
         shuffle_seed=shuffle_seed, refine_steps=refine_steps,
     )  # fmt: skip
-    lambertian = facet_model(light, sigma, 0.0)
     plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty)
     turned = facet_heldout(
         lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
@@ -382,6 +549,10 @@ def facet_lobe(
         plain.rmse,
         turned.rmse,
         lobe.with_facet,
+        split,
+        gain,
+        status,
+        reasons,
     )
 
 
@@ -390,9 +561,11 @@ def facet_lobe_line(summary: dict) -> str:
     bound = ", at the end of its grid" if summary["at_bound"] else ""
     return (
         f"a lobe about every point's own facet (sigma {summary['sigma']:g}, F_tilde "
-        f"{summary['F_tilde']:g}, chosen on the calibration frames{bound}): held-out RMSE "
+        f"{summary['F_tilde']:g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, chosen on the "
+        f"calibration frames{bound}): held-out RMSE "
         f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
         f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
         f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
-        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet"
+        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet; status "
+        f"{summary['status']}" + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
     )
