@@ -18,14 +18,16 @@ Two measurements, each printed as one JSON line.
 
 Measured (2026-11-28, 12 frames at 640 px, `ctjax reconstruct`; near light; the test's
 facets turned by two angles): the shared sinus: S lands in S one frame on 0.88 (0.007 at
-random); facets sigma 0.1, F_tilde 0.01, test 17.70 against Lambert's 22.09 levels
+random); facets sigma 0.1, F_tilde 0.01 (grid), test 17.70 against Lambert's 22.09 levels
 (0.801x; Lambert with its own normal chosen the same way 0.925x; control 0.965x); even /
 odd frames 0.846x / 0.803x (sigma 0.15 / 0.1). The cholecystectomy video: 0.64 (0.045);
 0.990x (control 0.997x). The SurgT da Vinci clip (`reconstruct --stereo pairs`): 0.99
 (0.055), its camera barely moving; 0.985x (control 0.983x). docs/real-video.md, "Facets".
-The status (the grid again on the even and the odd calibration frames, 2026-11-28): sinus
-successful (both halves 0.1, 0.01), its even frames unstable (0.3 / 0.45), its odd frames
-successful, cholecystectomy no_lobe (gain -0.42%), SurgT at_bound (F_tilde 0.2).
+Refined between the grid's points, with the status (the grid again on the even and the odd
+calibration frames, 2026-11-28): sinus sigma 0.096, F_tilde 0.0089, 0.801x, successful
+(halves 0.117 / 0.099); its even frames unstable (0.32 / 0.45), its odd frames unstable
+(no lobe in either half); cholecystectomy no_lobe (gain -0.42%); SurgT at_bound (F_tilde
+at the grid's top).
 """
 
 import argparse

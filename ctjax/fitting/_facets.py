@@ -17,7 +17,8 @@ F_tilde stay global.
 Judged as `heldout_map_rmse` judges a model (each view predicted from the point's other
 views, the albedo a nuisance), with the facet a second nuisance of the lobe: the facet
 and the albedo of a judged view are chosen without it. `facet_lobe` picks sigma and one
-grey F_tilde from a grid by that protocol on the calibration tracks alone, then judges
+grey F_tilde from a grid (refined between its points) by that protocol on the
+calibration tracks alone, then judges
 the held-out views; `turned="diffuse"` gives the Lambertian model the same freedom for
 its own normal, the fair comparison.
 """
@@ -451,9 +452,34 @@ def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed) -> d
     return out
 
 
+def _vertex(x: np.ndarray, y: np.ndarray) -> float:
+    """The least of a parabola in log x through the least of `y` and its two neighbours
+    (kept between them); an end of `x` where the least is there or the parabola opens
+    downward."""
+    k = int(np.argmin(y))
+    if k in (0, len(x) - 1):
+        return float(x[k])
+    t = np.log(x[k - 1 : k + 2])
+    a, b, _ = np.polyfit(t, y[k - 1 : k + 2], 2)
+    return float(np.exp(np.clip(-b / (2 * a), t[0], t[2]))) if a > 0 else float(x[k])
+
+
+def _chosen(grid: dict) -> tuple[float, float]:
+    """(sigma, F_tilde) from a grid's calibration RMSE, refined between its neighbours:
+    sigma at the vertex of the profile (each sigma's least mean square over F_tilde), then
+    F_tilde at the vertex over F_tilde at the grid's sigma. The grid's steps (30-50%) are as
+    wide as the halves' check (20%): between grid points the halves can agree or not."""
+    sigmas = np.unique([k[0] for k in grid])
+    F_tildes = np.unique([k[1] for k in grid])
+    square = np.array([[grid.get((a, b), np.inf) ** 2 for b in F_tildes] for a in sigmas])
+    profile = square.min(1)
+    return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
+
+
 def _facet_status(sigma, f, sigmas, F_tildes, gain, halves) -> tuple[str, tuple]:
     """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
-    grid, a gain under `MIN_LOBE_GAIN`, halves apart; F_tilde at an end of its grid."""
+    grid, a gain under `MIN_LOBE_GAIN`, halves apart or a half without the lobe (its
+    F_tilde at the grid's bottom); F_tilde at an end of its grid."""
     if gain < MIN_LOBE_GAIN:  # NaN (nothing to compare with) passes
         return Status.no_lobe.name, (
             Undetermined(
@@ -471,8 +497,23 @@ def _facet_status(sigma, f, sigmas, F_tildes, gain, halves) -> tuple[str, tuple]
         {"sigma": (min(sigmas), max(sigmas))} if len(sigmas) > 1 else {},
         halves=None if halves is None else {"sigma": (halves[0][0], halves[1][0])},
     )
-    if len(F_tildes) > 1 and f in (min(F_tildes), max(F_tildes)):
-        end = "top" if f == max(F_tildes) else "bottom"
+    lacking = [
+        part
+        for part, (_, half_f) in zip(("even", "odd"), halves or (), strict=False)
+        if len(F_tildes) > 1 and half_f <= min(F_tildes)
+    ]
+    if lacking and not any(u.parameter == "sigma" for u in found):
+        found.append(
+            Undetermined(
+                "sigma",
+                Status.unstable,
+                f"the {' and the '.join(lacking)} calibration frames alone put F_tilde at the "
+                f"bottom of its grid ({min(F_tildes):g}): the lobe is not found in "
+                f"{'either half' if len(lacking) == 2 else 'one half'} of the frames",
+            )
+        )
+    if len(F_tildes) > 1 and not min(F_tildes) < f < max(F_tildes):
+        end = "top" if f >= max(F_tildes) else "bottom"
         found.append(
             Undetermined(
                 "F_tilde",
@@ -503,8 +544,9 @@ def facet_lobe(
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
-    views), then the `judged` views of `test` (M, P) predicted, beside the Lambertian model
-    under the same `light`, without and with its own normal chosen the same way.
+    views; refined between the grid's points, `_chosen`), then the `judged` views of
+    `test` (M, P) predicted, beside the Lambertian model under the same `light`, without
+    and with its own normal chosen the same way.
     `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike.
     `refine_steps`: the held-out judgement's facets (for both models) turned by two angles
     from the chosen H (`facet_heldout`); the grid's are the views' H as they are.
@@ -515,21 +557,22 @@ def facet_lobe(
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
     grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed)
     calibration = _grid(train, *grid)
-    sigma, f = min(calibration, key=calibration.get)
-    at_bound = sigma in (min(sigmas), max(sigmas)) or f in (min(F_tildes), max(F_tildes))
+    sigma, f = _chosen(calibration)
+    at_bound = not (min(sigmas) < sigma < max(sigmas) and min(F_tildes) < f < max(F_tildes))
     split = None
     frames = np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0])
     if halves and len(frames) >= _MIN_FRAMES_FOR_HALVES:
         split = []
         for parity in (0, 1):
             part = _grid(_half(train, parity), *grid)
-            split.append(min(part, key=part.get))
+            split.append(_chosen(part))
         split = tuple(split)
     lambertian = facet_model(light, sigma, 0.0)
     own_normal = facet_heldout(
         lambertian, train, train.weight > 0, rotations, penalty=penalty, turned="diffuse"
     )
-    gain = 1 - calibration[(sigma, f)] / own_normal.rmse if own_normal.rmse > 0 else math.nan
+    best = min(calibration.values())  # the grid's least: the refined choice is between points
+    gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
     status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split)
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
@@ -560,8 +603,8 @@ def facet_lobe_line(summary: dict) -> str:
     """One line for a command's output from `FacetLobe.to_json()`."""
     bound = ", at the end of its grid" if summary["at_bound"] else ""
     return (
-        f"a lobe about every point's own facet (sigma {summary['sigma']:g}, F_tilde "
-        f"{summary['F_tilde']:g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, chosen on the "
+        f"a lobe about every point's own facet (sigma {summary['sigma']:.3g}, F_tilde "
+        f"{summary['F_tilde']:.3g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, chosen on the "
         f"calibration frames{bound}): held-out RMSE "
         f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
         f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
