@@ -17,7 +17,7 @@ from ._convert import on_device
 from ._errors import CtjaxError
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
-from .fitting._facets import facet_lobe
+from .fitting._facet_lobe import facet_lobe
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
 from .fitting._map_least_squares import TrackSamples, fit_model_map, heldout_map_rmse
 from .fitting._parameters import free_parameters

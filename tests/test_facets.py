@@ -10,14 +10,8 @@ from ctjax import ColocatedLight, named_parameters
 from ctjax._errors import ParameterError
 from ctjax.effects import CameraGamma
 from ctjax.fitting import facet_heldout, facet_lobe
-from ctjax.fitting._facets import (
-    FACET_F_TILDES,
-    FACET_REFINE_STEPS,
-    FACET_SIGMAS,
-    _chosen,
-    _facet_status,
-    facet_model,
-)
+from ctjax.fitting._facet_lobe import FACET_F_TILDES, FACET_SIGMAS, _chosen, _facet_status
+from ctjax.fitting._facets import FACET_REFINE_STEPS, facet_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
 from ctjax.specular import highlight_persistence

@@ -5,11 +5,11 @@ from .._model import paper_model as paper_model
 from .._result import Estimate as Estimate
 from ..observations import PixelSamples as PixelSamples
 from ..observations import capture_samples as capture_samples
+from ._facet_lobe import FacetLobe as FacetLobe
+from ._facet_lobe import facet_lobe as facet_lobe
+from ._facet_lobe import facet_lobe_line as facet_lobe_line
 from ._facets import FacetJudgement as FacetJudgement
-from ._facets import FacetLobe as FacetLobe
 from ._facets import facet_heldout as facet_heldout
-from ._facets import facet_lobe as facet_lobe
-from ._facets import facet_lobe_line as facet_lobe_line
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
 from ._fit import pixel_columns as pixel_columns

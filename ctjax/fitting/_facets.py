@@ -16,15 +16,14 @@ F_tilde stay global.
 
 Judged as `heldout_map_rmse` judges a model (each view predicted from the point's other
 views, the albedo a nuisance), with the facet a second nuisance of the lobe: the facet
-and the albedo of a judged view are chosen without it. `facet_lobe` picks sigma and one
-grey F_tilde from a grid (refined between its points) by that protocol on the
-calibration tracks alone, then judges
-the held-out views; `turned="diffuse"` gives the Lambertian model the same freedom for
-its own normal, the fair comparison.
+and the albedo of a judged view are chosen without it. `facet_lobe` (`_facet_lobe.py`)
+picks sigma and one grey F_tilde from a grid (refined between its points) by that
+protocol on the calibration tracks alone, then judges the held-out views;
+`turned="diffuse"` gives the Lambertian model the same freedom for its own normal, the
+fair comparison.
 """
 
 import math
-from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -32,10 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._buckets import padded
-from .._determined import MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
 from .._errors import ParameterError
 from .._model import ShadingModel
-from .._status import Status
 from .._vector import Vec3
 from ..lobes._paper import cook_torrance_brdf
 from ..solvers import DenseLM, least_squares
@@ -46,8 +43,6 @@ from ._parameters import strongly_typed
 # 1.7-2.5 levels): AIC's 2 per parameter, two angles.
 FACET_PENALTY = 4.0
 _LEVEL = 2.0 / 255
-FACET_SIGMAS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45)
-FACET_F_TILDES = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 # The held-out judgement's facets, each chosen H then turned by two angles (LM steps): the
 # views' own H are as coarse as a sharp lobe (1-4 degrees apart on the real sequences).
 FACET_REFINE_STEPS = 10
@@ -354,261 +349,6 @@ def _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, re
     )
 
 
-class FacetLobe(eqx.Module):
-    """The lobe about every point's own facet (`facet_lobe`): `sigma` and `F_tilde` (grey)
-    chosen on the calibration tracks, `calibration_rmse` (grid point -> RMSE, levels),
-    `at_bound` (the choice at an end of its grid), the held-out RMSE of the lobe with facets
-    (`rmse`), of the Lambertian model under the same light (`lambertian_rmse`) and of the
-    Lambertian model with its own normal chosen the same way (`lambertian_turned_rmse`), the
-    share of judged views with a facet (`with_facet`).
-
-    Whether the data determine it: `halves` ((sigma, F_tilde) chosen on the even
-    calibration frames alone, then on the odd; None with fewer than 4), `gain` (the lobe's
-    relative RMSE decrease on the calibration frames against Lambert with its own normal
-    chosen the same way), `status` (`"successful"` or the first of `ctjax._determined`'s
-    statuses that applies) and `undetermined` (each reason, as `Estimate.details`)."""
-
-    sigma: float
-    F_tilde: float
-    calibration_rmse: dict
-    at_bound: bool
-    rmse: float
-    lambertian_rmse: float
-    lambertian_turned_rmse: float
-    with_facet: float
-    halves: tuple | None = None
-    gain: float = math.nan
-    status: str = "successful"
-    undetermined: tuple = ()
-
-    @property
-    def ratio(self) -> float:
-        """Held-out RMSE with facets over the Lambertian model's under the same light."""
-        return self.rmse / self.lambertian_rmse
-
-    @property
-    def peak(self) -> float:
-        """F_tilde / sigma^2: the lobe's height at N = H (Beckmann's D(0) = 1 / (pi
-        sigma^2)), what a sparkle's brightness measures when the views are too far apart to
-        resolve its width."""
-        return self.F_tilde / self.sigma**2
-
-    def to_json(self) -> dict:
-        halves = None
-        if self.halves is not None:
-            halves = {
-                part: {"sigma": s, "F_tilde": f, "peak": f / s**2}
-                for part, (s, f) in zip(("even_frames", "odd_frames"), self.halves, strict=True)
-            }
-        return {
-            "sigma": self.sigma,
-            "F_tilde": self.F_tilde,
-            "peak": self.peak,
-            "status": self.status,
-            "undetermined": list(self.undetermined),
-            "at_bound": self.at_bound,
-            "halves": halves,
-            "calibration_gain": self.gain,
-            "heldout_rgb_rmse": self.rmse,
-            "lambertian_same_light_rgb_rmse": self.lambertian_rmse,
-            "lambertian_turned_normals_rgb_rmse": self.lambertian_turned_rmse,
-            "ratio": self.ratio,
-            "views_with_a_facet": self.with_facet,
-            "calibration_rgb_rmse": {
-                f"sigma={s:g},F_tilde={f:g}": r for (s, f), r in self.calibration_rmse.items()
-            },
-        }
-
-
 def facet_model(light, sigma: float, F_tilde: float) -> ShadingModel:
     """The paper's BRDF (grey F_tilde) under `light`, for the facet protocol."""
     return strongly_typed(ShadingModel(cook_torrance_brdf(1.0, F_tilde, sigma), light))
-
-
-# The halves need two calibration frames each.
-_MIN_FRAMES_FOR_HALVES = 4
-
-
-def _half(samples: TrackSamples, parity: int) -> TrackSamples:
-    """`samples` with the views of the other parity's frames weighted 0 (the same compiled
-    programs)."""
-    frame = np.asarray(samples.site.frame)
-    keep = (frame >= 0) & (frame % 2 == parity)
-    weight = jnp.asarray(np.where(keep, np.asarray(samples.weight), 0), samples.weight.dtype)
-    return eqx.tree_at(lambda s: s.weight, samples, weight)
-
-
-def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed) -> dict:
-    """Every grid point's calibration RMSE: each view of `train` judged from its point's
-    other views (one pass per sigma: the F_tildes share its columns)."""
-    out = {}
-    for sigma in sigmas:
-        judgements = _judgements(
-            facet_model(light, sigma, F_tildes[0]), train, train.weight > 0, rotations,
-            F_tildes, penalty, "lobe", shuffle_seed, 0,
-        )  # fmt: skip
-        for f, judgement in zip(F_tildes, judgements, strict=True):
-            out[(float(sigma), float(f))] = judgement.rmse
-    return out
-
-
-def _vertex(x: np.ndarray, y: np.ndarray) -> float:
-    """The least of a parabola in log x through the least of `y` and its two neighbours
-    (kept between them); an end of `x` where the least is there or the parabola opens
-    downward."""
-    k = int(np.argmin(y))
-    if k in (0, len(x) - 1):
-        return float(x[k])
-    t = np.log(x[k - 1 : k + 2])
-    a, b, _ = np.polyfit(t, y[k - 1 : k + 2], 2)
-    return float(np.exp(np.clip(-b / (2 * a), t[0], t[2]))) if a > 0 else float(x[k])
-
-
-def _chosen(grid: dict) -> tuple[float, float]:
-    """(sigma, F_tilde) from a grid's calibration RMSE, refined between its neighbours:
-    sigma at the vertex of the profile (each sigma's least mean square over F_tilde), then
-    F_tilde at the vertex over F_tilde at the grid's sigma. The grid's steps (30-50%) are as
-    wide as the halves' check (20%): between grid points the halves can agree or not."""
-    sigmas = np.unique([k[0] for k in grid])
-    F_tildes = np.unique([k[1] for k in grid])
-    square = np.array([[grid.get((a, b), np.inf) ** 2 for b in F_tildes] for a in sigmas])
-    profile = square.min(1)
-    return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
-
-
-def _facet_status(sigma, f, sigmas, F_tildes, gain, halves) -> tuple[str, tuple]:
-    """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
-    grid, a gain under `MIN_LOBE_GAIN`, halves apart or a half without the lobe (its
-    F_tilde at the grid's bottom); F_tilde at an end of its grid."""
-    if gain < MIN_LOBE_GAIN:  # NaN (nothing to compare with) passes
-        return Status.no_lobe.name, (
-            Undetermined(
-                "F_tilde",
-                Status.no_lobe,
-                f"on the calibration frames the facet lobe lowers the RMSE by {gain:.2%} "
-                "against Lambert with its own normal chosen the same way (under "
-                f"{MIN_LOBE_GAIN:.1%}): no specular lobe is found, and sigma = {sigma:g} is "
-                "not determined by the data",
-            ).to_json(),
-        )
-    found = undetermined(
-        {"sigma": sigma},
-        {},
-        {"sigma": (min(sigmas), max(sigmas))} if len(sigmas) > 1 else {},
-        halves=None if halves is None else {"sigma": (halves[0][0], halves[1][0])},
-    )
-    lacking = [
-        part
-        for part, (_, half_f) in zip(("even", "odd"), halves or (), strict=False)
-        if len(F_tildes) > 1 and half_f <= min(F_tildes)
-    ]
-    if lacking and not any(u.parameter == "sigma" for u in found):
-        found.append(
-            Undetermined(
-                "sigma",
-                Status.unstable,
-                f"the {' and the '.join(lacking)} calibration frames alone put F_tilde at the "
-                f"bottom of its grid ({min(F_tildes):g}): the lobe is not found in "
-                f"{'either half' if len(lacking) == 2 else 'one half'} of the frames",
-            )
-        )
-    if len(F_tildes) > 1 and not min(F_tildes) < f < max(F_tildes):
-        end = "top" if f >= max(F_tildes) else "bottom"
-        found.append(
-            Undetermined(
-                "F_tilde",
-                Status.at_bound,
-                f"F_tilde = {f:g} is at the {end} of its grid ({min(F_tildes):g}, "
-                f"{max(F_tildes):g}): no measurement of the lobe's weight",
-            )
-        )
-    if not found:
-        return Status.successful.name, ()
-    first = min((u.status for u in found), key=PRIORITY.index)
-    return first.name, tuple(u.to_json() for u in found)
-
-
-def facet_lobe(
-    train: TrackSamples,
-    test: TrackSamples,
-    judged,
-    rotations,
-    light,
-    *,
-    sigmas: Sequence[float] = FACET_SIGMAS,
-    F_tildes: Sequence[float] = FACET_F_TILDES,
-    penalty: float = FACET_PENALTY,
-    shuffle_seed: int | None = None,
-    refine_steps: int = FACET_REFINE_STEPS,
-    halves: bool = True,
-) -> FacetLobe:
-    """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
-    protocol on `train` (every calibration view judged from the point's other calibration
-    views; refined between the grid's points, `_chosen`), then the `judged` views of
-    `test` (M, P) predicted, beside the Lambertian model under the same `light`, without
-    and with its own normal chosen the same way.
-    `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike.
-    `refine_steps`: the held-out judgement's facets (for both models) turned by two angles
-    from the chosen H (`facet_heldout`); the grid's are the views' H as they are.
-    `halves`: the grid again on the even and on the odd calibration frames alone (the
-    other half's views weighted 0), whose sigmas a determined lobe's agree between
-    (`FacetLobe.status`)."""
-    if not sigmas or not F_tildes:
-        raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
-    grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed)
-    calibration = _grid(train, *grid)
-    sigma, f = _chosen(calibration)
-    at_bound = not (min(sigmas) < sigma < max(sigmas) and min(F_tildes) < f < max(F_tildes))
-    split = None
-    frames = np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0])
-    if halves and len(frames) >= _MIN_FRAMES_FOR_HALVES:
-        split = []
-        for parity in (0, 1):
-            part = _grid(_half(train, parity), *grid)
-            split.append(_chosen(part))
-        split = tuple(split)
-    lambertian = facet_model(light, sigma, 0.0)
-    own_normal = facet_heldout(
-        lambertian, train, train.weight > 0, rotations, penalty=penalty, turned="diffuse"
-    )
-    best = min(calibration.values())  # the grid's least: the refined choice is between points
-    gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
-    status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split)
-    lobe = facet_heldout(
-        facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
-        shuffle_seed=shuffle_seed, refine_steps=refine_steps,
-    )  # fmt: skip
-    plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty)
-    turned = facet_heldout(
-        lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
-        refine_steps=refine_steps,
-    )  # fmt: skip
-    return FacetLobe(
-        sigma,
-        f,
-        calibration,
-        bool(at_bound and len(sigmas) * len(F_tildes) > 1),
-        lobe.rmse,
-        plain.rmse,
-        turned.rmse,
-        lobe.with_facet,
-        split,
-        gain,
-        status,
-        reasons,
-    )
-
-
-def facet_lobe_line(summary: dict) -> str:
-    """One line for a command's output from `FacetLobe.to_json()`."""
-    bound = ", at the end of its grid" if summary["at_bound"] else ""
-    return (
-        f"a lobe about every point's own facet (sigma {summary['sigma']:.3g}, F_tilde "
-        f"{summary['F_tilde']:.3g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, chosen on the "
-        f"calibration frames{bound}): held-out RMSE "
-        f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
-        f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
-        f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
-        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet; status "
-        f"{summary['status']}" + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
-    )
