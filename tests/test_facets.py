@@ -61,6 +61,8 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     # Determined: the even and the odd calibration frames alone pick the same sigma.
     assert [half[0] for half in lobe.halves] == pytest.approx([0.2, 0.2], rel=0.1)
     assert lobe.status == "successful" and lobe.gain > 0.005
+    # Its standard errors over the tracked points (bootstrap): small, not zero.
+    assert 0 < lobe.stderr[0] < 0.25 * lobe.sigma and 0 < lobe.stderr[1] < lobe.F_tilde
     assert out["peak"] == pytest.approx(lobe.F_tilde / lobe.sigma**2)
     assert out["undetermined"] == []
 
@@ -156,6 +158,8 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     status, reasons = _facet_status(0.05, 0.01, *grid, 0.06, None)
     assert status == "at_bound" and reasons[0]["parameter"] == "sigma"
     assert _facet_status(0.1, 0.01, *grid, 0.001, None)[0] == "no_lobe"
+    status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, None, 0.03)
+    assert status == "unstable" and "standard error of 30%" in reasons[0]["reason"]
     status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
 

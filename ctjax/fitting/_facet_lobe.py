@@ -33,8 +33,10 @@ class FacetLobe(eqx.Module):
     Whether the data determine it: `halves` ((sigma, F_tilde) chosen on the even
     calibration frames alone, then on the odd; None with fewer than 4), `gain` (the lobe's
     relative RMSE decrease on the calibration frames against Lambert with its own normal
-    chosen the same way), `status` (`"successful"` or the first of `ctjax._determined`'s
-    statuses that applies) and `undetermined` (each reason, as `Estimate.details`)."""
+    chosen the same way), `stderr` (sigma's and F_tilde's standard errors over the tracked
+    points: the choice again on `BOOTSTRAP_RESAMPLES` resamples of them), `status`
+    (`"successful"` or the first of `ctjax._determined`'s statuses that applies) and
+    `undetermined` (each reason, as `Estimate.details`)."""
 
     sigma: float
     F_tilde: float
@@ -48,6 +50,7 @@ class FacetLobe(eqx.Module):
     gain: float = math.nan
     status: str = "successful"
     undetermined: tuple = ()
+    stderr: tuple = (math.nan, math.nan)
 
     @property
     def ratio(self) -> float:
@@ -71,6 +74,8 @@ class FacetLobe(eqx.Module):
         return {
             "sigma": self.sigma,
             "F_tilde": self.F_tilde,
+            "sigma_stderr": self.stderr[0],
+            "F_tilde_stderr": self.stderr[1],
             "peak": self.peak,
             "status": self.status,
             "undetermined": list(self.undetermined),
@@ -101,10 +106,12 @@ def _half(samples: TrackSamples, parity: int) -> TrackSamples:
     return eqx.tree_at(lambda s: s.weight, samples, weight)
 
 
-def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed) -> dict:
-    """Every grid point's calibration RMSE: each view of `train` judged from its point's
-    other views (one pass per sigma: the F_tildes share its columns)."""
-    out = {}
+def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed):
+    """Every grid point's calibration RMSE (a dict), each view of `train` judged from its
+    point's other views (one pass per sigma: the F_tildes share its columns), and per
+    grid point and tracked point (G, 2, P) the sum of squares (levels^2) and the count of
+    judged values: what the bootstrap over the points resamples."""
+    out, per_point = {}, []
     for sigma in sigmas:
         judgements = _judgements(
             facet_model(light, sigma, F_tildes[0]), train, train.weight > 0, rotations,
@@ -112,7 +119,31 @@ def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed) -> d
         )  # fmt: skip
         for f, judgement in zip(F_tildes, judgements, strict=True):
             out[(float(sigma), float(f))] = judgement.rmse
-    return out
+            residual, weight = judgement.residual, judgement.weight
+            ssr = np.sum(weight * np.sum(residual * residual, 0), 0)
+            per_point.append(np.stack([ssr, residual.shape[0] * np.sum(weight, 0)]))
+    return out, np.stack(per_point)
+
+
+# Resamples of the tracked points (with replacement) for the standard errors of the choice.
+BOOTSTRAP_RESAMPLES = 200
+# A choice whose bootstrap standard error is over this share of it is not determined.
+MAX_RELATIVE_STDERR = 0.25
+
+
+def _bootstrap(keys, per_point: np.ndarray, resamples: int, seed: int = 0):
+    """The standard errors of `_chosen`'s (sigma, F_tilde) over the tracked points: the
+    grid's RMSE recomputed on `resamples` draws of the points with replacement."""
+    counted = per_point[0, 1] > 0
+    per_point = per_point[:, :, counted]
+    points = per_point.shape[-1]
+    if points < 2 or resamples < 2:
+        return math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    draws = rng.multinomial(points, np.full(points, 1 / points), size=resamples)  # (B, P)
+    rmse = np.sqrt((draws @ per_point[:, 0].T) / (draws @ per_point[:, 1].T))  # (B, G)
+    picks = np.array([_chosen(dict(zip(keys, r, strict=True))) for r in rmse])
+    return tuple(float(e) for e in np.std(picks, 0, ddof=1))
 
 
 def _vertex(x: np.ndarray, y: np.ndarray) -> float:
@@ -139,10 +170,13 @@ def _chosen(grid: dict) -> tuple[float, float]:
     return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
 
 
-def _facet_status(sigma, f, sigmas, F_tildes, gain, halves) -> tuple[str, tuple]:
+def _facet_status(
+    sigma, f, sigmas, F_tildes, gain, halves, sigma_stderr=math.nan
+) -> tuple[str, tuple]:
     """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
     grid, a gain under `MIN_LOBE_GAIN`, halves apart or a half without the lobe (its
-    F_tilde at the grid's bottom); F_tilde at an end of its grid."""
+    F_tilde at the grid's bottom), a bootstrap standard error over `MAX_RELATIVE_STDERR` of
+    it; F_tilde at an end of its grid."""
     if gain < MIN_LOBE_GAIN:  # NaN (nothing to compare with) passes
         return Status.no_lobe.name, (
             Undetermined(
@@ -173,6 +207,16 @@ def _facet_status(sigma, f, sigmas, F_tildes, gain, halves) -> tuple[str, tuple]
                 f"the {' and the '.join(lacking)} calibration frames alone put F_tilde at the "
                 f"bottom of its grid ({min(F_tildes):g}): the lobe is not found in "
                 f"{'either half' if len(lacking) == 2 else 'one half'} of the frames",
+            )
+        )
+    spread = sigma_stderr / sigma
+    if spread > MAX_RELATIVE_STDERR and not any(u.parameter == "sigma" for u in found):
+        found.append(
+            Undetermined(
+                "sigma",
+                Status.unstable,
+                f"sigma = {sigma:.3g} has a standard error of {spread:.0%} over the tracked "
+                f"points (bootstrap; over {MAX_RELATIVE_STDERR:.0%})",
             )
         )
     if len(F_tildes) > 1 and not min(F_tildes) < f < max(F_tildes):
@@ -219,16 +263,16 @@ def facet_lobe(
     if not sigmas or not F_tildes:
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
     grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed)
-    calibration = _grid(train, *grid)
+    calibration, per_point = _grid(train, *grid)
     sigma, f = _chosen(calibration)
+    stderr = _bootstrap(list(calibration), per_point, BOOTSTRAP_RESAMPLES)
     at_bound = not (min(sigmas) < sigma < max(sigmas) and min(F_tildes) < f < max(F_tildes))
     split = None
     frames = np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0])
     if halves and len(frames) >= _MIN_FRAMES_FOR_HALVES:
         split = []
         for parity in (0, 1):
-            part = _grid(_half(train, parity), *grid)
-            split.append(_chosen(part))
+            split.append(_chosen(_grid(_half(train, parity), *grid)[0]))
         split = tuple(split)
     lambertian = facet_model(light, sigma, 0.0)
     own_normal = facet_heldout(
@@ -236,7 +280,7 @@ def facet_lobe(
     )
     best = min(calibration.values())  # the grid's least: the refined choice is between points
     gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
-    status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split)
+    status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split, stderr[0])
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
         shuffle_seed=shuffle_seed, refine_steps=refine_steps,
@@ -259,6 +303,7 @@ def facet_lobe(
         gain,
         status,
         reasons,
+        stderr,
     )
 
 
@@ -266,9 +311,10 @@ def facet_lobe_line(summary: dict) -> str:
     """One line for a command's output from `FacetLobe.to_json()`."""
     bound = ", at the end of its grid" if summary["at_bound"] else ""
     return (
-        f"a lobe about every point's own facet (sigma {summary['sigma']:.3g}, F_tilde "
-        f"{summary['F_tilde']:.3g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, chosen on the "
-        f"calibration frames{bound}): held-out RMSE "
+        f"a lobe about every point's own facet (sigma {summary['sigma']:.3g} +- "
+        f"{summary['sigma_stderr']:.2g}, F_tilde {summary['F_tilde']:.3g} +- "
+        f"{summary['F_tilde_stderr']:.2g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, "
+        f"chosen on the calibration frames{bound}): held-out RMSE "
         f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
         f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
         f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
