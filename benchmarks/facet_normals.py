@@ -23,12 +23,12 @@ random); facets sigma 0.1, F_tilde 0.01 (grid), test 17.70 against Lambert's 22.
 odd frames 0.846x / 0.803x (sigma 0.15 / 0.1). The cholecystectomy video: 0.64 (0.045);
 0.990x (control 0.997x). The SurgT da Vinci clip (`reconstruct --stereo pairs`): 0.99
 (0.055), its camera barely moving; 0.985x (control 0.983x). docs/real-video.md, "Facets".
-Refined between the grid's points, with the status (the grid again on the even and the odd
-calibration frames, 2026-11-28): sinus sigma 0.096 +- 0.003 (bootstrap over the points),
-F_tilde 0.0089 +- 0.0002, 0.801x, successful (halves 0.117 / 0.099); its even frames
-0.15 +- 0.003, unstable (halves 0.32 / 0.45), its odd frames 0.097 +- 0.004, unstable (no
-lobe in either half); cholecystectomy no_lobe (gain -0.42%); SurgT at_bound (F_tilde at
-the grid's top).
+Refined between the grid's points (F_tilde 13 values), with the status (the grid again on
+the even and the odd calibration frames, 2026-11-28): sinus sigma 0.101 +- 0.006
+(bootstrap over the points), F_tilde 0.0106 +- 0.0008, 0.800x, unstable (halves 0.133 /
+0.092); its even frames 0.151 +- 0.004, unstable; its odd frames 0.087 +- 0.006,
+successful; cholecystectomy no_lobe (gain 0.02%, 1.037x); SurgT at_bound (F_tilde at the
+grid's top).
 """
 
 import argparse

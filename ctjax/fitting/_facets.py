@@ -237,6 +237,22 @@ def _facet_views(
 
 
 @eqx.filter_jit
+def _facet_sums(
+    model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle, gains
+):
+    """`_facet_views` summed per tracked point: (G, 2, P), the judged views' sum of squares
+    and count of values."""
+    per_point = _per_point(model, samples, judged, rotations, shuffle)
+
+    def one(arrays):
+        residual, w, _ = _one_point(model, turned, penalty, rotations, gains, *arrays)
+        ssr = jnp.sum(w * jnp.sum(residual * residual, 1), -1)  # (G,)
+        return jnp.stack([ssr, residual.shape[1] * jnp.sum(w, -1)], -1)  # (G, 2)
+
+    return jnp.moveaxis(jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE), 0, -1)
+
+
+@eqx.filter_jit
 def _turned_views(
     model, samples: TrackSamples, judged, rotations, turned: str, shuffle, pairs, steps: int
 ):
@@ -293,32 +309,60 @@ def facet_heldout(
                        refine_steps)[0]  # fmt: skip
 
 
+def _prepared(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed):
+    """The arguments of `_facet_views` and `_facet_sums` but `samples` and `turned`:
+    the lobe weights (G, K, C) are `model`'s (`F_tildes` None) or each grey F_tilde of
+    `F_tildes` for every lobe but the diffuse one."""
+    model = strongly_typed(model)
+    dtype = samples.weight.dtype
+    weights = np.asarray(model.brdf.weights, dtype)
+    if F_tildes is None:
+        gains = weights[None]
+    else:
+        gains = np.repeat(np.asarray(F_tildes, dtype)[:, None, None], weights.shape[0], 1)
+        gains = np.repeat(gains, weights.shape[1], 2)
+        gains[:, diffuse_lobe(model)] = weights[diffuse_lobe(model)]
+    shuffle = None
+    if shuffle_seed is not None:
+        points = samples.weight.shape[1]
+        shuffle = jnp.asarray(np.random.default_rng(shuffle_seed).permutation(points))
+    return (
+        model,
+        jnp.asarray(judged, bool),
+        jnp.asarray(np.asarray(rotations), dtype),
+        jnp.asarray(penalty * _LEVEL**2, dtype),
+        shuffle,
+        jnp.asarray(gains),
+    )
+
+
 def _judgements(
     model, samples, judged, rotations, F_tildes, penalty, turned, shuffle_seed, refine_steps
 ) -> list[FacetJudgement]:
     """`facet_heldout` for `model`'s lobe weights (`F_tildes` None) or for each grey
     F_tilde of `F_tildes` in turn (the lobes' columns shared; not turned)."""
-    model = strongly_typed(model)
-    dtype = samples.weight.dtype
-    rotations = jnp.asarray(np.asarray(rotations), dtype)
-    judged = jnp.asarray(judged, bool)
-    gains = jnp.asarray(model.brdf.weights, dtype)[None]
-    if F_tildes is not None:  # (G, K, C): every lobe but the diffuse one at each F_tilde
-        diffuse = diffuse_lobe(model)
-        gains = jnp.stack(
-            [gains[0].at[:].set(f).at[diffuse].set(gains[0, diffuse]) for f in F_tildes]
-        )
+    model, judged, rotations, price, shuffle, gains = _prepared(
+        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed
+    )
+    if F_tildes is not None:
         refine_steps = 0
-    shuffle = None
-    if shuffle_seed is not None:
-        points = samples.weight.shape[1]
-        shuffle = jnp.asarray(np.random.default_rng(shuffle_seed).permutation(points))
-    price = jnp.asarray(penalty * _LEVEL**2, dtype)
     views = _facet_views(model, samples, judged, rotations, price, turned, shuffle, gains)
     return [
         _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, *one)
         for one in zip(*(np.array(x) for x in views), strict=True)
     ]
+
+
+def facet_sums(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed=None):
+    """Per grey F_tilde of `F_tildes` and tracked point (G, 2, P): the judged views' sum of
+    squared residuals (8-bit levels^2) and count of values, with the facet and the albedo
+    chosen from the point's other views (`facet_heldout`'s, not turned), summed where they
+    are computed: the grid's figures without its residual arrays."""
+    model, judged, rotations, price, shuffle, gains = _prepared(
+        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed
+    )
+    sums = _facet_sums(model, samples, judged, rotations, price, "lobe", shuffle, gains)
+    return np.asarray(sums) * np.array([255.0**2, 1.0])[:, None]
 
 
 def _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, residual, weight,
