@@ -48,7 +48,7 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     reconstruction's normal as the facet, the grid picks the true sigma and F_tilde's
     nearest values on the calibration frames, and the held-out views are predicted better
     than by Lambert under the same light (measured: 1.25 against 1.32 levels)."""
-    _, _, lobe = _lobe(tmp_path / "c", F_tilde=(0.012,) * 3, sigma=0.2, frames=9)
+    tracks, capture, lobe = _lobe(tmp_path / "c", F_tilde=(0.012,) * 3, sigma=0.2, frames=9)
     # The grid's choice (0.2, 0.01) refined between its points (measured 0.197, 0.0094).
     assert lobe.sigma == pytest.approx(0.2, rel=0.05)
     assert 0.005 < lobe.F_tilde < 0.02
@@ -65,6 +65,11 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     assert 0 < lobe.stderr[0] < 0.25 * lobe.sigma and 0 < lobe.stderr[1] < lobe.F_tilde
     assert out["peak"] == pytest.approx(lobe.F_tilde / lobe.sigma**2)
     assert out["undetermined"] == []
+    # The grid's figures, summed inside the program, are facet_heldout's on the calibration.
+    model = facet_model(ColocatedLight(), 0.2, 0.01)
+    train = tracks.train
+    judged = facet_heldout(model, train, train.weight > 0, _rotations(capture))
+    assert lobe.calibration_rmse[(0.2, 0.01)] == pytest.approx(judged.rmse, rel=1e-9)
 
 
 def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
