@@ -26,9 +26,9 @@ odd frames 0.846x / 0.803x (sigma 0.15 / 0.1). The cholecystectomy video: 0.64 (
 Refined between the grid's points (F_tilde 13 values), with the status (the grid again on
 the even and the odd calibration frames, 2026-11-28): sinus sigma 0.101 +- 0.006
 (bootstrap over the points), F_tilde 0.0106 +- 0.0008, 0.800x, unstable (halves 0.133 /
-0.092); its even frames 0.151 +- 0.004, unstable; its odd frames 0.087 +- 0.006,
-successful; cholecystectomy no_lobe (gain 0.02%, 1.037x); SurgT at_bound (F_tilde at the
-grid's top).
+0.092); its even frames 0.151 +- 0.004, its odd frames 0.087 +- 0.006, both unstable
+(4 calibration frames, too few for halves); cholecystectomy no_lobe (gain 0.02%,
+1.037x); SurgT at_bound (F_tilde at the grid's top).
 """
 
 import argparse

@@ -249,8 +249,8 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys):
     facets = summary["facets"]
     assert facets["sigma"] > 0 and facets["F_tilde"] > 0
     assert np.isfinite(facets["heldout_rgb_rmse"]) and np.isfinite(facets["ratio"])
-    # Two calibration frames: no halves to check its stability on; the status says the rest.
-    assert facets["halves"] is None and facets["status"] in ("successful", "at_bound", "no_lobe")
+    # Two calibration frames: no halves to check its stability on, so never "successful".
+    assert facets["halves"] is None and facets["status"] in ("unstable", "at_bound", "no_lobe")
     printed = capsys.readouterr().out
     assert "a lobe about every point's own facet" in printed
     assert f"status {facets['status']}" in printed

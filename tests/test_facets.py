@@ -163,6 +163,8 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     status, reasons = _facet_status(0.05, 0.01, *grid, 0.06, None)
     assert status == "at_bound" and reasons[0]["parameter"] == "sigma"
     assert _facet_status(0.1, 0.01, *grid, 0.001, None)[0] == "no_lobe"
+    status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, None, 0.005, unchecked=4)
+    assert status == "unstable" and "4 calibration frames: too few" in reasons[0]["reason"]
     status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, None, 0.03)
     assert status == "unstable" and "standard error of 30%" in reasons[0]["reason"]
     status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
