@@ -446,6 +446,9 @@ PARAMETER_CASES = [
     ),
     pytest.param(lambda: SynthOptions(bits=12), "bits=12", id="synth-options-bits-12"),
     pytest.param(
+        lambda: SynthOptions(sparkle_px=0.0), "sparkle_px=0.0", id="synth-options-sparkle-px-0"
+    ),
+    pytest.param(
         lambda: ctjax.PointLight([math.nan, 0.0, 0.0]), "position_mm", id="point-light-nan"
     ),
     pytest.param(

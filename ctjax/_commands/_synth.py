@@ -25,6 +25,13 @@ def add_synth_parser(commands) -> None:
         help="sparkles whose facets belong to the tissue (the same facet at a surface point in "
         "every frame, as on real wet tissue) instead of drawn anew each frame; implies --sparkles",
     )
+    synth.add_argument(
+        "--sparkle-px",
+        type=float,
+        default=None,
+        help="the facets' correlation length in pixels (default 1.5: a tracked point's pixels "
+        "see different facets; 6: they share one)",
+    )
     synth.set_defaults(run=run_synth)
 
 
@@ -99,6 +106,7 @@ def _synth_options_from(args: argparse.Namespace):
         stereo_mm=getattr(args, "stereo", None),
         sparkles=getattr(args, "sparkles", False),
         sparkles_attached=getattr(args, "sparkles_attached", False),
+        **({} if getattr(args, "sparkle_px", None) is None else {"sparkle_px": args.sparkle_px}),
     )
 
 

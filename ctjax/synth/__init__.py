@@ -2,6 +2,7 @@
 
 from ._real_like import RealLikeFrame as RealLikeFrame
 from ._real_like import real_like_frame as real_like_frame
+from ._synthesize import SPARKLE_MICRO_SIGMA as SPARKLE_MICRO_SIGMA
 from ._synthesize import SynthOptions as SynthOptions
 from ._synthesize import effective_sigma as effective_sigma
 from ._synthesize import effects_truth as effects_truth

@@ -37,8 +37,8 @@ DEFAULT_RHO_TILDE = (2.4, 1.1, 0.85)
 DEFAULT_F_TILDE = (0.3, 0.3, 0.3)
 DEFAULT_SIGMA = 0.2
 WORKING_DISTANCE_MM = 70.0
-# Sparkles (`SynthOptions.sparkles`): each facet's own sharp lobe, and the scale (px) over
-# which a facet's tilt is correlated (a sparkle spans a few pixels), as in
+# Sparkles (`SynthOptions.sparkles`): each facet's own sharp lobe, and the default scale
+# (px) over which a facet's tilt is correlated (a sparkle spans a few pixels), as in
 # benchmarks/lobe_ideas.py's `sparkly_capture`.
 SPARKLE_MICRO_SIGMA = 0.06
 SPARKLE_CORRELATION_PX = 1.5
@@ -69,13 +69,16 @@ class SynthOptions:
 
     `sparkles`: highlights as sparkles, as wet tissue shows them: every pixel sees one
     facet, its normal the surface's tilted by a Beckmann slope of roughness `sigma`
-    (correlated over `SPARKLE_CORRELATION_PX`, drawn anew each frame), lit by a sharp lobe
+    (correlated over `sparkle_px` pixels, drawn anew each frame), lit by a sharp lobe
     (`SPARKLE_MICRO_SIGMA`, the specular lobes' roughness); the stored normals stay the
     surface's. The lobe a pixel-averaged model sees has the effective roughness
     `effective_sigma` (truth.json's `sigma`). `sparkles_attached`: the facets belong to the
     tissue (one tilt field over the world's (x, y), as the texture), so a sparkle stays on
     its surface point from frame to frame while the scope's H stays near its facet, as on
-    real wet tissue (`benchmarks/facet_normals.py`); implies `sparkles`.
+    real wet tissue (`benchmarks/facet_normals.py`); implies `sparkles`. `sparkle_px`:
+    the facets' correlation length (pixels at the working distance): at the default 1.5 a
+    tracked point's four bilinear pixels see different facets (a point's lobe is wider
+    than `SPARKLE_MICRO_SIGMA`), at 6 they share one.
     """
 
     width: int = 320
@@ -96,6 +99,7 @@ class SynthOptions:
     stereo_mm: float | None = None
     sparkles: bool = False
     sparkles_attached: bool = False
+    sparkle_px: float = SPARKLE_CORRELATION_PX
 
     def __post_init__(self):
         if self.sparkles_attached and not self.sparkles:
@@ -113,6 +117,8 @@ class SynthOptions:
             np.isfinite(self.stereo_mm) and 0 < self.stereo_mm < 0.5 * WORKING_DISTANCE_MM
         ):
             problems.append(f"stereo_mm={self.stereo_mm} (a baseline in (0, 35) mm)")
+        if not (np.isfinite(self.sparkle_px) and 0.5 <= self.sparkle_px <= 50):
+            problems.append(f"sparkle_px={self.sparkle_px} (in [0.5, 50])")
         if self.bits not in (8, 16):
             problems.append(f"bits={self.bits} (8 or 16)")
         if not (np.isfinite(self.sigma) and 1e-5 <= self.sigma <= 1):
@@ -222,24 +228,28 @@ def _render_frame(model: ShadingModel, camera, depth, normals, albedo_map, frame
     return _with_effects(model.effects, rgb, frame)
 
 
-def _facet_normals(normals: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+def _facet_normals(
+    normals: np.ndarray, sigma: float, correlation_px: float, rng: np.random.Generator
+) -> np.ndarray:
     """(H, W, 3) float32: each pixel's facet, the surface's normal tilted by a Beckmann
     slope of roughness `sigma` (each tangent slope Gaussian of variance sigma^2 / 2),
-    correlated over `SPARKLE_CORRELATION_PX`; NaN where the normal is."""
+    correlated over `correlation_px`; NaN where the normal is."""
     import cv2
 
     h, w = normals.shape[:2]
     slopes = []
     for _ in range(2):
-        z = cv2.GaussianBlur(rng.normal(size=(h, w)), (0, 0), SPARKLE_CORRELATION_PX)
+        z = cv2.GaussianBlur(rng.normal(size=(h, w)), (0, 0), correlation_px)
         slopes.append(z / z.std() * sigma / np.sqrt(2))
     return _tilted(normals, slopes)
 
 
-def _tissue_slopes(sigma: float, pixel_mm: float, rng: np.random.Generator) -> list:
+def _tissue_slopes(
+    sigma: float, correlation_px: float, pixel_mm: float, rng: np.random.Generator
+) -> list:
     """Two slope fields over the texture's world (x, y) square (float32, read by
     `sample_texture`), Gaussian of variance sigma^2 / 2 each, correlated over
-    `SPARKLE_CORRELATION_PX` pixels at the working distance: facets of the tissue."""
+    `correlation_px` pixels at the working distance: facets of the tissue."""
     import cv2
 
     from ._texture import RESOLUTION, TEXEL_MM
@@ -247,18 +257,26 @@ def _tissue_slopes(sigma: float, pixel_mm: float, rng: np.random.Generator) -> l
     slopes = []
     for _ in range(2):
         z = rng.normal(size=(RESOLUTION, RESOLUTION))
-        z = cv2.GaussianBlur(z, (0, 0), SPARKLE_CORRELATION_PX * pixel_mm / TEXEL_MM)
+        z = cv2.GaussianBlur(z, (0, 0), correlation_px * pixel_mm / TEXEL_MM)
         slopes.append((z / z.std() * sigma / np.sqrt(2)).astype(np.float32))
     return slopes
 
 
-def _tilted(normals: np.ndarray, slopes) -> np.ndarray:
-    """(H, W, 3) float32: the normals tilted by two tangent slopes (H, W) each."""
+def _tilted(normals: np.ndarray, slopes, rotation: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, 3) float32: the normals tilted by two tangent slopes (H, W) each. The
+    tangents are the normal's crossed with the y axis of the normals' frame, or, with
+    `rotation` (the camera-to-world rotation of camera-frame normals), of the world's: the
+    same slopes then tilt a surface point's normal to the same world direction from every
+    pose (facets of the tissue), where the camera's frame would turn them with its roll."""
     n = normals.astype(np.float64)
+    if rotation is not None:
+        n = n @ np.asarray(rotation, np.float64).T  # to the world
     t1 = np.cross(n, np.array([0.0, 1.0, 0.0]))
     t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
     t2 = np.cross(n, t1)
     facet = n - slopes[0][..., None] * t1 - slopes[1][..., None] * t2
+    if rotation is not None:
+        facet = facet @ np.asarray(rotation, np.float64)  # back to the camera's frame
     return (facet / np.linalg.norm(facet, axis=-1, keepdims=True)).astype(np.float32)
 
 
@@ -315,7 +333,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
     top = 255 if options.bits == 8 else 65535
     attached = None
     if options.sparkles_attached:
-        attached = _tissue_slopes(options.sigma, pixel_mm, sparkle_rng)
+        attached = _tissue_slopes(options.sigma, options.sparkle_px, pixel_mm, sparkle_rng)
 
     def view(model, pose, index):
         """One camera's linear image of frame `index` at `pose`, and its geometry."""
@@ -332,9 +350,10 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
             albedo_map = 1 + np.float32(options.texture_contrast) * (albedo_map - 1)
         facets = None
         if attached is not None:
-            facets = _tilted(normals, [sample_field(f, points_world) for f in attached])
+            slopes = [sample_field(f, points_world) for f in attached]
+            facets = _tilted(normals, slopes, rotation=pose[:3, :3])
         elif sparkle_rng is not None:
-            facets = _facet_normals(normals, options.sigma, sparkle_rng)
+            facets = _facet_normals(normals, options.sigma, options.sparkle_px, sparkle_rng)
         linear = np.asarray(_render_frame(model, camera, depth, normals, albedo_map, index, facets))
         noisy = linear + noise_rng.normal(0, options.noise_levels / 255, linear.shape)
         quantised = np.round(np.clip(noisy, 0, 1) * top) / top
@@ -384,7 +403,7 @@ def synthesize(out: str | Path, options: SynthOptions = SynthOptions()) -> Path:
         truth["sparkles"] = {
             "facet_sigma": float(options.sigma),
             "micro_sigma": SPARKLE_MICRO_SIGMA,
-            "correlation_px": SPARKLE_CORRELATION_PX,
+            "correlation_px": options.sparkle_px,
             "note": "every pixel one facet, the surface's normal (normals/) tilted by a "
             "Beckmann slope of roughness facet_sigma, "
             + (
