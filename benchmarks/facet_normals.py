@@ -29,6 +29,12 @@ the even and the odd calibration frames, 2026-11-28): sinus sigma 0.101 +- 0.006
 0.092); its even frames 0.151 +- 0.004, its odd frames 0.087 +- 0.006, both unstable
 (4 calibration frames, too few for halves); cholecystectomy no_lobe (gain 0.02%,
 1.037x); SurgT at_bound (F_tilde at the grid's top).
+With two candidate sets, the better on the calibration views used (the views' H, each
+view's own included, or those turned across the views' arc: `FACET_CANDIDATES`), sigma's
+grid from 0.025 (2026-11-28, `--control`): sinus the views' H, sigma 0.105 +- 0.003,
+F_tilde 0.0089, 0.806x (control 0.967x), unstable (halves 0.112 / 0.079); its even / odd
+frames across the arc, 0.122 / 0.068, 0.868x / 0.865x; cholecystectomy no_lobe (0.993x);
+SurgT across the arc, at_bound (sigma at the grid's bottom), 0.923x (control 0.979x).
 """
 
 import argparse

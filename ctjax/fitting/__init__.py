@@ -5,6 +5,7 @@ from .._model import paper_model as paper_model
 from .._result import Estimate as Estimate
 from ..observations import PixelSamples as PixelSamples
 from ..observations import capture_samples as capture_samples
+from ._facet_lobe import FACET_CANDIDATES as FACET_CANDIDATES
 from ._facet_lobe import FacetLobe as FacetLobe
 from ._facet_lobe import facet_lobe as facet_lobe
 from ._facet_lobe import facet_lobe_line as facet_lobe_line

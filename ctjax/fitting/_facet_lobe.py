@@ -6,19 +6,27 @@ chosen the same way, the grid's ends: `FacetLobe.status`); the held-out views ju
 Lambert's under the same light."""
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._determined import MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
 from .._errors import ParameterError
 from .._status import Status
-from ._facets import FACET_PENALTY, FACET_REFINE_STEPS, facet_heldout, facet_model, facet_sums
+from ._facets import (
+    FACET_ACROSS_RAD,
+    FACET_PENALTY,
+    FACET_REFINE_STEPS,
+    facet_heldout,
+    facet_model,
+    facet_sums,
+)
 from ._map_least_squares import TrackSamples
 
-FACET_SIGMAS = (0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45)
+# From sharper than the views resolve (on the real sequences the views' H are 0.02-0.07
+# rad apart) to a broad sheen; an attached synthetic sparkle's lobe is 0.06.
+FACET_SIGMAS = (0.025, 0.035, 0.05, 0.07, 0.1, 0.15, 0.2, 0.3, 0.45)
 # F_tilde in steps of 1.47x (0.002 * 100^(k/12)): each sigma's pass serves every F_tilde at
 # a small cost, and the parabola between 2-2.5x steps put F_tilde 20% low on a synthetic
 # lobe (0.0094 for 0.012; 0.0113 with these, as with twice as many).
@@ -26,6 +34,14 @@ FACET_F_TILDES = (
     0.002, 0.00294, 0.00431, 0.00632, 0.00928, 0.0136, 0.02,
     0.0294, 0.0431, 0.0632, 0.0928, 0.136, 0.2,
 )  # fmt: skip
+# The candidate facets `facet_lobe` compares, by name (`facet_heldout`'s `across`): each
+# view's H turned across the views' arc, and the views' H as they are. The one whose grid
+# predicts the calibration views best is used: on attached synthetic sparkles (a facet
+# lobe of 0.06, F_tilde 0.012) only the first recovers the lobe (sigma 0.067, F_tilde
+# 0.0084, against 0.056 and 0.0027), on the shared sinus the second predicts the test
+# frames better (0.806x Lambert against 0.832x; `benchmarks/facet_truth.py`,
+# `benchmarks/facet_normals.py`).
+FACET_CANDIDATES = {"across the arc": FACET_ACROSS_RAD, "the views' H": (0.0,)}
 
 
 class FacetLobe(eqx.Module):
@@ -34,7 +50,9 @@ class FacetLobe(eqx.Module):
     `at_bound` (the choice at an end of its grid), the held-out RMSE of the lobe with facets
     (`rmse`), of the Lambertian model under the same light (`lambertian_rmse`) and of the
     Lambertian model with its own normal chosen the same way (`lambertian_turned_rmse`), the
-    share of judged views with a facet (`with_facet`).
+    share of judged views with a facet (`with_facet`), the candidate facets used
+    (`candidates`, a name of `FACET_CANDIDATES`) and each set's least calibration RMSE
+    (`candidate_rmse`), by which it was chosen.
 
     Whether the data determine it: `halves` ((sigma, F_tilde) chosen on the even
     calibration frames alone, then on the odd; None with fewer than 6, and the status then
@@ -58,6 +76,8 @@ class FacetLobe(eqx.Module):
     status: str = "successful"
     undetermined: tuple = ()
     stderr: tuple = (math.nan, math.nan)
+    candidates: str = "across the arc"
+    candidate_rmse: dict = eqx.field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -94,6 +114,8 @@ class FacetLobe(eqx.Module):
             "lambertian_turned_normals_rgb_rmse": self.lambertian_turned_rmse,
             "ratio": self.ratio,
             "views_with_a_facet": self.with_facet,
+            "candidates": self.candidates,
+            "calibration_rmse_by_candidates": dict(self.candidate_rmse),
             "calibration_rgb_rmse": {
                 f"sigma={s:g},F_tilde={f:g}": r for (s, f), r in self.calibration_rmse.items()
             },
@@ -106,31 +128,31 @@ class FacetLobe(eqx.Module):
 _MIN_FRAMES_FOR_HALVES = 6
 
 
-def _half(samples: TrackSamples, parity: int) -> TrackSamples:
-    """`samples` with the views of the other parity's frames weighted 0 (the same compiled
-    programs)."""
-    frame = np.asarray(samples.site.frame)
-    keep = (frame >= 0) & (frame % 2 == parity)
-    weight = jnp.asarray(np.where(keep, np.asarray(samples.weight), 0), samples.weight.dtype)
-    return eqx.tree_at(lambda s: s.weight, samples, weight)
-
-
-def _grid(train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed):
-    """Every grid point's calibration RMSE (a dict), each view of `train` judged from its
-    point's other views (one pass per sigma: the F_tildes share its columns), and per
-    grid point and tracked point (G, 2, P) the sum of squares (levels^2) and the count of
-    judged values: what the bootstrap over the points resamples."""
-    out, per_point = {}, []
+def _grid(
+    train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets=(None,),
+    across=FACET_ACROSS_RAD,
+):  # fmt: skip
+    """Per subset of the frames (`subsets`: None all, 0 the even, 1 the odd frames), every
+    grid point's calibration RMSE (a dict), each view of `train` judged from its point's
+    other views of the subset (one pass per sigma: the F_tildes and the subsets share its
+    columns), and per grid point and tracked point (G, 2, P) the sum of squares
+    (levels^2) and the count of judged values: what the bootstrap over the points
+    resamples. `across`: the candidate facets (`facet_heldout`)."""
+    out = [{} for _ in subsets]
+    per_point = [[] for _ in subsets]
     for sigma in sigmas:
         sums = facet_sums(
             facet_model(light, sigma, F_tildes[0]), train, train.weight > 0, rotations,
-            F_tildes, penalty, shuffle_seed,
+            F_tildes, penalty, shuffle_seed, subsets, across,
         )  # fmt: skip
-        for f, (ssr, count) in zip(F_tildes, sums, strict=True):
-            total = float(np.sum(count))
-            out[(float(sigma), float(f))] = math.sqrt(np.sum(ssr) / total) if total else math.nan
-        per_point.append(sums)
-    return out, np.concatenate(per_point)
+        for grid, kept, subset in zip(out, per_point, sums, strict=True):
+            for f, (ssr, count) in zip(F_tildes, subset, strict=True):
+                total = float(np.sum(count))
+                grid[(float(sigma), float(f))] = (
+                    math.sqrt(np.sum(ssr) / total) if total else math.nan
+                )
+            kept.append(subset)
+    return [(grid, np.concatenate(kept)) for grid, kept in zip(out, per_point, strict=True)]
 
 
 # Resamples of the tracked points (with replacement) for the standard errors of the choice.
@@ -267,6 +289,7 @@ def facet_lobe(
     shuffle_seed: int | None = None,
     refine_steps: int = FACET_REFINE_STEPS,
     halves: bool = True,
+    candidates: Mapping[str, Sequence[float]] | None = None,
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
@@ -275,38 +298,47 @@ def facet_lobe(
     and with its own normal chosen the same way.
     `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike.
     `refine_steps`: the held-out judgement's facets (for both models) turned by two angles
-    from the chosen H (`facet_heldout`); the grid's are the views' H as they are.
+    from the chosen candidate (`facet_heldout`); the grid's are the candidates as they are.
     `halves`: the grid again on the even and on the odd calibration frames alone (the
     other half's views weighted 0), whose sigmas a determined lobe's agree between
-    (`FacetLobe.status`)."""
+    (`FacetLobe.status`). `candidates`: the candidate facet sets to compare, by name
+    (`facet_heldout`'s `across`; default `FACET_CANDIDATES`): the grid on each, and the
+    one whose least calibration RMSE is lower used throughout."""
     if not sigmas or not F_tildes:
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
-    grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed)
-    calibration, per_point = _grid(train, *grid)
+    candidates = FACET_CANDIDATES if candidates is None else dict(candidates)
+    if not candidates:
+        raise ParameterError("facet_lobe needs at least one set of candidate facets")
+    frames = len(np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0]))
+    checked = halves and frames >= _MIN_FRAMES_FOR_HALVES
+    subsets = (None, 0, 1) if checked else (None,)
+    grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets)
+    grids = {name: _grid(train, *grid, across) for name, across in candidates.items()}
+    candidate_rmse = {name: min(grid[0][0].values()) for name, grid in grids.items()}
+    name = min(candidate_rmse, key=candidate_rmse.get)
+    across = candidates[name]
+    (calibration, per_point), *parts = grids[name]
     sigma, f = _chosen(calibration)
     stderr = _bootstrap(list(calibration), per_point, BOOTSTRAP_RESAMPLES)
     at_bound = not (min(sigmas) < sigma < max(sigmas) and min(F_tildes) < f < max(F_tildes))
-    split, unchecked = None, None
-    frames = len(np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0]))
-    if halves and frames >= _MIN_FRAMES_FOR_HALVES:
-        split = tuple(_chosen(_grid(_half(train, parity), *grid)[0]) for parity in (0, 1))
-    elif halves:
-        unchecked = frames
+    split = tuple(_chosen(grid) for grid, _ in parts) if checked else None
+    unchecked = frames if halves and not checked else None
     lambertian = facet_model(light, sigma, 0.0)
     own_normal = facet_heldout(
-        lambertian, train, train.weight > 0, rotations, penalty=penalty, turned="diffuse"
-    )
+        lambertian, train, train.weight > 0, rotations, penalty=penalty, turned="diffuse",
+        across=across,
+    )  # fmt: skip
     best = min(calibration.values())  # the grid's least: the refined choice is between points
     gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
     status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked)
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
-        shuffle_seed=shuffle_seed, refine_steps=refine_steps,
+        shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
     )  # fmt: skip
-    plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty)
+    plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, across=(0.0,))
     turned = facet_heldout(
         lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
-        refine_steps=refine_steps,
+        refine_steps=refine_steps, across=across,
     )  # fmt: skip
     return FacetLobe(
         sigma,
@@ -322,6 +354,8 @@ def facet_lobe(
         status,
         reasons,
         stderr,
+        name,
+        candidate_rmse,
     )
 
 
@@ -336,6 +370,7 @@ def facet_lobe_line(summary: dict) -> str:
         f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
         f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
         f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
-        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet; status "
+        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet (candidates: "
+        f"{summary['candidates']}); status "
         f"{summary['status']}" + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
     )

@@ -8,11 +8,11 @@ the sparkles stay on their facets (on the shared real sequences a pixel of S lan
 the next frame 64-99% of the time, against 1-6% for a pixel at random:
 `benchmarks/facet_normals.py`). So each tracked point gets its own normal for the lobe
 (the diffuse term keeps the reconstruction's), chosen among "no lobe", the
-reconstruction's normal and H of each of the point's other views (the facet that would
-have made that view the point's peak), by the least squares of those views with the
-point's albedo fitted; a facet other than "no lobe" must lower them by more than
-`penalty` (2-level)^2 units, an AIC-like price for its two angles. The lobe's sigma and
-F_tilde stay global.
+reconstruction's normal and H of each of the point's views (the facet that would have
+made that view the point's peak) turned across the arc the views' H trace
+(`FACET_ACROSS_RAD`), by the least squares of the other views with the point's albedo
+fitted; a facet other than "no lobe" must lower them by more than `penalty` (2-level)^2
+units, an AIC-like price for its two angles. The lobe's sigma and F_tilde stay global.
 
 Judged as `heldout_map_rmse` judges a model (each view predicted from the point's other
 views, the albedo a nuisance), with the facet a second nuisance of the lobe: the facet
@@ -24,6 +24,7 @@ fair comparison.
 """
 
 import math
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -46,6 +47,14 @@ _LEVEL = 2.0 / 255
 # The held-out judgement's facets, each chosen H then turned by two angles (LM steps): the
 # views' own H are as coarse as a sharp lobe (1-4 degrees apart on the real sequences).
 FACET_REFINE_STEPS = 10
+# The candidate facets: each view's H turned across the arc that the point's views' H
+# trace, by each of these angles (radians). A scope's motion moves H along one arc; a
+# facet off it is never any view's peak, and a lobe about the nearest H overshoots its
+# views (so a weak lobe fitted best: on attached synthetic sparkles of roughness 0.06 and
+# F_tilde 0.012, 12 frames, sigma 0.04-0.05 at the grid's bottom with F_tilde 0.002-0.003
+# from the views' H alone; with these offsets and each view's own H 0.067 and 0.0084,
+# with seven from -0.12 to 0.12 0.056 and 0.0044).
+FACET_ACROSS_RAD = (-0.08, -0.04, 0.0, 0.04, 0.08)
 _POINTS_AT_ONCE = 512  # points per batch of `lax.map`: (M + 2) x 4M lobe evaluations each
 
 
@@ -62,6 +71,34 @@ def _half_vectors(model, rotations, point, pixel, weight, frame):
         return h / jnp.linalg.norm(h)
 
     return jnp.einsum("mij,mj->mi", rotations[frame], jax.vmap(half)(at, to_eye, *uv))
+
+
+class _CandidateSet(eqx.Module):
+    """Which candidate facets a point gets: its views' H turned by each of `across` (rad,
+    `_candidates`), or with `shuffle` (P,) another point's (the control)."""
+
+    shuffle: jax.Array | None
+    across: tuple = eqx.field(static=True)
+
+
+def _candidates(h, w, across=FACET_ACROSS_RAD):
+    """(D * M, 3) candidate facets of one point, world coordinates: each view's H (M, 3)
+    turned by each angle of `across` about the principal direction of the counted views'
+    H (`w` > 0), the arc the scope's motion traces; candidate c is view c % M's."""
+    counted = (w > 0)[:, None]
+    mean = jnp.sum(jnp.where(counted, h, 0), 0) / jnp.maximum(jnp.sum(counted), 1)
+    centred = jnp.where(counted, h - mean, 0)
+    scatter = centred.T @ centred
+    # The principal direction by power iteration (no LAPACK), from the first to the last
+    # counted view's H (nudged off zero for a point seen once).
+    first, last = jnp.argmax(w > 0), h.shape[0] - 1 - jnp.argmax((w > 0)[::-1])
+    arc = h[last] - h[first] + jnp.asarray([1e-6, 2e-6, 3e-6], h.dtype)
+    for _ in range(8):
+        arc = scatter @ arc + 1e-12 * arc
+        arc = arc / jnp.linalg.norm(arc)
+    normal = jnp.cross(h, arc)
+    normal = normal / jnp.maximum(jnp.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+    return jnp.concatenate([math.cos(d) * h + math.sin(d) * normal for d in across], 0)
 
 
 def _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame):
@@ -98,26 +135,41 @@ def _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
 
 
 def _one_point(
-    model, turned, penalty, rotations, gains, point, normal, pixel, weight, values, w, judged,
-    frame, facets,
+    model, turned, penalty, rotations, gains, subsets, point, normal, pixel, weight, values,
+    w, judged, frame, facets,
 ):  # fmt: skip
-    """One tracked point (its M views), for each set of lobe weights `gains` (G, K, C):
-    each judged view's residual (G, C, M) with the facet and the albedo chosen from the
-    point's other views, the counted views (G, M) and the candidate taken per view (G, M:
-    -1 not judged, 0 no lobe, 1 the reconstruction's normal, 2 + j H of view j); `facets`
-    (M, 3): the candidate facets in world coordinates (`_half_vectors`). The lobes' columns
-    do not depend on their weights: every set shares them."""
+    """One tracked point (its M views), for each subset of its frames (`subsets`: None
+    all, 0 the even, 1 the odd frames) and each set of lobe weights `gains` (G, K, C):
+    each judged view's residual (S, G, C, M) with the facet and the albedo chosen from the
+    point's other views of the subset, the counted views (S, G, M) and the candidate taken
+    per view (S, G, M: -1 not judged, 0 no lobe, 1 the reconstruction's normal, 2 + c
+    candidate facet c); `facets` (J, 3): the candidate facets in world coordinates
+    (`_candidates`, c of view c % M). The lobes' columns depend neither on their weights
+    nor on the subset: every choice shares them."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
-    views = w.shape[0]
     smooth, about = _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
     off = smooth.at[jnp.array(others)].set(0.0) if others else smooth
-    candidates = jnp.concatenate([off[None], smooth[None], jax.vmap(about)(facets)])  # (M+2, K, M)
-    a = smooth[diffuse]
-    # A facet from view j is there for the judged view m only if j is another counted view.
-    usable = (w > 0)[None, :] & ~jnp.eye(views, dtype=bool)  # (j, m)
+    candidates = jnp.concatenate([off[None], smooth[None], jax.vmap(about)(facets)])  # (J+2, K, M)
+    subset_weights = jnp.stack(
+        [w if s is None else jnp.where(frame % 2 == s, w, 0.0) for s in subsets]
+    )
+    return jax.vmap(
+        lambda w: _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged)
+    )(subset_weights)
+
+
+def _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged):
+    """`_one_point` for one subset's view weights `w` (M,)."""
+    views = w.shape[0]
+    facets = candidates.shape[0] - 2
+    a = candidates[1, diffuse]
+    # A facet about view j's H is there wherever view j is counted, the judged view's own
+    # included: a direction, which the other views' values choose or not.
+    source = jnp.arange(facets) % views
+    usable = (w > 0)[None, :] & (w[source] > 0)[:, None]  # (c, m)
     allowed = jnp.concatenate([jnp.ones((2, views), bool), usable])
-    price = jnp.concatenate([jnp.zeros(2), jnp.full(views, penalty)])
+    price = jnp.concatenate([jnp.zeros(2), jnp.full(facets, penalty)])
 
     def choose(g):  # (K, C): one set of lobe weights
         def per_view(c):  # every view's prediction with the albedo fitted to the other views
@@ -148,7 +200,7 @@ def _turned_view(
     model, turned, rotations, point, normal, pixel, weight, values, w, judged, frame, facets,
     view, start, steps,
 ):  # fmt: skip
-    """View `view`'s residual (C,) of one tracked point with the facet H of view `start`
+    """View `view`'s residual (C,) of one tracked point with its candidate facet `start`
     turned by two angles to fit the point's other views (`_refined`)."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
@@ -191,9 +243,9 @@ def _refined(about, m, start, values, w, diffuse, others, gains, steps):
     return predict(x)[:, m]
 
 
-def _per_point(model, samples: TrackSamples, judged, rotations, shuffle):
+def _per_point(model, samples: TrackSamples, judged, rotations, candidates: _CandidateSet):
     """`samples` regrouped per tracked point (leading axis P), with each point's candidate
-    facets (M, 3) last."""
+    facets (J, 3, `_candidates`) last."""
     views, points = samples.weight.shape
     shaped = lambda v: v.reshape(4, views, points)  # noqa: E731
     point = jnp.stack(
@@ -213,24 +265,26 @@ def _per_point(model, samples: TrackSamples, judged, rotations, shuffle):
         judged.T,
         jnp.maximum(samples.site.frame, 0).T,
     )
-    facets = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(
+    h = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(
         per_point[0], per_point[2], per_point[3], per_point[7]
     )
-    if shuffle is not None:  # the control: every point's candidates another point's
-        facets = facets[shuffle]
+    facets = jax.vmap(lambda h, w: _candidates(h, w, candidates.across))(h, per_point[5])
+    if candidates.shuffle is not None:  # the control: every point's candidates another's
+        facets = facets[candidates.shuffle]
     return (*per_point, facets)
 
 
 @eqx.filter_jit
 def _facet_views(
-    model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle, gains
+    model, samples: TrackSamples, judged, rotations, penalty, turned: str, candidates, gains
 ):
     """For each set of lobe weights `gains` (G, K, C): every judged view's residual
     (G, C, M, P), counted weight (G, M, P) and candidate taken (G, M, P; `_one_point`)."""
-    per_point = _per_point(model, samples, judged, rotations, shuffle)
+    per_point = _per_point(model, samples, judged, rotations, candidates)
 
     def one(arrays):
-        return _one_point(model, turned, penalty, rotations, gains, *arrays)
+        residual, w, best = _one_point(model, turned, penalty, rotations, gains, (None,), *arrays)
+        return residual[0], w[0], best[0]
 
     residual, w, best = jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE)
     return jnp.moveaxis(residual, 0, -1), jnp.moveaxis(w, 0, -1), jnp.moveaxis(best, 0, -1)
@@ -238,27 +292,28 @@ def _facet_views(
 
 @eqx.filter_jit
 def _facet_sums(
-    model, samples: TrackSamples, judged, rotations, penalty, turned: str, shuffle, gains
-):
-    """`_facet_views` summed per tracked point: (G, 2, P), the judged views' sum of squares
-    and count of values."""
-    per_point = _per_point(model, samples, judged, rotations, shuffle)
+    model, samples: TrackSamples, judged, rotations, penalty, turned: str, candidates, gains,
+    subsets,
+):  # fmt: skip
+    """`_facet_views` per subset of the frames (`_one_point`) summed per tracked point:
+    (S, G, 2, P), the judged views' sum of squares and count of values."""
+    per_point = _per_point(model, samples, judged, rotations, candidates)
 
     def one(arrays):
-        residual, w, _ = _one_point(model, turned, penalty, rotations, gains, *arrays)
-        ssr = jnp.sum(w * jnp.sum(residual * residual, 1), -1)  # (G,)
-        return jnp.stack([ssr, residual.shape[1] * jnp.sum(w, -1)], -1)  # (G, 2)
+        residual, w, _ = _one_point(model, turned, penalty, rotations, gains, subsets, *arrays)
+        ssr = jnp.sum(w * jnp.sum(residual * residual, -2), -1)  # (S, G)
+        return jnp.stack([ssr, residual.shape[-2] * jnp.sum(w, -1)], -1)  # (S, G, 2)
 
     return jnp.moveaxis(jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE), 0, -1)
 
 
 @eqx.filter_jit
 def _turned_views(
-    model, samples: TrackSamples, judged, rotations, turned: str, shuffle, pairs, steps: int
+    model, samples: TrackSamples, judged, rotations, turned: str, candidates, pairs, steps: int
 ):
     """The residuals (N, C) of the views `pairs` (N, 3: point, view, the view whose H it
     took) with that H turned (`_turned_view`)."""
-    per_point = _per_point(model, samples, judged, rotations, shuffle)
+    per_point = _per_point(model, samples, judged, rotations, candidates)
 
     def one(pair):
         arrays = [x[pair[0]] for x in per_point]
@@ -271,7 +326,7 @@ class FacetJudgement(eqx.Module):
     """A model judged with a facet per point: `rmse` (8-bit levels) over the judged views,
     `with_facet` the share of them whose facet is not "no lobe", `residual` (C, M, P;
     levels, 0 where not judged), `weight` (M, P) and `facet` (M, P: -1 no lobe or not
-    judged, M the reconstruction's normal, j H of view j)."""
+    judged, M the reconstruction's normal, j a facet about H of view j)."""
 
     rmse: float
     with_facet: float
@@ -290,6 +345,7 @@ def facet_heldout(
     turned: str = "lobe",
     shuffle_seed: int | None = None,
     refine_steps: int = 0,
+    across: Sequence[float] = FACET_ACROSS_RAD,
 ) -> FacetJudgement:
     """Judge `model` (fixed) on the `judged` views (M, P) of `samples`, each predicted with
     the point's facet and albedo chosen from its other views (see the module).
@@ -297,8 +353,10 @@ def facet_heldout(
     indexes it). `turned`: `"lobe"` (the lobes' normal chosen) or `"diffuse"` (the diffuse
     term's: the same freedom for a model without a lobe). `shuffle_seed`: the control, every
     point's candidate facets those of another point (a permutation of that seed): whether a
-    point's own views carry what the facets gain. `refine_steps`: each chosen H then turned
-    by two angles (Levenberg-Marquardt, at most that many steps) to fit the other views."""
+    point's own views carry what the facets gain. `refine_steps`: each chosen facet then
+    turned by two angles (Levenberg-Marquardt, at most that many steps) to fit the other
+    views. `across`: the candidate facets, each view's H turned across the views' arc by
+    each of these angles (rad; `(0.0,)`: the views' H as they are)."""
     if turned not in ("lobe", "diffuse"):
         raise ParameterError(f"turned must be 'lobe' or 'diffuse', got {turned!r}")
     if tuple(getattr(model, "effects", ())):
@@ -306,10 +364,10 @@ def facet_heldout(
     if samples.eye is not None:
         raise ParameterError("facets need every view seen from the light's lens (no right views)")
     return _judgements(model, samples, judged, rotations, None, penalty, turned, shuffle_seed,
-                       refine_steps)[0]  # fmt: skip
+                       refine_steps, across)[0]  # fmt: skip
 
 
-def _prepared(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed):
+def _prepared(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across):
     """The arguments of `_facet_views` and `_facet_sums` but `samples` and `turned`:
     the lobe weights (G, K, C) are `model`'s (`F_tildes` None) or each grey F_tilde of
     `F_tildes` for every lobe but the diffuse one."""
@@ -331,56 +389,65 @@ def _prepared(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed
         jnp.asarray(judged, bool),
         jnp.asarray(np.asarray(rotations), dtype),
         jnp.asarray(penalty * _LEVEL**2, dtype),
-        shuffle,
+        _CandidateSet(shuffle, tuple(float(a) for a in across)),
         jnp.asarray(gains),
     )
 
 
 def _judgements(
-    model, samples, judged, rotations, F_tildes, penalty, turned, shuffle_seed, refine_steps
-) -> list[FacetJudgement]:
+    model, samples, judged, rotations, F_tildes, penalty, turned, shuffle_seed, refine_steps,
+    across,
+) -> list[FacetJudgement]:  # fmt: skip
     """`facet_heldout` for `model`'s lobe weights (`F_tildes` None) or for each grey
     F_tilde of `F_tildes` in turn (the lobes' columns shared; not turned)."""
-    model, judged, rotations, price, shuffle, gains = _prepared(
-        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed
+    model, judged, rotations, price, candidates, gains = _prepared(
+        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across
     )
     if F_tildes is not None:
         refine_steps = 0
-    views = _facet_views(model, samples, judged, rotations, price, turned, shuffle, gains)
+    views = _facet_views(model, samples, judged, rotations, price, turned, candidates, gains)
     return [
-        _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, *one)
+        _judged(model, samples, judged, rotations, turned, candidates, refine_steps, *one)
         for one in zip(*(np.array(x) for x in views), strict=True)
     ]
 
 
-def facet_sums(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed=None):
-    """Per grey F_tilde of `F_tildes` and tracked point (G, 2, P): the judged views' sum of
-    squared residuals (8-bit levels^2) and count of values, with the facet and the albedo
-    chosen from the point's other views (`facet_heldout`'s, not turned), summed where they
-    are computed: the grid's figures without its residual arrays."""
-    model, judged, rotations, price, shuffle, gains = _prepared(
-        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed
+def facet_sums(
+    model, samples, judged, rotations, F_tildes, penalty, shuffle_seed=None, subsets=(None,),
+    across=FACET_ACROSS_RAD,
+):  # fmt: skip
+    """Per subset of the frames (`subsets`: None all, 0 the even, 1 the odd frames), grey
+    F_tilde of `F_tildes` and tracked point (S, G, 2, P): the judged views' sum of squared
+    residuals (8-bit levels^2) and count of values, with the facet and the albedo chosen
+    from the point's other views of the subset (`facet_heldout`'s, not turned), summed
+    where they are computed: the grid's figures without its residual arrays. The subsets
+    share the lobes' columns (one pass for all). `across`: the candidate facets
+    (`facet_heldout`)."""
+    model, judged, rotations, price, candidates, gains = _prepared(
+        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across
     )
-    sums = _facet_sums(model, samples, judged, rotations, price, "lobe", shuffle, gains)
+    sums = _facet_sums(
+        model, samples, judged, rotations, price, "lobe", candidates, gains, tuple(subsets)
+    )
     return np.asarray(sums) * np.array([255.0**2, 1.0])[:, None]
 
 
-def _judged(model, samples, judged, rotations, turned, shuffle, refine_steps, residual, weight,
-            best) -> FacetJudgement:  # fmt: skip
+def _judged(model, samples, judged, rotations, turned, candidates, refine_steps, residual,
+            weight, best) -> FacetJudgement:  # fmt: skip
     """One set of lobe weights' `FacetJudgement` from `_facet_views`' arrays, the views
-    that took another view's H turned first (`refine_steps`)."""
-    if refine_steps:  # only the views that took another view's H are turned
+    that took a candidate facet turned first (`refine_steps`)."""
+    if refine_steps:  # only the views that took a candidate facet are turned
         view, point = np.nonzero(best >= 2)
         if view.size:
             pairs = np.stack([point, view, best[view, point] - 2], -1).astype(np.int32)
             padded_pairs, _ = padded(pairs, len(pairs))
             turned_residual = _turned_views(
-                model, samples, judged, rotations, turned, shuffle,
+                model, samples, judged, rotations, turned, candidates,
                 jnp.asarray(padded_pairs), int(refine_steps),
             )  # fmt: skip
             residual[:, view, point] = np.asarray(turned_residual)[: len(pairs)].T
     views = best.shape[0]
-    facet = np.where(best <= 0, -1, np.where(best == 1, views, best - 2))
+    facet = np.where(best <= 0, -1, np.where(best == 1, views, (best - 2) % views))
     total = float(np.sum(weight)) * residual.shape[0]
     ssr = float(np.sum(weight * residual * residual))
     counted = weight > 0
