@@ -130,29 +130,36 @@ _MIN_FRAMES_FOR_HALVES = 6
 
 def _grid(
     train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets=(None,),
-    across=FACET_ACROSS_RAD,
+    candidates=None,
 ):  # fmt: skip
-    """Per subset of the frames (`subsets`: None all, 0 the even, 1 the odd frames), every
-    grid point's calibration RMSE (a dict), each view of `train` judged from its point's
-    other views of the subset (one pass per sigma: the F_tildes and the subsets share its
-    columns), and per grid point and tracked point (G, 2, P) the sum of squares
-    (levels^2) and the count of judged values: what the bootstrap over the points
-    resamples. `across`: the candidate facets (`facet_heldout`)."""
-    out = [{} for _ in subsets]
-    per_point = [[] for _ in subsets]
+    """Per set of candidate facets (`candidates`: name -> turns, `facet_heldout`'s
+    `across`; default `FACET_CANDIDATES`) and subset of the frames (`subsets`: None all, 0
+    the even, 1 the odd frames), every grid point's calibration RMSE (a dict), each view of
+    `train` judged from its point's other views of the subset, and per grid point and
+    tracked point (G, 2, P) the sum of squares (levels^2) and the count of judged values:
+    what the bootstrap over the points resamples. One pass per sigma: the sets (masks over
+    the union of their turns), the subsets and the F_tildes share its columns."""
+    candidates = FACET_CANDIDATES if candidates is None else candidates
+    union = tuple(sorted({float(a) for turns in candidates.values() for a in turns}))
+    out = [[{} for _ in subsets] for _ in candidates]
+    per_point = [[[] for _ in subsets] for _ in candidates]
     for sigma in sigmas:
         sums = facet_sums(
             facet_model(light, sigma, F_tildes[0]), train, train.weight > 0, rotations,
-            F_tildes, penalty, shuffle_seed, subsets, across,
+            F_tildes, penalty, shuffle_seed, subsets, union, tuple(candidates.values()),
         )  # fmt: skip
-        for grid, kept, subset in zip(out, per_point, sums, strict=True):
-            for f, (ssr, count) in zip(F_tildes, subset, strict=True):
-                total = float(np.sum(count))
-                grid[(float(sigma), float(f))] = (
-                    math.sqrt(np.sum(ssr) / total) if total else math.nan
-                )
-            kept.append(subset)
-    return [(grid, np.concatenate(kept)) for grid, kept in zip(out, per_point, strict=True)]
+        for grids, kepts, one_set in zip(out, per_point, sums, strict=True):
+            for grid, kept, subset in zip(grids, kepts, one_set, strict=True):
+                for f, (ssr, count) in zip(F_tildes, subset, strict=True):
+                    total = float(np.sum(count))
+                    grid[(float(sigma), float(f))] = (
+                        math.sqrt(np.sum(ssr) / total) if total else math.nan
+                    )
+                kept.append(subset)
+    return {
+        name: [(grid, np.concatenate(kept)) for grid, kept in zip(grids, kepts, strict=True)]
+        for name, grids, kepts in zip(candidates, out, per_point, strict=True)
+    }
 
 
 # Resamples of the tracked points (with replacement) for the standard errors of the choice.
@@ -312,8 +319,9 @@ def facet_lobe(
     frames = len(np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0]))
     checked = halves and frames >= _MIN_FRAMES_FOR_HALVES
     subsets = (None, 0, 1) if checked else (None,)
-    grid = (rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets)
-    grids = {name: _grid(train, *grid, across) for name, across in candidates.items()}
+    grids = _grid(
+        train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets, candidates
+    )
     candidate_rmse = {name: min(grid[0][0].values()) for name, grid in grids.items()}
     name = min(candidate_rmse, key=candidate_rmse.get)
     across = candidates[name]

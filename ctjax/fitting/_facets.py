@@ -75,10 +75,12 @@ def _half_vectors(model, rotations, point, pixel, weight, frame):
 
 class _CandidateSet(eqx.Module):
     """Which candidate facets a point gets: its views' H turned by each of `across` (rad,
-    `_candidates`), or with `shuffle` (P,) another point's (the control)."""
+    `_candidates`), or with `shuffle` (P,) another point's (the control); `sets`: the
+    choices made among them, each a mask over `across` (one pass for all)."""
 
     shuffle: jax.Array | None
     across: tuple = eqx.field(static=True)
+    sets: tuple = eqx.field(static=True)
 
 
 def _candidates(h, w, across=FACET_ACROSS_RAD):
@@ -135,17 +137,18 @@ def _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
 
 
 def _one_point(
-    model, turned, penalty, rotations, gains, subsets, point, normal, pixel, weight, values,
-    w, judged, frame, facets,
+    model, turned, penalty, rotations, gains, subsets, sets, point, normal, pixel, weight,
+    values, w, judged, frame, facets,
 ):  # fmt: skip
-    """One tracked point (its M views), for each subset of its frames (`subsets`: None
-    all, 0 the even, 1 the odd frames) and each set of lobe weights `gains` (G, K, C):
-    each judged view's residual (S, G, C, M) with the facet and the albedo chosen from the
-    point's other views of the subset, the counted views (S, G, M) and the candidate taken
-    per view (S, G, M: -1 not judged, 0 no lobe, 1 the reconstruction's normal, 2 + c
-    candidate facet c); `facets` (J, 3): the candidate facets in world coordinates
-    (`_candidates`, c of view c % M). The lobes' columns depend neither on their weights
-    nor on the subset: every choice shares them."""
+    """One tracked point (its M views), for each set of candidates it may choose among
+    (`sets`: masks over the turns of `_candidates`), each subset of its frames (`subsets`:
+    None all, 0 the even, 1 the odd frames) and each set of lobe weights `gains` (G, K,
+    C): each judged view's residual (T, S, G, C, M) with the facet and the albedo chosen
+    from the point's other views of the subset, the counted views (T, S, G, M) and the
+    candidate taken per view (T, S, G, M: -1 not judged, 0 no lobe, 1 the reconstruction's
+    normal, 2 + c candidate facet c); `facets` (J, 3): the candidate facets in world
+    coordinates (`_candidates`, c of view c % M). The lobes' columns depend neither on
+    their weights, nor on the subset, nor on the set: every choice shares them."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
     smooth, about = _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
@@ -154,20 +157,23 @@ def _one_point(
     subset_weights = jnp.stack(
         [w if s is None else jnp.where(frame % 2 == s, w, 0.0) for s in subsets]
     )
-    return jax.vmap(
-        lambda w: _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged)
-    )(subset_weights)
+    masks = jnp.asarray(np.repeat(np.asarray(sets, bool), w.shape[0], axis=1))  # (T, J)
+
+    def chosen(mask, w):
+        return _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged, mask)
+
+    return jax.vmap(lambda mask: jax.vmap(lambda w: chosen(mask, w))(subset_weights))(masks)
 
 
-def _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged):
-    """`_one_point` for one subset's view weights `w` (M,)."""
+def _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged, mask):
+    """`_one_point` for one subset's view weights `w` (M,) and one set's `mask` (J,)."""
     views = w.shape[0]
     facets = candidates.shape[0] - 2
     a = candidates[1, diffuse]
     # A facet about view j's H is there wherever view j is counted, the judged view's own
     # included: a direction, which the other views' values choose or not.
     source = jnp.arange(facets) % views
-    usable = (w > 0)[None, :] & (w[source] > 0)[:, None]  # (c, m)
+    usable = mask[:, None] & (w > 0)[None, :] & (w[source] > 0)[:, None]  # (c, m)
     allowed = jnp.concatenate([jnp.ones((2, views), bool), usable])
     price = jnp.concatenate([jnp.zeros(2), jnp.full(facets, penalty)])
 
@@ -282,9 +288,13 @@ def _facet_views(
     (G, C, M, P), counted weight (G, M, P) and candidate taken (G, M, P; `_one_point`)."""
     per_point = _per_point(model, samples, judged, rotations, candidates)
 
+    every = ((True,) * len(candidates.across),)
+
     def one(arrays):
-        residual, w, best = _one_point(model, turned, penalty, rotations, gains, (None,), *arrays)
-        return residual[0], w[0], best[0]
+        residual, w, best = _one_point(
+            model, turned, penalty, rotations, gains, (None,), every, *arrays
+        )
+        return residual[0, 0], w[0, 0], best[0, 0]
 
     residual, w, best = jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE)
     return jnp.moveaxis(residual, 0, -1), jnp.moveaxis(w, 0, -1), jnp.moveaxis(best, 0, -1)
@@ -295,14 +305,17 @@ def _facet_sums(
     model, samples: TrackSamples, judged, rotations, penalty, turned: str, candidates, gains,
     subsets,
 ):  # fmt: skip
-    """`_facet_views` per subset of the frames (`_one_point`) summed per tracked point:
-    (S, G, 2, P), the judged views' sum of squares and count of values."""
+    """`_facet_views` per set of candidates chosen among (`candidates.sets`) and subset of
+    the frames (`_one_point`) summed per tracked point: (T, S, G, 2, P), the judged views'
+    sum of squares and count of values."""
     per_point = _per_point(model, samples, judged, rotations, candidates)
 
     def one(arrays):
-        residual, w, _ = _one_point(model, turned, penalty, rotations, gains, subsets, *arrays)
-        ssr = jnp.sum(w * jnp.sum(residual * residual, -2), -1)  # (S, G)
-        return jnp.stack([ssr, residual.shape[-2] * jnp.sum(w, -1)], -1)  # (S, G, 2)
+        residual, w, _ = _one_point(
+            model, turned, penalty, rotations, gains, subsets, candidates.sets, *arrays
+        )
+        ssr = jnp.sum(w * jnp.sum(residual * residual, -2), -1)  # (T, S, G)
+        return jnp.stack([ssr, residual.shape[-2] * jnp.sum(w, -1)], -1)  # (T, S, G, 2)
 
     return jnp.moveaxis(jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE), 0, -1)
 
@@ -367,7 +380,9 @@ def facet_heldout(
                        refine_steps, across)[0]  # fmt: skip
 
 
-def _prepared(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across):
+def _prepared(
+    model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across, choices=None
+):
     """The arguments of `_facet_views` and `_facet_sums` but `samples` and `turned`:
     the lobe weights (G, K, C) are `model`'s (`F_tildes` None) or each grey F_tilde of
     `F_tildes` for every lobe but the diffuse one."""
@@ -389,9 +404,19 @@ def _prepared(model, samples, judged, rotations, F_tildes, penalty, shuffle_seed
         jnp.asarray(judged, bool),
         jnp.asarray(np.asarray(rotations), dtype),
         jnp.asarray(penalty * _LEVEL**2, dtype),
-        _CandidateSet(shuffle, tuple(float(a) for a in across)),
+        _candidate_set(shuffle, across, choices),
         jnp.asarray(gains),
     )
+
+
+def _candidate_set(shuffle, across, choices) -> _CandidateSet:
+    """The candidates turned by `across` (rad), chosen among all of them or, per choice of
+    `choices`, among those turned by its angles (each a subset of `across`)."""
+    across = tuple(float(a) for a in across)
+    choices = (across,) if choices is None else tuple(tuple(map(float, c)) for c in choices)
+    if any(not set(c) <= set(across) for c in choices):
+        raise ParameterError(f"candidate sets {choices} are not among the turns {across}")
+    return _CandidateSet(shuffle, across, tuple(tuple(a in c for a in across) for c in choices))
 
 
 def _judgements(
@@ -414,17 +439,18 @@ def _judgements(
 
 def facet_sums(
     model, samples, judged, rotations, F_tildes, penalty, shuffle_seed=None, subsets=(None,),
-    across=FACET_ACROSS_RAD,
+    across=FACET_ACROSS_RAD, choices=None,
 ):  # fmt: skip
-    """Per subset of the frames (`subsets`: None all, 0 the even, 1 the odd frames), grey
-    F_tilde of `F_tildes` and tracked point (S, G, 2, P): the judged views' sum of squared
-    residuals (8-bit levels^2) and count of values, with the facet and the albedo chosen
-    from the point's other views of the subset (`facet_heldout`'s, not turned), summed
-    where they are computed: the grid's figures without its residual arrays. The subsets
-    share the lobes' columns (one pass for all). `across`: the candidate facets
-    (`facet_heldout`)."""
+    """Per set of candidates (`choices`: each the turns of `across` a point chooses among;
+    None: one, all of them), subset of the frames (`subsets`: None all, 0 the even, 1 the
+    odd frames), grey F_tilde of `F_tildes` and tracked point (T, S, G, 2, P): the judged
+    views' sum of squared residuals (8-bit levels^2) and count of values, with the facet
+    and the albedo chosen from the point's other views of the subset (`facet_heldout`'s,
+    not turned), summed where they are computed: the grid's figures without its residual
+    arrays. The sets and the subsets share the lobes' columns (one pass for all).
+    `across`: the candidate facets (`facet_heldout`)."""
     model, judged, rotations, price, candidates, gains = _prepared(
-        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across
+        model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across, choices
     )
     sums = _facet_sums(
         model, samples, judged, rotations, price, "lobe", candidates, gains, tuple(subsets)
