@@ -15,7 +15,10 @@ Measured (2026-11-28, 12 frames, seed 1, 2-core CPU, about 55 s a capture): `--s
 6`: the candidates turned across the views' arc chosen (calibration RMSE 4.16 against 4.67
 for the views' H), sigma 0.067, F_tilde 0.0084, ratio 0.376, `unstable` (halves 0.098 /
 0.057): the width within 12%, F_tilde 30% low, the height F_tilde/sigma^2 44% low (1.87
-against 3.33), the halves apart. Before (H of the other views only, at 597a589, the
+against 3.33), the halves apart; `--seed 2`: sigma 0.049, F_tilde 0.0039, ratio 0.564,
+`unstable`. Other turns on seed 1 (`facet_lobe(..., candidates=...)`): (-0.06, 0, 0.06)
+0.055 and 0.0031, (-0.1 to 0.1 by 0.05) 0.058 and 0.0034: the width within 20%, F_tilde
+30-80% low (a lower bound). Before (H of the other views only, at 597a589, the
 correlation length patched in a scratch script and the facets then turning with the
 camera's roll): sigma at the grid's bottom (0.05 then) with F_tilde 0.0025, ratio 0.739.
 `--sparkle-px 1.5`: across the arc, sigma 0.091, F_tilde 0.0165, `successful` (halves
