@@ -160,22 +160,23 @@ def _one_point(
     )
     masks = jnp.asarray(np.repeat(np.asarray(sets, bool), w.shape[0], axis=1))  # (T, J)
 
-    def chosen(mask, w):
-        return _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged, mask)
+    def chosen(w):  # (G, T, ...) -> (T, G, ...)
+        out = _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged, masks)
+        return jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), out)
 
-    return jax.vmap(lambda mask: jax.vmap(lambda w: chosen(mask, w))(subset_weights))(masks)
+    return jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), jax.vmap(chosen)(subset_weights))
 
 
-def _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged, mask):
-    """`_one_point` for one subset's view weights `w` (M,) and one set's `mask` (J,)."""
+def _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judged, masks):
+    """`_one_point` for one subset's view weights `w` (M,), for each set's mask (T, J) over
+    the candidate facets: (G, T, ...). The candidates' costs are the sets' alike."""
     views = w.shape[0]
     facets = candidates.shape[0] - 2
     a = candidates[1, diffuse]
     # A facet about view j's H is there wherever view j is counted, the judged view's own
     # included: a direction, which the other views' values choose or not.
     source = jnp.arange(facets) % views
-    usable = mask[:, None] & (w > 0)[None, :] & (w[source] > 0)[:, None]  # (c, m)
-    allowed = jnp.concatenate([jnp.ones((2, views), bool), usable])
+    usable = (w > 0)[None, :] & (w[source] > 0)[:, None]  # (c, m)
     price = jnp.concatenate([jnp.zeros(2), jnp.full(facets, penalty)])
 
     def choose(g):  # (K, C): one set of lobe weights
@@ -194,11 +195,16 @@ def _chosen_facets(diffuse, others, penalty, gains, candidates, values, w, judge
             return cost, target - a * albedo, o_aa
 
         cost, residual, o_aa = jax.vmap(per_view)(candidates)
-        best = jnp.argmin(jnp.where(allowed, cost + price[:, None], jnp.inf), 0)  # ties: none
-        index = jnp.broadcast_to(best[None, None, :], (1, *residual.shape[1:]))
-        chosen = jnp.take_along_axis(residual, index, 0)[0]  # (C, M)
         ok = judged & (w > 0) & (o_aa[0] >= OTHER_VIEWS_SHARE * w * a * a) & (o_aa[0] > 0)
-        return jnp.where(ok, chosen, 0.0), jnp.where(ok, w, 0.0), jnp.where(ok, best, -1)
+
+        def among(mask):  # one set's choice
+            allowed = jnp.concatenate([jnp.ones((2, views), bool), mask[:, None] & usable])
+            best = jnp.argmin(jnp.where(allowed, cost + price[:, None], jnp.inf), 0)  # ties: none
+            index = jnp.broadcast_to(best[None, None, :], (1, *residual.shape[1:]))
+            chosen = jnp.take_along_axis(residual, index, 0)[0]  # (C, M)
+            return jnp.where(ok, chosen, 0.0), jnp.where(ok, w, 0.0), jnp.where(ok, best, -1)
+
+        return jax.vmap(among)(masks)
 
     return jax.vmap(choose)(gains)
 
