@@ -18,6 +18,7 @@ from ._errors import CtjaxError
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
 from .fitting._facet_lobe import facet_lobe
+from .fitting._facet_marginal import facet_marginal
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
 from .fitting._map_least_squares import TrackSamples, fit_model_map, heldout_map_rmse
 from .fitting._parameters import free_parameters
@@ -287,6 +288,13 @@ class HeldOutTracks:
         frames = self.capture.capture.frames
         rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
         return facet_lobe(self.train, self.test, self.judged, rotations, light, **options)
+
+    def facet_marginal(self, light, **options):
+        """The lobe about every tracked point's own facet under `light`, the facets
+        integrated out (`ctjax.fitting.facet_marginal`), on `train`."""
+        frames = self.capture.capture.frames
+        rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
+        return facet_marginal(self.train, rotations, light, **options)
 
     def heldout_rmse(self, model) -> float:
         """RMSE (8-bit levels) of `model` on the held-out views (see the class doc; its

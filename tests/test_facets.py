@@ -9,7 +9,7 @@ import pytest
 from ctjax import ColocatedLight, named_parameters
 from ctjax._errors import ParameterError
 from ctjax.effects import CameraGamma
-from ctjax.fitting import facet_heldout, facet_lobe
+from ctjax.fitting import facet_heldout, facet_lobe, facet_marginal
 from ctjax.fitting._facet_lobe import (
     FACET_CANDIDATES,
     FACET_F_TILDES,
@@ -127,6 +127,41 @@ def test_facets_about_the_views_h_predict_attached_sparkles(tmp_path):
     lambertian = facet_model(ColocatedLight(), 0.07, 0.0)
     plain = facet_heldout(lambertian, tracks.test, tracks.judged, _rotations(capture)).rmse
     assert judged[FACET_REFINE_STEPS] <= judged[0] < 0.95 * plain
+
+
+def test_the_facets_integrated_out_give_the_sparkles_width_and_spread(tmp_path):
+    """Attached sparkles (micro-lobe 0.06, F_tilde 0.012, facets of Beckmann 0.2 about the
+    surface): the marginal likelihood, each point's facet integrated over its prior, reads
+    the lobe's width and the facets' spread (measured on this 128x96 x 8 capture, 16 x 5
+    nodes refined 3 x 3: sigma 0.0594, F_tilde 0.0082, prior 0.2, `successful`; on a
+    sigma grid of 0.035-0.1 and the default quadrature sigma 0.0575 and F_tilde at its
+    grid's bottom, `at_bound`: F_tilde is not this test's; at 256x192 x 12,
+    `benchmarks/facet_truth.py --marginal`, it reads 0.016)."""
+    options = dict(SMALL, frames=8, sparkles_attached=True, sparkle_px=6.0, F_tilde=(0.012,) * 3)
+    synthesize(tmp_path / "c", SynthOptions(**options))
+    capture = load_capture(tmp_path / "c")
+    tracks = HeldOutTracks.split(capture)
+    rotations, light = _rotations(capture), ColocatedLight()
+    F_tildes = FACET_F_TILDES[3:7]
+    found = facet_marginal(
+        tracks.train, rotations, light, sigmas=(0.04, 0.06, 0.09), F_tildes=F_tildes,
+        halves=False, nodes=(16, 5), refine=3,
+    )  # fmt: skip
+    assert found.sigma == pytest.approx(0.06, rel=0.15)
+    assert found.prior_sigma == 0.2 and found.gain_per_value > 0
+    reasons = [u["reason"] for u in found.undetermined]
+    assert (found.status == "successful") == (not reasons)
+    if not F_tildes[0] < found.F_tilde < F_tildes[-1]:
+        assert found.status == "at_bound" and any("F_tilde" in r for r in reasons)
+    assert found.to_json()["facet_prior_sigma"] == 0.2
+    with pytest.raises(ParameterError, match="prior_sigmas"):
+        facet_marginal(tracks.train, rotations, light, prior_sigmas=(0,))
+    with pytest.raises(ParameterError, match="nodes"):
+        facet_marginal(tracks.train, rotations, light, nodes=(1, 9))
+    with pytest.raises(ParameterError, match="nu"):
+        facet_marginal(tracks.train, rotations, light, nu=-1.0)
+    with pytest.raises(ParameterError, match="refine"):
+        facet_marginal(tracks.train, rotations, light, refine=0)
 
 
 def test_the_candidate_facets_are_each_views_h_turned_across_their_arc():

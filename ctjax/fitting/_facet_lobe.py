@@ -198,14 +198,17 @@ def _vertex(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.exp(np.clip(-b / (2 * a), t[0], t[2]))) if a > 0 else float(x[k])
 
 
-def _chosen(grid: dict) -> tuple[float, float]:
+def _chosen(grid: dict, squared: bool = True) -> tuple[float, float]:
     """(sigma, F_tilde) from a grid's calibration RMSE, refined between its neighbours:
     sigma at the vertex of the profile (each sigma's least mean square over F_tilde), then
     F_tilde at the vertex over F_tilde at the grid's sigma. The grid's steps (30-50%) are as
-    wide as the halves' check (20%): between grid points the halves can agree or not."""
+    wide as the halves' check (20%): between grid points the halves can agree or not.
+    `squared=False`: the grid's values are minimised as they are (a negative
+    log-likelihood), not squared."""
     sigmas = np.unique([k[0] for k in grid])
     F_tildes = np.unique([k[1] for k in grid])
-    square = np.array([[grid.get((a, b), np.inf) ** 2 for b in F_tildes] for a in sigmas])
+    power = 2 if squared else 1
+    square = np.array([[grid.get((a, b), np.inf) ** power for b in F_tildes] for a in sigmas])
     profile = square.min(1)
     return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
 

@@ -84,22 +84,27 @@ class _CandidateSet(eqx.Module):
     sets: tuple = eqx.field(static=True)
 
 
-def _candidates(h, w, across=FACET_ACROSS_RAD):
-    """(D * M, 3) candidate facets of one point, world coordinates: each view's H (M, 3)
-    turned by each angle of `across` about the principal direction of the counted views'
-    H (`w` > 0), the arc the scope's motion traces; candidate c is view c % M's."""
+def _arc(h, w):
+    """The principal direction (3,) of the counted views' (`w` > 0) H (M, 3): the arc the
+    scope's motion traces. By power iteration (no LAPACK), from the first to the last
+    counted view's H (nudged off zero for a point seen once)."""
     counted = (w > 0)[:, None]
     mean = jnp.sum(jnp.where(counted, h, 0), 0) / jnp.maximum(jnp.sum(counted), 1)
     centred = jnp.where(counted, h - mean, 0)
     scatter = centred.T @ centred
-    # The principal direction by power iteration (no LAPACK), from the first to the last
-    # counted view's H (nudged off zero for a point seen once).
     first, last = jnp.argmax(w > 0), h.shape[0] - 1 - jnp.argmax((w > 0)[::-1])
     arc = h[last] - h[first] + jnp.asarray([1e-6, 2e-6, 3e-6], h.dtype)
     for _ in range(8):
         arc = scatter @ arc + 1e-12 * arc
         arc = arc / jnp.linalg.norm(arc)
-    normal = jnp.cross(h, arc)
+    return arc
+
+
+def _candidates(h, w, across=FACET_ACROSS_RAD):
+    """(D * M, 3) candidate facets of one point, world coordinates: each view's H (M, 3)
+    turned by each angle of `across` about the arc of the counted views' H (`w` > 0,
+    `_arc`); candidate c is view c % M's."""
+    normal = jnp.cross(h, _arc(h, w))
     normal = normal / jnp.maximum(jnp.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
     return jnp.concatenate([math.cos(d) * h + math.sin(d) * normal for d in across], 0)
 
