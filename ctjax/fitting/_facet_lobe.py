@@ -44,6 +44,16 @@ FACET_F_TILDES = (
 FACET_CANDIDATES = {"across the arc": FACET_ACROSS_RAD, "the views' H": (0.0,)}
 
 
+def halves_json(halves: tuple | None) -> dict | None:
+    """The choices on the even and on the odd calibration frames, for JSON."""
+    if halves is None:
+        return None
+    return {
+        part: {"sigma": s, "F_tilde": f, "peak": f / s**2}
+        for part, (s, f) in zip(("even_frames", "odd_frames"), halves, strict=True)
+    }
+
+
 class FacetLobe(eqx.Module):
     """The lobe about every point's own facet (`facet_lobe`): `sigma` and `F_tilde` (grey)
     chosen on the calibration tracks, `calibration_rmse` (grid point -> RMSE, levels),
@@ -95,12 +105,7 @@ class FacetLobe(eqx.Module):
         return self.F_tilde / self.sigma**2
 
     def to_json(self) -> dict:
-        halves = None
-        if self.halves is not None:
-            halves = {
-                part: {"sigma": s, "F_tilde": f, "peak": f / s**2}
-                for part, (s, f) in zip(("even_frames", "odd_frames"), self.halves, strict=True)
-            }
+        halves = halves_json(self.halves)
         return {
             "sigma": self.sigma,
             "F_tilde": self.F_tilde,

@@ -41,6 +41,7 @@ from ._facet_lobe import (
     FACET_SIGMAS,
     _chosen,
     _facet_status,
+    halves_json,
 )
 from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
@@ -281,12 +282,7 @@ class FacetMarginal(eqx.Module):
         return self.F_tilde / self.sigma**2
 
     def to_json(self) -> dict:
-        halves = None
-        if self.halves is not None:
-            halves = {
-                part: {"sigma": s, "F_tilde": f, "peak": f / s**2}
-                for part, (s, f) in zip(("even_frames", "odd_frames"), self.halves, strict=True)
-            }
+        halves = halves_json(self.halves)
         return {
             "sigma": self.sigma,
             "F_tilde": self.F_tilde,
