@@ -261,9 +261,10 @@ class FacetMarginal(eqx.Module):
     Against synthetic truth (attached sparkles at 256x192 x 12, micro-lobe 0.06, F_tilde
     0.012, facets of Beckmann 0.2, 1 level of noise; `benchmarks/facet_truth.py
     --marginal`): sigma 0.0631, F_tilde 0.0160, sigma_M 0.2, the halves within 1% in both,
-    `successful`; over the variants tried (quadrature, noise law) sigma within 8% and
-    F_tilde 0.010-0.019: F_tilde is measured to about a third (docs/real-video.md). On the
-    same capture `facet_lobe` reads 0.067 and 0.0084, `unstable`."""
+    `successful`; `--seed 2` sigma 0.0637, F_tilde 0.0206, sigma_M 0.1; over the variants
+    tried (quadrature, noise law) sigma within 8% and F_tilde 0.010-0.021: F_tilde is read
+    34-72% high by this one, an upper bound (docs/real-video.md). On the same captures
+    `facet_lobe` reads 0.067 and 0.0084, 0.049 and 0.0039, `unstable`."""
 
     sigma: float
     F_tilde: float
