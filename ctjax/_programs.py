@@ -18,10 +18,11 @@ compilation cache is on (the command line turns it on; `CTJAX_NO_CACHE=1` turns 
 
 A kept program is data only, never pickled: whoever can write a file that a process
 unpickles runs code in it. `<sha256 of the key>.program` holds the line
-`ctjax-program 1` (the format and its version), one line of JSON, then the bytes of
+`ctjax-program 2` (the format and its version), one line of JSON, then the bytes of
 `jax.export`'s `Exported.serialize()`. The JSON holds the key's digest (a file renamed to
 another key is refused), the sha256 of those bytes (a damaged file is refused before
-JAX parses it) and the output's skeleton, which only tracing would tell otherwise: the
+JAX parses it), whether the program calls LAPACK (JAX sets LAPACK up only for those:
+`ctjax._lapack`) and the output's skeleton, which only tracing would tell otherwise: the
 pytree structure of the function's output (its node types, their static data) and its
 leaves, each either "an output array of the program" or a static value. Static data is
 written in a closed vocabulary: None, bool, int, float, str, tuples, lists and dicts of
@@ -45,6 +46,7 @@ file that cannot be read, parsed or checked (damaged, another format, another ke
 miss: the function is traced again and the file replaced.
 """
 
+import contextlib
 import enum
 import functools
 import hashlib
@@ -60,6 +62,8 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+
+from ctjax._lapack import calls_lapack, no_lapack_setup
 
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "interpax", "numpy")
 # Where programs are kept; None: off (see `keep_programs`).
@@ -197,9 +201,10 @@ def _aval(leaf) -> str:
 class _Program:
     """One exported program: call it on the dynamic leaves, rebuild the output tree."""
 
-    def __init__(self, exported, skeleton, options: dict):
+    def __init__(self, exported, skeleton, options: dict, lapack: bool):
         self.exported = exported
         self.skeleton = skeleton
+        self.lapack = lapack  # whether it calls LAPACK (`ctjax._lapack`)
         self.parts, self.structure = jax.tree.flatten(skeleton)
         # One jit per program, its inputs placed on the default device: committed and
         # uncommitted arguments (an exported program's outputs are committed) would
@@ -214,7 +219,8 @@ class _Program:
         self.run = jax.jit(run, in_shardings=device, compiler_options=options)
 
     def __call__(self, leaves):
-        outputs = iter(self.run(*leaves))
+        with contextlib.nullcontext() if self.lapack else no_lapack_setup():
+            outputs = iter(self.run(*leaves))
         return jax.tree.unflatten(
             self.structure, [next(outputs) if isinstance(p, _Array) else p for p in self.parts]
         )
@@ -235,7 +241,8 @@ def _export(fun, treedef, static, leaves):
     ]
     flat.__name__ = flat.__qualname__ = _plain_name(getattr(fun, "__name__", "program"))
     exported = jax.export.export(jax.jit(flat))(*shapes)
-    return _Program(exported, skeleton[0], options_for(_qualified(fun)))
+    lapack = calls_lapack(exported.mlir_module())
+    return _Program(exported, skeleton[0], options_for(_qualified(fun)), lapack)
 
 
 def _plain_name(name) -> str:
@@ -452,7 +459,7 @@ def _skeleton_data(skeleton) -> dict:
     return data
 
 
-_MAGIC = b"ctjax-program 1\n"  # the format and its version
+_MAGIC = b"ctjax-program 2\n"  # the format and its version
 
 
 def _blob(key: str, program: _Program) -> bytes:
@@ -463,6 +470,7 @@ def _blob(key: str, program: _Program) -> bytes:
         "key": key,
         "sha256": hashlib.sha256(exported).hexdigest(),
         "skeleton": _skeleton_data(program.skeleton),
+        "lapack": program.lapack,
     }
     return _MAGIC + json.dumps(header, separators=(",", ":")).encode() + b"\n" + exported
 
@@ -476,8 +484,10 @@ def _program(blob: bytes, key: str, leaves, options: dict) -> _Program:
     header = json.loads(line)
     if header["key"] != key or header["sha256"] != hashlib.sha256(exported).hexdigest():
         raise ValueError("another key's program, or a damaged one")
+    if type(header["lapack"]) is not bool:
+        raise ValueError("not a program of this format")
     exported = jax.export.deserialize(bytearray(exported))
-    program = _Program(exported, _skeleton(header["skeleton"]), options)
+    program = _Program(exported, _skeleton(header["skeleton"]), options, header["lapack"])
     inputs = [(aval.shape, aval.dtype) for aval in program.exported.in_avals]
     outputs = sum(isinstance(part, _Array) for part in program.parts)
     if inputs != [(leaf.shape, leaf.dtype) for leaf in leaves]:

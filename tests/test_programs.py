@@ -150,7 +150,7 @@ def test_a_kept_program_is_data_in_the_documented_format(kept, loads):
     first = [np.asarray(a) for a in _frame_columns(brdf, ColocatedLight(), camera, normals, depth)]
     (path,) = kept.glob("*.program")
     magic, header, exported = path.read_bytes().split(b"\n", 2)
-    assert magic == b"ctjax-program 1"
+    assert magic == b"ctjax-program 2"
     header = json.loads(header)
     assert header["key"] == path.stem
     assert jax.export.deserialize(bytearray(exported)).out_avals  # jax.export's own bytes
@@ -381,3 +381,77 @@ def test_programs_are_kept_beside_a_cache_set_through_jax(tmp_path):
     assert printed[private].stdout.strip() == str(private / "programs")
     assert printed[group].stdout.strip() == "None"
     assert "another user can write" in printed[group].stderr
+
+
+# Run twice in new processes: "first" traces and keeps both programs, "again" loads them.
+_LAPACK_SCRIPT = """
+import json
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+from ctjax import _programs  # noqa: E402
+from ctjax._camera import Camera  # noqa: E402
+from ctjax.estimation import PAPER  # noqa: E402
+from ctjax.estimation._dense_maps import _frame_columns  # noqa: E402
+from ctjax.lights import ColocatedLight  # noqa: E402
+
+_programs.keep_programs(Path(sys.argv[1]))
+again = sys.argv[2] == "again"
+
+
+def stub(*args, **kwargs):
+    raise AssertionError("a kept program was traced again")
+
+
+def named(function, qualname):  # kept under a name of ctjax's (the key's)
+    function.__module__, function.__qualname__ = _frame_columns.__module__, qualname
+    return _programs.persistent_jit(function)
+
+
+columns = named(stub if again else _frame_columns.__wrapped__, "_frame_columns")
+solve = named(stub if again else lambda a, b: jnp.linalg.solve(a, b), "_lapack_probe")
+camera = Camera(fx=20.0, fy=20.0, cx=8.0, cy=6.0, width=16, height=12)
+normals = jnp.broadcast_to(jnp.array([0.0, 0.6, -0.8]), (12, 16, 3))
+depth = jnp.full((12, 16), 60.0)
+report = {"before": "scipy.linalg" in sys.modules}
+out = columns(PAPER.build(jnp.array([0.25])), ColocatedLight(), camera, normals, depth)
+report["columns"] = float(sum(np.nansum(np.asarray(o)) for o in out))
+report["after_columns"] = "scipy.linalg" in sys.modules
+a = np.array([[2.0, 0.5, 0.0], [0.5, 3.0, 0.1], [0.0, 0.1, 1.0]])
+report["x"] = np.asarray(solve(jnp.asarray(a), jnp.arange(3.0))).tolist()
+report["after_solve"] = "scipy.linalg" in sys.modules
+print(json.dumps(report))
+"""
+
+
+def test_lapack_is_set_up_only_for_programs_that_call_it(tmp_path):
+    """A kept program without LAPACK kernels runs in a new process without JAX's LAPACK
+    set-up (which imports scipy.linalg: `ctjax._lapack`); one that calls LAPACK, kept and
+    loaded alike, still gets it and gives the right answer."""
+    script = tmp_path / "probe.py"
+    script.write_text(_LAPACK_SCRIPT)
+    reports = []
+    for run in ("first", "again"):
+        done = subprocess.run(
+            [sys.executable, str(script), str(tmp_path / "programs"), run],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        reports.append(json.loads(done.stdout.splitlines()[-1]))
+    headers = [
+        json.loads(path.read_bytes().split(b"\n", 2)[1])
+        for path in (tmp_path / "programs").glob("*.program")
+    ]
+    assert sorted(h["lapack"] for h in headers) == [False, True]
+    a = np.array([[2.0, 0.5, 0.0], [0.5, 3.0, 0.1], [0.0, 0.1, 1.0]])
+    for report in reports:
+        assert not report["before"] and not report["after_columns"] and report["after_solve"]
+        np.testing.assert_allclose(report["x"], np.linalg.solve(a, np.arange(3.0)), rtol=1e-12)
+    assert reports[1]["columns"] == reports[0]["columns"] != 0
