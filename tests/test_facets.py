@@ -17,6 +17,7 @@ from ctjax.fitting._facet_lobe import (
     _chosen,
     _facet_status,
 )
+from ctjax.fitting._facet_marginal import _observed_points
 from ctjax.fitting._facets import FACET_REFINE_STEPS, _candidates, facet_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -154,6 +155,14 @@ def test_the_facets_integrated_out_give_the_sparkles_width_and_spread(tmp_path):
     if not F_tildes[0] < found.F_tilde < F_tildes[-1]:
         assert found.status == "at_bound" and any("F_tilde" in r for r in reasons)
     assert found.to_json()["facet_prior_sigma"] == 0.2
+    # Only the points with a view are integrated (the tracks' padding left out).
+    seen = np.asarray(tracks.train.weight).sum(0) > 0
+    compact = _observed_points(tracks.train)
+    assert seen.sum() <= compact.weight.shape[-1] < seen.size
+    for name in ("weight", "values"):
+        before, after = np.asarray(getattr(tracks.train, name)), np.asarray(getattr(compact, name))
+        np.testing.assert_array_equal(after[..., : seen.sum()], before[..., seen])
+    assert not np.asarray(compact.weight)[:, seen.sum() :].any()
     with pytest.raises(ParameterError, match="prior_sigmas"):
         facet_marginal(tracks.train, rotations, light, prior_sigmas=(0,))
     with pytest.raises(ParameterError, match="nodes"):

@@ -32,6 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._buckets import bucket
+from .._convert import on_device
 from .._determined import PRIORITY, Undetermined, _unstable
 from .._errors import ParameterError
 from .._status import Status
@@ -227,6 +229,27 @@ def noise_scale(train: TrackSamples, rotations, light, nu: float | None = None) 
     return 255 * float(np.median(values)) / _median_abs_t(nu)
 
 
+def _observed_points(train: TrackSamples) -> TrackSamples:
+    """`train` with only its points that have a view, padded to a `bucket` with one that
+    has none: a point without views adds nothing to the likelihood, and the tracks come
+    padded to a power of two (27% of a 256x192 capture's 16384 columns were empty). Every
+    array of `TrackSamples` has the points last, some flattened (4 M P); the columns are
+    taken on the host."""
+    seen = np.asarray(train.weight).sum(0) > 0
+    observed, empty = np.flatnonzero(seen), np.flatnonzero(~seen)
+    points, size = seen.size, bucket(len(observed))
+    if size >= points or empty.size == 0:
+        return train
+    columns = np.concatenate([observed, np.full(size - len(observed), empty[0])])
+
+    def taken(a):
+        a = np.asarray(a)
+        kept = a.reshape(-1, points)[:, columns]
+        return on_device(kept.reshape((*a.shape[:-1], size) if a.shape[-1] == points else -1))
+
+    return jax.tree.map(taken, train)
+
+
 @eqx.filter_jit
 def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior_sigmas,
               noise, nu: float | None, subsets: tuple, nodes: tuple, refine: int):  # fmt: skip
@@ -352,6 +375,7 @@ def facet_marginal(
     nodes = (int(nodes[0]), int(nodes[1]))
     if int(refine) < 1:
         raise ParameterError(f"facet_marginal's refine must be at least 1, got {refine}")
+    train = _observed_points(train)
     if noise_levels is None:
         base = noise_scale(train, rotations, light, nu)
         noise_levels = tuple(base * k for k in NOISE_MULTIPLES[nu is None])
