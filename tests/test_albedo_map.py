@@ -184,8 +184,19 @@ def test_fit_command_writes_the_albedo_maps(textured, tmp_path, capsys):
     assert "albedo" in capsys.readouterr().out
 
 
-def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path, capsys):
+def test_map_without_poses_or_with_uniform_is_one_clear_error(
+    textured, tmp_path, capsys, monkeypatch
+):
+    from ctjax.heldout import HeldOutTracks
+
     root = textured[(2, 0.5)]
+    marginal = HeldOutTracks.facet_marginal  # a coarse quadrature here: the command's wiring
+
+    def coarse(self, light, **options):
+        grids = dict(sigmas=(0.1, 0.2, 0.3), F_tildes=(0.02, 0.05, 0.1), nodes=(6, 3), refine=2)
+        return marginal(self, light, **grids, **options)
+
+    monkeypatch.setattr(HeldOutTracks, "facet_marginal", coarse)
     out = tmp_path / "fit.json"
     argv = ["fit", str(root), "--json", str(out), "--albedo", "uniform", "--albedo-maps", "m"]
     assert main(argv) == 2
@@ -193,12 +204,19 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
     assert main([*argv[:6], "--max-tracks", "500"]) == 2
     assert "--max-tracks is for the albedo map" in capsys.readouterr().err
     # The tracks' cap: at most that many points followed.
-    assert main(["fit", str(root), "--json", str(out), "--max-tracks", "500", "--facets"]) == 0
+    argv = ["fit", str(root), "--json", str(out), "--max-tracks", "500", "--facets"]
+    assert main([*argv, "--facet-marginal"]) == 0
     fitted = json.loads(out.read_text())
     assert 400 < fitted["n_points"] <= 500
-    # The lobe about every point's own facet (tests/test_facets.py), beside the fit's.
+    # The lobe about every point's own facet (tests/test_facets.py), beside the fit's, and
+    # the facets integrated out.
     assert np.isfinite(fitted["facets"]["heldout_rgb_rmse"])
-    assert "a lobe about every point's own facet" in capsys.readouterr().out
+    found = fitted["facet_marginal"]
+    assert 0.1 <= found["sigma"] <= 0.3 and 0.02 <= found["F_tilde"] <= 0.1
+    assert found["status"] in {"successful", "at_bound", "unstable"}
+    printed = capsys.readouterr().out
+    assert "a lobe about every point's own facet" in printed
+    assert "the facets integrated out" in printed
     (root.parent / "nopose").mkdir()
     for item in root.iterdir():
         if item.name != "poses.json":
@@ -210,6 +228,9 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(textured, tmp_path
     assert json.loads(out.read_text())["albedo"] == "uniform"
     assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--facets"]) == 2
     assert "--facets needs the albedo map" in capsys.readouterr().err
+    nopose = ["fit", str(root.parent / "nopose"), "--json", str(out), "--facet-marginal"]
+    assert main(nopose) == 2
+    assert "--facet-marginal needs the albedo map" in capsys.readouterr().err
 
 
 def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):

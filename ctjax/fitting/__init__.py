@@ -11,6 +11,7 @@ from ._facet_lobe import facet_lobe as facet_lobe
 from ._facet_lobe import facet_lobe_line as facet_lobe_line
 from ._facet_marginal import FacetMarginal as FacetMarginal
 from ._facet_marginal import facet_marginal as facet_marginal
+from ._facet_marginal import facet_marginal_line as facet_marginal_line
 from ._facets import FacetJudgement as FacetJudgement
 from ._facets import facet_heldout as facet_heldout
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT

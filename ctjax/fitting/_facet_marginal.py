@@ -438,3 +438,29 @@ def facet_marginal(
         status,
         tuple(found),
     )
+
+
+def facet_marginal_line(summary: dict) -> str:
+    """One line for a command's output from `FacetMarginal.to_json()`."""
+    halves = summary["halves"]
+    split = (
+        f"; halves sigma {halves['even_frames']['sigma']:.3g} / "
+        f"{halves['odd_frames']['sigma']:.3g}, F_tilde {halves['even_frames']['F_tilde']:.3g} / "
+        f"{halves['odd_frames']['F_tilde']:.3g} (even / odd calibration frames)"
+        if halves
+        else ""
+    )
+    return (
+        f"the facets integrated out (a marginal likelihood on the calibration frames): sigma "
+        f"{summary['sigma']:.3g}, F_tilde {summary['F_tilde']:.3g} (an upper bound), the "
+        f"facets' spread sigma_M {summary['facet_prior_sigma']:.3g}, noise "
+        f"{summary['noise_levels']:.3g} levels, {summary['gain_nats_per_value']:.3g} nats per "
+        f"value over no lobe{split}; status {summary['status']}"
+        + "".join(f"; {u['reason']}" for u in _first_of_status(summary)[:1])
+    )
+
+
+def _first_of_status(summary: dict) -> list[dict]:
+    """The reasons behind the status first (the line shows one)."""
+    reasons = summary["undetermined"]
+    return sorted(reasons, key=lambda u: u.get("status") != summary["status"])
