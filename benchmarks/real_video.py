@@ -61,6 +61,7 @@ def _json(path: Path) -> dict:
 
 def prepare(source: Path, out: Path, frames: int, width: int) -> Path:
     """A capture of `frames` frames, `width` px wide, from a capture folder or a video."""
+    source = source.resolve()  # the commands run from the repository's root
     capture = out / "capture"
     if capture.is_dir():
         shutil.rmtree(capture)
