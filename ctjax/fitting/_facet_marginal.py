@@ -49,8 +49,10 @@ from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, 
 from ._map_least_squares import TrackSamples, diffuse_lobe
 
 # The facets' spread about the reconstruction's normal (Beckmann widths): from a smooth
-# surface to a rough one.
-FACET_PRIOR_SIGMAS = (0.1, 0.2, 0.3, 0.5, 0.7)
+# surface to a rough one. Up to 0.7 at first: both real sequences put it at that top
+# (`at_bound`); with the grid to 2.0 the shared sinus's 12 frames take 0.7 inside it (sigma
+# 0.0758 for 0.0753, `unstable` only: its halves 40% apart).
+FACET_PRIOR_SIGMAS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.4, 2.0)
 # The noise scales profiled by default, multiples of `noise_scale`'s: Student-t's (few: each
 # scale costs a pass), the Gaussian's (many: one sum of squares serves them all). On
 # attached synthetic sparkles (1 level of Gaussian noise, micro-lobe 0.06, F_tilde 0.012;
