@@ -170,3 +170,28 @@ def _kept_programs():
     _programs.keep_programs(_CACHE / "programs")
     yield
     _programs.keep_programs(None)
+
+
+@pytest.fixture
+def coarse_facets(monkeypatch):
+    """The facet estimators on coarse grids (`HeldOutTracks.facet_lobe` and
+    `.facet_marginal`), for the commands' wiring tests: the estimators themselves are
+    tests/test_facets.py's. The wiring of `fit --facets --facet-marginal` took 33 s of a warm
+    test_albedo_map.py's 66 with the default grids (9 sigmas, 2 halves; 8 spreads)."""
+    from ctjax.heldout import HeldOutTracks
+
+    lobe, marginal = HeldOutTracks.facet_lobe, HeldOutTracks.facet_marginal
+    sigmas, F_tildes = (0.1, 0.2, 0.3), (0.02, 0.05, 0.1)
+
+    def coarse_lobe(self, light, **options):
+        grids = dict(sigmas=sigmas, F_tildes=F_tildes, refine_steps=0)
+        return lobe(self, light, **dict(grids, **options))
+
+    def coarse_marginal(self, light, **options):
+        grids = dict(sigmas=sigmas, F_tildes=F_tildes, nodes=(6, 3), refine=2)
+        grids.update(prior_sigmas=(0.1, 0.3, 1.0))
+        return marginal(self, light, **dict(grids, **options))
+
+    monkeypatch.setattr(HeldOutTracks, "facet_lobe", coarse_lobe)
+    monkeypatch.setattr(HeldOutTracks, "facet_marginal", coarse_marginal)
+    return dict(sigmas=sigmas, F_tildes=F_tildes)

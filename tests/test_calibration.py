@@ -31,7 +31,7 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     assert result.noise_floor == pytest.approx(NOISE_FLOOR, rel=0.1)
 
 
-def test_calibrate_light_command_with_falloffs(tmp_path, capsys):
+def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets):
     options = SynthOptions(
         **SMALL,
         effects={"light_offset": (-3.0, 7.0, 1.0), "inverse_square": True, "spot_falloff": 3.0},

@@ -227,7 +227,7 @@ def test_cook_torrance_refinement_explains_the_pixels_better(capture):
     assert np.all(np.isfinite(np.asarray(refined.normals)))
 
 
-def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys):
+def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coarse_facets):
     out = tmp_path / "evaluation.json"
     plots = tmp_path / "plots"
     argv = [
