@@ -355,6 +355,11 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path):
         assert budget[model]["rmse_levels"] == pytest.approx(rmse, rel=1e-9)
     lambertian, fitted = budget["lambertian"], budget["cook_torrance"]
     assert lambertian["highlight_share"] > 2 * fitted["highlight_share"]
+    # Each frame's RMSE under both models, every frame predicted by the others.
+    frames = mapped["frames_rmse"]
+    names = {frame.name for frame in capture.frames}
+    assert set(frames["lambertian"]) == set(frames["cook_torrance"]) == names
+    assert frames["not_predicted"] == [] and np.isfinite(frames["calibration_median_levels"])
     assert lambertian["highlight_excess_levels"] > 1 > abs(fitted["highlight_excess_levels"])
     uniform = evaluate(capture, cook_torrance=fit_colocated, albedo="uniform", sfs=False)
     uniform = uniform.to_json()

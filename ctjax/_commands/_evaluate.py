@@ -116,6 +116,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"Cook-Torrance's gain on the test frames: {gain['total_levels']:.2f} levels = "
             + " + ".join(parts)
         )
+    frames = summary.get("frames_rmse") or {}
+    if frames.get("not_predicted"):
+        named = ", ".join(f"{n} {frames['lambertian'][n]:.1f}" for n in frames["not_predicted"])
+        print(
+            f"frames the others do not predict (Lambertian, levels): {named}, against a median "
+            f"of {frames['calibration_median_levels']:.1f} over the calibration frames: motion "
+            "the poses and shape do not follow; no lobe explains them (frames_rmse in the JSON)"
+        )
     for name, budget in (summary.get("residual_budget") or {}).items():
         if "rmse_levels" in budget:
             print(

@@ -31,7 +31,7 @@ from ..fitting import (
     rmse_levels,
 )
 from ..fitting._parameters import free_parameters
-from ..heldout import HeldOutTracks, RightViews, split_frames
+from ..heldout import HeldOutTracks, RightViews, frame_consistency, split_frames
 from ..io import Capture
 from ..lights import AbstractLight, ColocatedLight, LightField
 from ..lobes import BRDF, Lambertian
@@ -115,6 +115,9 @@ class Evaluation:
     # The lobe about every point's own facet under Cook-Torrance's light
     # (`ctjax.fitting.facet_lobe`'s JSON), where asked for.
     facets: dict | None = None
+    # Each frame's RMSE under both models and the frames the others do not predict
+    # (`ctjax.heldout.frame_consistency`'s JSON), under the map.
+    frames_rmse: dict | None = None
 
     @property
     def light(self) -> str:
@@ -182,6 +185,8 @@ class Evaluation:
             out["right_views"] = self.right_views
         if self.facets is not None:
             out["facets"] = self.facets
+        if self.frames_rmse is not None:
+            out["frames_rmse"] = self.frames_rmse
         for model in ("lambertian", "cook_torrance", "per_pixel"):
             if model == "per_pixel" and not any(s.per_pixel for s in self.shapes):
                 continue
@@ -451,9 +456,11 @@ def evaluate(
         same_light = _judged(capture, same_light, calib, test, tracks)
     if same_diffuse is not None:
         same_diffuse = _judged(capture, same_diffuse, calib, test, tracks)
-    budgets = None
+    budgets = frames_rmse = None
     if tracks is not None:
         budgets = _budgets(tracks, {"lambertian": lambertian, "cook_torrance": fitted})
+        models = {"lambertian": lambertian.model, "cook_torrance": fitted.model}
+        frames_rmse = frame_consistency(tracks, models)
     timings["rgb_error"] = time.perf_counter() - tic
     facet = None
     if facets:
@@ -504,21 +511,9 @@ def evaluate(
         )
     unit = length_unit_of(capture)
     return Evaluation(
-        calib,
-        test,
-        lambertian,
-        fitted,
-        shapes,
-        timings,
-        notes,
-        albedo,
-        same_light,
-        unit,
-        right_views,
-        same_diffuse,
-        budgets,
-        facet,
-    )
+        calib, test, lambertian, fitted, shapes, timings, notes, albedo, same_light, unit,
+        right_views, same_diffuse, budgets, facet, frames_rmse,
+    )  # fmt: skip
 
 
 def _facet_lobe(tracks, model) -> tuple[dict | None, str | None]:
