@@ -18,7 +18,8 @@ Measured (2026-11-28): all 35 frames of the shared sinus at 640 px (`ctjax recon
 all). Without the first 12 frames (frames 12-34 as their own capture): `ctjax fit` sigma
 0.167 +- 0.016, F_tilde [0.0037, 0.0017, 0.0011], halves 0.159 / 0.206 (`unstable`),
 where all 35 gave `no_lobe` (halves 0.028 / 0.016); `ctjax evaluate --no-sfs` 5.04 ->
-4.28 levels (0.849x), all of it the near light's (the lobe 0.00). The cholecystectomy's 12
+4.28 levels (0.849x), all of it the near light's (the lobe 0.00). Without only the six
+named frames the fit stays `no_lobe` (sigma 0.009). The cholecystectomy's 12
 frames (session 34's reconstruction): 16.2-23.3 levels in the calibration frames (median
 17.8), none above 1.5x; 17.4-26.8 in the held-out ones: there every frame is predicted as
 badly as the others.
