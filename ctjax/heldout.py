@@ -402,9 +402,13 @@ def frame_consistency(tracks: HeldOutTracks, models: dict) -> dict:
     rmse = {name: tracks.frame_rmse(model) for name, model in models.items()}
     first = next(iter(rmse.values()))
     outliers, median = frames_not_predicted(first, tracks.calibration)
+
+    def plain(value):  # JSON: null for a frame without a judged view
+        return value if math.isfinite(value) else None
+
     return {
-        **{name: {names[f]: v for f, v in sorted(r.items())} for name, r in rmse.items()},
-        "calibration_median_levels": median,
+        **{name: {names[f]: plain(v) for f, v in sorted(r.items())} for name, r in rmse.items()},
+        "calibration_median_levels": plain(median),
         "not_predicted": [names[f] for f in outliers],
         "note": (
             "8-bit levels per frame: a calibration frame's views each predicted from the "
