@@ -76,6 +76,7 @@ for _flag, _value in _TEST_FLAGS.items():
 _LONG_RUNNING = (
     "ctjax.fitting._fit._least_squares",
     "ctjax.fitting._map_least_squares._least_squares",
+    "ctjax.fitting._facet_marginal._marginal",
 )
 
 

@@ -78,6 +78,21 @@ def test_a_kept_program_is_loaded_without_tracing_and_gives_the_same_result(kept
     assert len(list(kept.glob("*.program"))) == 1
 
 
+def test_the_first_process_runs_the_program_as_later_ones_read_it(kept, monkeypatch):
+    """On a miss the program is run from the bytes just written, as a later process reads
+    them: a freshly exported program can lower to another module than the one read back
+    (XLA folds it on reading), which then misses JAX's compilation cache, and the second
+    `ctjax fit` of a 320x256 x 5 capture compiled four programs again (8.7 s; 2.9 s warm)."""
+    camera, normals, depth = _frame()
+    read, program = [], _programs._program
+    monkeypatch.setattr(
+        _programs, "_program", lambda blob, *a: read.append(blob) or program(blob, *a)
+    )
+    _frame_columns(PAPER.build(jnp.array([0.25])), ColocatedLight(), camera, normals, depth)
+    (written,) = kept.glob("*.program")
+    assert read == [written.read_bytes()]
+
+
 def test_other_shapes_or_static_arguments_are_other_programs(kept):
     camera, normals, depth = _frame()
     brdf = PAPER.build(jnp.array([0.25]))
@@ -132,15 +147,17 @@ def _fresh_call(brdf, camera, normals, depth):
 
 @pytest.fixture
 def loads(monkeypatch):
-    """The programs read back from files (`_programs._program` calls that succeeded)."""
+    """The programs read back from files (`_programs._load` calls that found one)."""
     done = []
-    program = _programs._program
+    load = _programs._load
 
     def spy(*args):
-        done.append(program(*args))
-        return done[-1]
+        found = load(*args)
+        if found is not None:
+            done.append(found)
+        return found
 
-    monkeypatch.setattr(_programs, "_program", spy)
+    monkeypatch.setattr(_programs, "_load", spy)
     return done
 
 

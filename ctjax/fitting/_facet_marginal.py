@@ -36,6 +36,7 @@ from .._buckets import bucket
 from .._convert import on_device
 from .._determined import PRIORITY, Undetermined, _unstable
 from .._errors import ParameterError
+from .._programs import persistent_jit
 from .._status import Status
 from ._facet_lobe import (
     _MIN_FRAMES_FOR_HALVES,
@@ -185,7 +186,7 @@ def _one_point(
     return jnp.where(seen, ll, 0.0), jnp.where(seen, without[0], 0.0)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _lambertian_residuals(model, samples, judged, rotations, candidates):
     """Every counted value's residual (C, M, P) under the model without its lobe, each
     point's albedo fitted to its views, and the views' weights (M, P)."""
@@ -252,7 +253,7 @@ def _observed_points(train: TrackSamples) -> TrackSamples:
     return jax.tree.map(taken, train)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior_sigmas,
               noise, nu: float | None, subsets: tuple, nodes: tuple, refine: int):  # fmt: skip
     """Every tracked point's `_one_point`: (P, G, T, SM, NS) and (P, T, NS)."""

@@ -34,6 +34,7 @@ import numpy as np
 from .._buckets import padded
 from .._errors import ParameterError
 from .._model import ShadingModel
+from .._programs import persistent_jit
 from .._vector import Vec3
 from ..lobes._paper import cook_torrance_brdf
 from ..solvers import DenseLM, least_squares
@@ -292,7 +293,7 @@ def _per_point(model, samples: TrackSamples, judged, rotations, candidates: _Can
     return (*per_point, facets)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _facet_views(
     model, samples: TrackSamples, judged, rotations, penalty, turned: str, candidates, gains
 ):
@@ -312,7 +313,7 @@ def _facet_views(
     return jnp.moveaxis(residual, 0, -1), jnp.moveaxis(w, 0, -1), jnp.moveaxis(best, 0, -1)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _facet_sums(
     model, samples: TrackSamples, judged, rotations, penalty, turned: str, candidates, gains,
     subsets,
@@ -332,7 +333,7 @@ def _facet_sums(
     return jnp.moveaxis(jax.lax.map(one, per_point, batch_size=_POINTS_AT_ONCE), 0, -1)
 
 
-@eqx.filter_jit
+@persistent_jit
 def _turned_views(
     model, samples: TrackSamples, judged, rotations, turned: str, candidates, pairs, steps: int
 ):
