@@ -73,6 +73,8 @@ for _flag, _value in _TEST_FLAGS.items():
 # (707 tests, cold, fresh clone, 2 cores): 332.0 s / 610 CPU-s at level 0 everywhere,
 # 316.6 s / 581 CPU-s with the pixel fitter at level 1; warm, test_diagnostics.py 41-48 s ->
 # 24-26 s. The map's branch and bound (60 programs for 106 runs) stays at 0.
+# So does the facets' marginal likelihood (its test 14.2 -> 10.6 s, tests/test_facets.py 42.3
+# -> 39.1 s cold); the other facet programs at level 1 cost more compiling than they saved.
 _LONG_RUNNING = (
     "ctjax.fitting._fit._least_squares",
     "ctjax.fitting._map_least_squares._least_squares",
