@@ -125,6 +125,9 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
         errors = summary["offset_stderr_mm"]
         offset += " +- " + ", ".join("?" if v is None else f"{v:.2f}" for v in errors)
+    if "offset_halves_stderr_mm" in summary:
+        spread = summary["offset_halves_stderr_mm"]
+        offset += "; even / odd frames +- " + ", ".join(f"{v:.2f}" for v in spread)
     print(
         f"light offset ({offset}) {label(capture.length_unit)}, "
         f"falloff {'+'.join(summary['falloff']) or 'none'}, "
