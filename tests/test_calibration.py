@@ -141,6 +141,49 @@ def test_near_light_offset_halves_show_a_shape_error_the_standard_error_misses(
     assert error <= 3 * np.linalg.norm(np.maximum(spread, stderr))
 
 
+def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light(
+    independent_near, tmp_path
+):
+    """On a reconstructed shape (its report in the folder) the light is fitted to the views
+    away from S and the clipped pixels, where the surface was measured, and the BRDF then to
+    every view with the light held. Here on the true shape marked as reconstructed: the
+    plumbing, and what setting those views aside costs where they were good (the
+    reconstructed captures' figures are in `away_from_highlights`)."""
+    import shutil
+
+    from ctjax.calibration._near_light import HIGHLIGHT_MARGIN_PX, away_from_highlights
+    from ctjax.lights import InverseSquare
+    from ctjax.observations import Observations
+    from ctjax.sfm._photometric import MASK_DILATE_PX
+
+    # The margin is the reconstruction's own.
+    assert HIGHLIGHT_MARGIN_PX == MASK_DILATE_PX
+    scenes, roots = independent_near
+    root = shutil.copytree(roots["offset"], tmp_path / "reconstructed")
+    (root / "reconstruction.json").write_text(json.dumps({"scale": {"metric": True}}))
+    observations = Observations.of(load_capture(root))
+    tracks = observations.tracks(max_points=4000)
+    placing = away_from_highlights(observations, tracks)
+    dropped = (tracks.weight > 0) & (placing.weight == 0)
+    assert 0 < dropped.sum() < 0.5 * (tracks.weight > 0).sum()
+    np.testing.assert_array_equal(placing.weight[~dropped], tracks.weight[~dropped])
+    for index, sets in enumerate(observations.sets):  # every view dropped is near S
+        at = dropped & (tracks.frame == index)
+        pixel = np.einsum("vc,vcd->vd", tracks.corner_weight[at], tracks.corner_pixel[at])
+        bright = np.argwhere(sets.specular | sets.saturated)[:, ::-1]  # (x, y)
+        nearest = np.min(np.linalg.norm(pixel[:, None] - bright[None], axis=-1), axis=1)
+        assert np.all(nearest <= HIGHLIGHT_MARGIN_PX + 1)
+
+    result = calibrate_near_light(observations, falloff=(InverseSquare(68.0),), max_samples=4000)
+    fit = result.to_json()
+    assert fit["offset_detected"] and "light_placed_by" in fit
+    np.testing.assert_allclose(fit["offset_mm"], [6.0, -4.0, 0.0], atol=0.5)
+    # The BRDF from every view; the light's standard errors from the views that placed it.
+    assert fit["sigma"] == pytest.approx(scenes["offset"].sigma, rel=0.01)
+    assert all(0 < e < 0.5 for e in fit["offset_stderr_mm"])
+    assert {"light.position_mm", "brdf.lobes[1].distribution.sigma"} <= set(fit["stderr"])
+
+
 def test_an_offset_far_from_the_lens_is_said_to_be_no_light_position():
     from ctjax.calibration._near_light import far_offset
 

@@ -166,3 +166,26 @@ def test_the_near_light_fitted_with_the_right_views(stereo):
     assert fit["n_right_views"] > 5000 and fit["status"] == "successful"
     assert np.linalg.norm(fit["offset_mm"]) < 1.0
     assert fit["sigma"] == pytest.approx(OPTIONS.sigma, rel=0.03)
+
+
+def test_a_right_view_near_the_highlights_goes_with_its_left_view(stereo):
+    """`away_from_highlights` (the light placed on a reconstructed shape): a right view is
+    set aside with the same point's left view at the same instant, or where the left camera
+    did not see the point then."""
+    from ctjax._right_views import with_right_views
+    from ctjax.calibration._near_light import away_from_highlights
+    from ctjax.observations import Observations
+
+    capture, _ = stereo
+    observations = Observations.of(capture)
+    tracks, right = with_right_views(capture, observations.tracks(max_points=3000))
+    placing = away_from_highlights(observations, tracks, right)
+    dropped = (tracks.weight > 0) & (placing.weight == 0)
+    left = tracks.observed & ~right
+    assert dropped[left].any() and dropped[right].any() and not dropped[right].all()
+    for index in np.unique(tracks.frame[right]):
+        seen = np.any(left & (tracks.frame == index), axis=1)
+        close = np.any(dropped & left & (tracks.frame == index), axis=1)
+        at = right & (tracks.frame == index) & (tracks.weight > 0)
+        points = np.nonzero(at)[0]
+        np.testing.assert_array_equal(dropped[at], (close | ~seen)[points])
