@@ -1,13 +1,17 @@
 """The near light in millimetres on synthetic stereo captures, with the shape and the light
-fitted together (`ctjax reconstruct --shading near`).
+fitted together (`ctjax reconstruct --shading near`), or on the shape from the images alone
+(`--shading none`).
 
 For each seed: `ctjax synth --stereo 5 --light-offset 4 -3 0 --inverse-square` (W x H x N),
 the images alone reconstructed (depth in mm from the pairs), the shape refined by the
 shading jointly with a point light's position, then `calibrate-light --falloff
 inverse_square` on the refined shape. Prints, per seed, the distance of each position from
-the truth, sigma, and the depth's median relative error.
+the truth (the refinement's; calibrate-light's on the calibration frames, and its final one
+from every frame, beside half the difference of the even and the odd frames' fits), sigma,
+and the depth's median relative error.
 
     python benchmarks/near_light_stereo.py --size 320x256 --frames 8 --seeds 1 2 3 4
+    python benchmarks/near_light_stereo.py --shading none --frames 8 --seeds 1 2 3
 """
 
 import argparse
@@ -30,7 +34,7 @@ def _images_only(capture: Path, out: Path) -> Path:
     return out
 
 
-def run(width: int, height: int, frames: int, seed: int, work: Path) -> dict:
+def run(width: int, height: int, frames: int, seed: int, work: Path, shading: str) -> dict:
     from ctjax.calibration import calibrate_near_light
     from ctjax.io import load_capture
     from ctjax.lights import InverseSquare
@@ -43,9 +47,10 @@ def run(width: int, height: int, frames: int, seed: int, work: Path) -> dict:
     )
     truth = synthesize(work / "truth", options)
     started = time.perf_counter()
-    report = reconstruct(_images_only(truth, work / "images"), work / "refined", shading="near")
+    images = _images_only(truth, work / "images")
+    report = reconstruct(images, work / "refined", shading=False if shading == "none" else shading)
     seconds = time.perf_counter() - started
-    shading = report["surface"]["shading"]
+    shading = report["surface"].get("shading", {"refined": True})
     refined = load_capture(work / "refined")
     depth_error = [
         float(np.median(e.depth[ok] / t.depth[ok] - 1))
@@ -57,8 +62,10 @@ def run(width: int, height: int, frames: int, seed: int, work: Path) -> dict:
     return {
         "refined": shading["refined"],
         "joint_mm": off(shading["light"]["position_mm"]) if "light" in shading else None,
-        "joint_sigma": shading.get("sigma_after"),
+        "joint_sigma": shading.get("sigma_after", np.nan),
         "calibrated_mm": off(light["offset_fitted_mm"]),
+        "final_mm": off(light["offset_mm"]),
+        "halves_mm": float(np.linalg.norm(light.get("offset_halves_stderr_mm", np.nan))),
         "calibrated_sigma": light["sigma"],
         "depth_error": max(depth_error, key=abs),
         "seconds": seconds,
@@ -70,17 +77,22 @@ def main() -> None:
     parser.add_argument("--size", default="320x256")
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
+    parser.add_argument("--shading", choices=("near", "none"), default="near")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     width, height = map(int, args.size.split("x"))
     print(f"{args.size} x {args.frames}, light at {TRUE_OFFSET_MM} mm, inverse square")
-    print("seed | joint mm | joint sigma | calibrated mm | calibrated sigma | depth | s")
+    print(
+        "seed | joint mm | joint sigma | calibrated mm | final mm (even / odd) | "
+        "calibrated sigma | depth | s"
+    )
     for seed in args.seeds:
         with tempfile.TemporaryDirectory() as folder:
-            r = run(width, height, args.frames, seed, Path(folder))
+            r = run(width, height, args.frames, seed, Path(folder), args.shading)
         joint = "-" if r["joint_mm"] is None else f"{r['joint_mm']:.2f}"
         print(
             f"{seed} | {joint} | {r['joint_sigma']:.3f} | {r['calibrated_mm']:.2f} | "
+            f"{r['final_mm']:.2f} ({r['halves_mm']:.2f}) | "
             f"{r['calibrated_sigma']:.3f} | {r['depth_error']:+.2%} | {r['seconds']:.0f}"
             + ("" if r["refined"] else " (refinement not kept)")
         )

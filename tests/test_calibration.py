@@ -151,7 +151,7 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     reconstructed captures' figures are in `away_from_highlights`)."""
     import shutil
 
-    from ctjax.calibration._near_light import HIGHLIGHT_MARGIN_PX, away_from_highlights
+    from ctjax.calibration._offset_checks import HIGHLIGHT_MARGIN_PX, away_from_highlights
     from ctjax.lights import InverseSquare
     from ctjax.observations import Observations
     from ctjax.sfm._photometric import MASK_DILATE_PX
@@ -185,7 +185,7 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
 
 
 def test_an_offset_far_from_the_lens_is_said_to_be_no_light_position():
-    from ctjax.calibration._near_light import far_offset
+    from ctjax.calibration._offset_checks import far_offset
 
     # A da Vinci's guides: 5 mm at 70 mm. Nothing is said.
     assert far_offset(np.array([4.0, -3.0, 0.0]), 70.0, "mm") is None

@@ -173,7 +173,7 @@ def test_a_right_view_near_the_highlights_goes_with_its_left_view(stereo):
     set aside with the same point's left view at the same instant, or where the left camera
     did not see the point then."""
     from ctjax._right_views import with_right_views
-    from ctjax.calibration._near_light import away_from_highlights
+    from ctjax.calibration._offset_checks import away_from_highlights
     from ctjax.observations import Observations
 
     capture, _ = stereo

@@ -1,0 +1,151 @@
+"""Where the near light's offset is placed from, and what checks it beyond its standard error.
+
+On a shape `ctjax reconstruct` made, the light is fitted to the views away from the
+highlights, where the surface was measured (`away_from_highlights`); the offset is fitted
+again on the even and on the odd frames apart (`offset_halves`); and an offset further from
+the lens than an endoscope's light can be is said to be no light position (`far_offset`).
+Used by `near_light_map` (`_near_light.py`).
+"""
+
+import dataclasses
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._units import label
+from ..observations import Observations
+
+# The margin (px) about S and the clipped pixels within which `ctjax reconstruct` places the
+# surface by no texture (`ctjax.sfm._photometric.MASK_DILATE_PX`; a test checks they agree).
+HIGHLIGHT_MARGIN_PX = 8
+
+
+def reconstructed(capture: Observations) -> bool:
+    """Whether the capture's shape is `ctjax reconstruct`'s (its report is in the folder)."""
+    root = capture.capture.root
+    return root is not None and (Path(root) / "reconstruction.json").is_file()
+
+
+def away_from_highlights(capture: Observations, tracks, right=None):
+    """`tracks` with every view within `HIGHLIGHT_MARGIN_PX` of its frame's S or clipped
+    pixels weighted 0. `right`: which observations are a stereo capture's right views; one
+    goes with the same point's left view at the same instant (weighted 0 where that one
+    is, or where the left camera did not see the point there).
+
+    There a reconstructed surface is no measurement: the texture that places it is clipped
+    or moves with the light, so `ctjax reconstruct` masks it and the spline bridges it, and
+    its normals there are off by more (`ctjax synth --stereo 5 --light-offset 4 -3 0
+    --inverse-square`, reconstructed: 2 degrees in the median on S and the clipped pixels,
+    0.6-1.5 within 8 px of them, 0.5 beyond). Those are the views where the specular
+    shows most, and a light fitted to them moves to where those normals put the
+    highlights: the offset 1.72 mm off the truth with them, 0.81 without (5 frames at
+    320x256); on 8 frames, seeds 1-3: 0.58 -> 0.08, 0.50 -> 0.20, 1.07 -> 0.49 mm; on the
+    5 frames' shape refined by the shading (`reconstruct --shading near`) 0.65 -> 0.42 mm.
+    The BRDF, refitted on every view with the light held, moves by 1-5% in F_tilde (towards
+    the truth on 3 of the 4) and at most 1.5% in sigma. On the true shape the same views are
+    good data (0.04 mm off with them, 0.15 without): only a reconstructed shape's are set
+    aside, and only to place the light."""
+    pixel = np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_pixel)
+    near = np.zeros(tracks.observed.shape, bool)
+    for index, sets in enumerate(capture.sets):
+        at = tracks.observed & (tracks.frame == index)
+        if right is not None:
+            at &= ~right
+        bright = sets.specular | sets.saturated
+        if not (at.any() and bright.any()):
+            continue
+        distance = cv2.distanceTransform((~bright).astype(np.uint8), cv2.DIST_L2, 5)
+        u = np.clip(np.rint(pixel[at][:, 0]).astype(int), 0, bright.shape[1] - 1)
+        v = np.clip(np.rint(pixel[at][:, 1]).astype(int), 0, bright.shape[0] - 1)
+        near[at] = distance[v, u] <= HIGHLIGHT_MARGIN_PX
+    if right is not None:
+        left = tracks.observed & ~right
+        for index in np.unique(tracks.frame[right]):
+            seen = np.any(left & (tracks.frame == index), axis=1)
+            close = np.any(near & left & (tracks.frame == index), axis=1)
+            at = right & (tracks.frame == index)
+            near[at] = np.broadcast_to((close | ~seen)[:, None], at.shape)[at]
+    return dataclasses.replace(tracks, weight=np.where(near, 0.0, tracks.weight))
+
+
+# The frames are split in two (even and odd) to check the offset when there are at least this
+# many: two per half, as the map needs for a point's albedo.
+MIN_FRAMES_FOR_HALVES = 4
+# The halves' spread that is more than this many times the offset's standard error is not
+# the image noise's.
+HALVES_BEYOND_NOISE = 3.0
+
+
+# An endoscope's light leaves it at its tip, beside the lens: a fibre bundle a few
+# millimetres across, a da Vinci's guides within 5 mm of the lens, against working distances
+# of 30-100 mm. An offset beyond this share of the working distance is no such light.
+FAR_OFFSET = 0.3
+
+
+def far_offset(offset: np.ndarray, working_distance: float, unit: str) -> str | None:
+    """A warning where the fitted offset lies further from the lens than `FAR_OFFSET` working
+    distances (the median depth), else None: the fit then puts the light where no
+    endoscope's is, and the offset stands in for something the model lacks (a falloff of
+    another shape: on the shared sinus's twelve consecutive frames, with inverse-square and
+    spot falloff, the offset was (-0.01, 0.31, -1.08) median depths, 1.17 working distances:
+    a light behind the lens, the even and the odd frames agreeing within 0.03)."""
+    distance = float(np.linalg.norm(offset)) / working_distance
+    if not distance > FAR_OFFSET:
+        return None
+    return (
+        f"the light's offset {np.round(offset, 2).tolist()} {label(unit)} is "
+        f"{distance:.2f} working distances from the lens (more than {FAR_OFFSET:g}): an "
+        "endoscope's light leaves it "
+        "at its tip, beside the lens, so this offset stands in for something the model lacks "
+        "(a falloff of another shape, the camera's response, vignetting); it is not where "
+        "the light is"
+    )
+
+
+def offset_halves(result, tracks, fit, reported) -> None:
+    """The chosen model refitted on the views of the even and of the odd frames alone (the
+    same tracks, the other half's views weighted 0: the refit's compiled program), and the
+    offset's uncertainty they show.
+
+    The offset's standard error counts the image noise only; an error of the shape (the
+    normals under the highlights, where the texture that places the surface is clipped, are
+    2 degrees off on a reconstructed synthetic stereo capture against 0.5 elsewhere) biases
+    the offset by far more: 0.50 mm off the truth with standard errors of 0.02-0.04 mm
+    (`ctjax synth --stereo 5 --light-offset 4 -3 0 --inverse-square --frames 8 --seed 2`,
+    then `reconstruct`). Each frame's surface is its own, so the halves see partly
+    independent shape errors: for two halves a and b, |a - b| / 2 estimates the whole fit's
+    standard error (there (0.55, 0.42, 0.39) mm; 1.41 mm along the axis on 5 frames, where
+    the offset is 1.69 mm off along it). It is reported beside the standard error, and a
+    warning says so where it is more than `HALVES_BEYOND_NOISE` times as large. An error
+    every frame's surface shares moves both halves alike and is not seen: on the one world
+    surface of `reconstruct --shading near` the halves gave (0.11, 0.03, 0.37) mm for an
+    offset (0.62, 0.10, 0.17) mm off. On the true shape of the 5 frames the halves still
+    gave 0.24 mm along the axis against a standard error of 0.05 (the offset 0.04 mm off):
+    the noise is not all that moves the offset there either."""
+    frames = np.unique(tracks.frame[tracks.observed & (tracks.frame >= 0)])
+    if len(frames) < MIN_FRAMES_FOR_HALVES:
+        return
+    halves = {}
+    for parity, part in ((0, "even_frames"), (1, "odd_frames")):
+        keep = tracks.observed & (tracks.frame >= 0) & (tracks.frame % 2 == parity)
+        half = dataclasses.replace(tracks, weight=np.where(keep, tracks.weight, 0.0))
+        estimate = fit([result.model], half)
+        if not np.isfinite(estimate.cost):
+            return
+        halves[part] = np.asarray(estimate.model.light.position_mm, float)
+    spread = np.abs(halves["even_frames"] - halves["odd_frames"]) / 2
+    result.details["offset_halves_mm"] = {k: v.tolist() for k, v in halves.items()}
+    result.details["offset_halves_stderr_mm"] = spread.tolist()
+    noise = np.asarray([np.nan if e is None else e for e in reported], float)
+    if np.any(spread > HALVES_BEYOND_NOISE * noise):
+        unit = label(result.details["length_unit"])
+        result.warnings.append(
+            f"the light's offset moves by {np.round(spread, 2).tolist()} {unit} (half the "
+            "difference between the even and the odd frames' fits), more than "
+            f"{HALVES_BEYOND_NOISE:g} times its standard error "
+            f"{np.round(noise, 2).tolist()} {unit}, which counts the image noise only: "
+            "something else moves it (the shape's error, the normals under the highlights "
+            "most, or a parameter the fit trades against it); take the halves' figure as "
+            "the offset's uncertainty"
+        )
