@@ -40,7 +40,7 @@ def away_from_highlights(capture: Observations, tracks, right=None):
     0.6-1.5 within 8 px of them, 0.5 beyond). Those are the views where the specular
     shows most, and a light fitted to them moves to where those normals put the
     highlights: the offset 1.72 mm off the truth with them, 0.81 without (5 frames at
-    320x256); on 8 frames, seeds 1-3: 0.58 -> 0.08, 0.50 -> 0.20, 1.07 -> 0.49 mm; on the
+    320x256); on 8 frames, seeds 1-3: 0.58 -> 0.08, 0.50 -> 0.20, 1.07 -> 0.50 mm; on the
     5 frames' shape refined by the shading (`reconstruct --shading near`) 0.65 -> 0.42 mm.
     The BRDF, refitted on every view with the light held, moves by 1-5% in F_tilde (towards
     the truth on 3 of the 4) and at most 1.5% in sigma. On the true shape the same views are
