@@ -142,7 +142,7 @@ def test_near_light_offset_halves_show_a_shape_error_the_standard_error_misses(
 
 
 def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light(
-    independent_near, tmp_path
+    independent_near, tmp_path, monkeypatch
 ):
     """On a reconstructed shape (its report in the folder) the light is fitted to the views
     away from S and the clipped pixels, where the surface was measured, and the BRDF then to
@@ -151,7 +151,12 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     reconstructed captures' figures are in `away_from_highlights`)."""
     import shutil
 
-    from ctjax.calibration._offset_checks import HIGHLIGHT_MARGIN_PX, away_from_highlights
+    from ctjax.calibration import _offset_checks
+    from ctjax.calibration._offset_checks import (
+        HIGHLIGHT_MARGIN_PX,
+        away_from_highlights,
+        placing_views,
+    )
     from ctjax.lights import InverseSquare
     from ctjax.observations import Observations
     from ctjax.sfm._photometric import MASK_DILATE_PX
@@ -173,6 +178,18 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
         bright = np.argwhere(sets.specular | sets.saturated)[:, ::-1]  # (x, y)
         nearest = np.min(np.linalg.norm(pixel[:, None] - bright[None], axis=-1), axis=1)
         assert np.all(nearest <= HIGHLIGHT_MARGIN_PX + 1)
+    # Those are the views the light is placed by; every view where too few would be left, and
+    # every view on a shape that is not reconstructed.
+    placed, warning = placing_views(observations, tracks)
+    np.testing.assert_array_equal(placed.weight, placing.weight)
+    assert warning is None
+    with monkeypatch.context() as patch:
+        patch.setattr(_offset_checks, "HIGHLIGHT_MARGIN_PX", 10_000)
+        placed, warning = placing_views(observations, tracks)
+    assert placed is tracks and "the light is placed by every view" in warning
+    not_reconstructed = Observations.of(load_capture(roots["offset"]))
+    placed, warning = placing_views(not_reconstructed, tracks)
+    assert placed is tracks and warning is None
 
     result = calibrate_near_light(observations, falloff=(InverseSquare(68.0),), max_samples=4000)
     fit = result.to_json()

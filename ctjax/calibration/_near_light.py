@@ -55,10 +55,9 @@ from ..solvers import Solver
 from ..specular import flag_misoriented
 from ._offset_checks import (
     HIGHLIGHT_MARGIN_PX,
-    away_from_highlights,
     far_offset,
     offset_halves,
-    reconstructed,
+    placing_views,
 )
 
 
@@ -392,8 +391,9 @@ def near_light_map(
         tracks, right = with_right_views(capture.capture, tracks)
     # A reconstructed shape's views near the highlights do not place the light.
     placing = tracks
-    if detected and reconstructed(capture):
-        placing = away_from_highlights(capture, tracks, right if right_views else None)
+    if detected:
+        placing, warning = placing_views(capture, tracks, right if right_views else None)
+        result.warnings.extend([warning] if warning else [])
     # Frozen, not held: other tracks, another program anyway, and fewer Jacobian columns.
     every = fit([result.model], placing, freeze=() if detected else ("light.position_mm",))
     placed = None
