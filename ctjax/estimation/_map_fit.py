@@ -148,14 +148,10 @@ class _AlbedoMaps(collections.abc.Mapping):
 SENSITIVITY_STEP = 4
 
 
-def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
-    """How much the fitted specular changes per degree of normal error where it is
-    measured (`_sensitivity.py`), and whether the normals come from `ctjax reconstruct`."""
-    # On every `SENSITIVITY_STEP`-th track: a median over thousands of observations, at a
-    # fraction of the cost.
-    change, count = specular_change(
-        fit.family, fit.params, shading, fit.weights, fit.albedo, per_point, SENSITIVITY_STEP
-    )
+def normals_provenance(capture) -> dict:
+    """Whether the capture's normals come from `ctjax reconstruct` (its report,
+    reconstruction.json, beside the capture) and whether it refined them by the shading
+    (`reconstruct --shading`)."""
     root = getattr(capture, "root", None)
     report = root / "reconstruction.json" if root else None
     from_reconstruct = bool(report and report.is_file())
@@ -165,11 +161,21 @@ def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
             refined = bool(json.loads(report.read_text())["surface"]["shading"]["refined"])
         except (ValueError, KeyError, TypeError):
             refined = False
+    return {"normals_from_reconstruct": from_reconstruct, "refined_by_the_shading": refined}
+
+
+def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
+    """How much the fitted specular changes per degree of normal error where it is
+    measured (`_sensitivity.py`), and whether the normals come from `ctjax reconstruct`."""
+    # On every `SENSITIVITY_STEP`-th track: a median over thousands of observations, at a
+    # fraction of the cost.
+    change, count = specular_change(
+        fit.family, fit.params, shading, fit.weights, fit.albedo, per_point, SENSITIVITY_STEP
+    )
     return {
         "specular_change_per_degree": _number(change),
         "observations": int(count),
-        "normals_from_reconstruct": from_reconstruct,
-        "refined_by_the_shading": refined,
+        **normals_provenance(capture),
         "note": "median relative change of the fitted global lobes when every normal is "
         "tilted 1 degree away from its half vector, over the tracked observations where they "
         f"are at least 10% of the model (every {SENSITIVITY_STEP}th tracked point)",
