@@ -102,6 +102,19 @@ def _long_running_programs_optimised():
 # Workers: more than the cores does not pay either. At 79c0fba (656 tests, cold, 2 cores,
 # `pytest_xdist_auto_num_workers` returning 2, 3 or 4): 2 workers 462.5 s, 3 workers 437.7
 # and 476.2 s, 4 workers 499.0 s: within the run-to-run spread at 3, worse at 4. -n auto.
+#
+# Where the time goes, at 1abb1a4 (735 tests, cold, fresh clone, 2 cores: 468 s, 15 CPU-min;
+# per-test jax.monitoring events): compiling is 59% of the CPU time (XLA 35%, tracing 13%,
+# lowering 11%), in ~2300 distinct programs. The kept programs (`persistent_jit`) are 409
+# distinct keys, mostly one (function, model, static options) at several shapes: the branch
+# and bound's `_fit` alone at 16 (frames 2-8 x points 256-16384, the test captures' sizes).
+# With the sample counts symbolic they would be 304 (their tracing saved: an estimated 30-50
+# of the ~580 CPU-s compiling). Measured and not a gain: the API's near-light tests at the
+# command's sample counts (programs shared, other fits slower: test_calibration.py 113 -> 127
+# CPU-s); LLVM level 0 for the Levenberg-Marquardt programs (113 -> 135 CPU-s there); XLA's
+# --xla_cpu_enable_concurrency_optimized_scheduler=false or --xla_cpu_use_xnnpack=false (a
+# cold near-light calibration and fit: 29-31 CPU-s either way); keeping synthesised captures
+# (68 syntheses, 56 distinct, 46 CPU-s: 6 s repeated), the demo at 3 frames (65 -> 64 CPU-s).
 
 
 # The traced programs too (`ctjax._programs`), in the same folder: the two workers, and the
