@@ -199,6 +199,34 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     assert fit["sigma"] == pytest.approx(scenes["offset"].sigma, rel=0.01)
     assert all(0 < e < 0.5 for e in fit["offset_stderr_mm"])
     assert {"light.position_mm", "brdf.lobes[1].distribution.sigma"} <= set(fit["stderr"])
+    # The offset with every normal tilted toward and away from the optical axis (a
+    # reconstructed shape's): it moves by more than its standard error says, and is said to
+    # (measured: (0.47, 0.25, 2.56) mm against (0.02, 0.02, 0.11): along the axis most).
+    tilt = np.asarray(fit["offset_per_normal_tilt_mm"])
+    assert fit["offset_normal_tilt_deg"] == 0.5 and np.all(np.isfinite(tilt) & (tilt > 0))
+    assert np.any(tilt > 3 * np.asarray(fit["offset_stderr_mm"]))
+    assert any("when every normal is tilted 0.5 degrees" in w for w in result.warnings)
+
+
+def test_tilted_normals_turn_toward_the_optical_axis_and_never_past_it():
+    import dataclasses
+
+    from ctjax.calibration._offset_checks import tilted_normals
+
+    @dataclasses.dataclass
+    class Tracks:
+        corner_normal: np.ndarray  # (P, M, 4, 3), camera frame, facing the camera
+
+    tilts = np.radians([10.0, 0.3, 0.0, 60.0])
+    normal = np.stack([np.sin(tilts), np.zeros(4), -np.cos(tilts)], -1)
+    normal = np.concatenate([normal, np.zeros((1, 3))])[None, :, None]  # and a padded one
+    # Toward the axis at most onto it; away from it (none on the axis: no direction there).
+    for degrees, expected in ((0.5, [9.5, 0.0, 0.0, 59.5]), (-0.5, [10.5, 0.8, 0.0, 60.5])):
+        turned = tilted_normals(Tracks(normal), degrees).corner_normal[0, :, 0]
+        angle = np.degrees(np.arccos(np.clip(-turned[:4, 2], -1, 1)))
+        np.testing.assert_allclose(angle, expected, atol=1e-6)
+        np.testing.assert_allclose(np.linalg.norm(turned[:4], axis=-1), 1.0)
+        np.testing.assert_array_equal(turned[4], 0.0)  # padding stays as it was
 
 
 def test_an_offset_far_from_the_lens_is_said_to_be_no_light_position():

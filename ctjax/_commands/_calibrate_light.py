@@ -128,6 +128,10 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     if "offset_halves_stderr_mm" in summary:
         spread = summary["offset_halves_stderr_mm"]
         offset += "; even / odd frames +- " + ", ".join(f"{v:.2f}" for v in spread)
+    if "offset_per_normal_tilt_mm" in summary:
+        change = summary["offset_per_normal_tilt_mm"]
+        tilt = summary["offset_normal_tilt_deg"]
+        offset += f"; normals +-{tilt:g} deg: +- " + ", ".join(f"{v:.2f}" for v in change)
     print(
         f"light offset ({offset}) {label(capture.length_unit)}, "
         f"falloff {'+'.join(summary['falloff']) or 'none'}, "

@@ -57,7 +57,9 @@ from ._offset_checks import (
     HIGHLIGHT_MARGIN_PX,
     far_offset,
     offset_halves,
+    offset_normal_tilt,
     placing_views,
+    reconstructed,
 )
 
 
@@ -412,6 +414,9 @@ def near_light_map(
     if detected and np.isfinite(every.cost):
         say("the offset on the even and on the odd frames apart")
         offset_halves(result, placing, fit, reported)
+        if reconstructed(capture):
+            say("the offset with the normals tilted toward and away from the optical axis")
+            offset_normal_tilt(result, placing, fit, reported)
         position = np.asarray(result.model.light.position_mm, float)
         far = far_offset(position, median_depth_mm(capture), length_unit_of(capture))
         if far is not None:
