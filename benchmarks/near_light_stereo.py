@@ -7,8 +7,9 @@ the images alone reconstructed (depth in mm from the pairs), the shape refined b
 shading jointly with a point light's position, then `calibrate-light --falloff
 inverse_square` on the refined shape. Prints, per seed, the distance of each position from
 the truth (the refinement's; calibrate-light's on the calibration frames, and its final one
-from every frame, beside half the difference of the even and the odd frames' fits), sigma,
-and the depth's median relative error.
+from every frame, beside half the difference of the even and the odd frames' fits and the
+offset's change with every normal tilted 0.5 degrees, `offset_normal_tilt`), sigma, and the
+depth's median relative error.
 
     python benchmarks/near_light_stereo.py --size 320x256 --frames 8 --seeds 1 2 3 4
     python benchmarks/near_light_stereo.py --shading none --frames 8 --seeds 1 2 3
@@ -66,6 +67,7 @@ def run(width: int, height: int, frames: int, seed: int, work: Path, shading: st
         "calibrated_mm": off(light["offset_fitted_mm"]),
         "final_mm": off(light["offset_mm"]),
         "halves_mm": float(np.linalg.norm(light.get("offset_halves_stderr_mm", np.nan))),
+        "tilt_mm": float(np.linalg.norm(light.get("offset_per_normal_tilt_mm", np.nan))),
         "calibrated_sigma": light["sigma"],
         "depth_error": max(depth_error, key=abs),
         "seconds": seconds,
@@ -83,7 +85,7 @@ def main() -> None:
     width, height = map(int, args.size.split("x"))
     print(f"{args.size} x {args.frames}, light at {TRUE_OFFSET_MM} mm, inverse square")
     print(
-        "seed | joint mm | joint sigma | calibrated mm | final mm (even / odd) | "
+        "seed | joint mm | joint sigma | calibrated mm | final mm (even / odd; normals) | "
         "calibrated sigma | depth | s"
     )
     for seed in args.seeds:
@@ -92,7 +94,7 @@ def main() -> None:
         joint = "-" if r["joint_mm"] is None else f"{r['joint_mm']:.2f}"
         print(
             f"{seed} | {joint} | {r['joint_sigma']:.3f} | {r['calibrated_mm']:.2f} | "
-            f"{r['final_mm']:.2f} ({r['halves_mm']:.2f}) | "
+            f"{r['final_mm']:.2f} ({r['halves_mm']:.2f}; {r['tilt_mm']:.2f}) | "
             f"{r['calibrated_sigma']:.3f} | {r['depth_error']:+.2%} | {r['seconds']:.0f}"
             + ("" if r["refined"] else " (refinement not kept)")
         )
