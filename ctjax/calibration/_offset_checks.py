@@ -152,29 +152,27 @@ def offset_halves(result, tracks, fit, reported) -> None:
     frames = np.unique(tracks.frame[tracks.observed & (tracks.frame >= 0)])
     if len(frames) < MIN_FRAMES_FOR_HALVES:
         return
-    halves = {}
-    for parity, part in ((0, "even_frames"), (1, "odd_frames")):
+    halves = []
+    for parity in (0, 1):
         keep = tracks.observed & (tracks.frame >= 0) & (tracks.frame % 2 == parity)
-        half = dataclasses.replace(tracks, weight=np.where(keep, tracks.weight, 0.0))
-        estimate = fit([result.model], half)
-        if not np.isfinite(estimate.cost):
-            return
-        halves[part] = np.asarray(estimate.model.light.position_mm, float)
-    spread = np.abs(halves["even_frames"] - halves["odd_frames"]) / 2
-    result.details["offset_halves_mm"] = {k: v.tolist() for k, v in halves.items()}
+        halves.append(dataclasses.replace(tracks, weight=np.where(keep, tracks.weight, 0.0)))
+    refitted = _refitted_offsets(result, fit, halves)
+    if refitted is None:
+        return
+    offsets, spread = refitted
+    result.details["offset_halves_mm"] = dict(
+        zip(("even_frames", "odd_frames"), (o.tolist() for o in offsets), strict=True)
+    )
     result.details["offset_halves_stderr_mm"] = spread.tolist()
-    noise = np.asarray([np.nan if e is None else e for e in reported], float)
-    if np.any(spread > HALVES_BEYOND_NOISE * noise):
-        unit = label(result.details["length_unit"])
-        result.warnings.append(
-            f"the light's offset moves by {np.round(spread, 2).tolist()} {unit} (half the "
-            "difference between the even and the odd frames' fits), more than "
-            f"{HALVES_BEYOND_NOISE:g} times its standard error "
-            f"{np.round(noise, 2).tolist()} {unit}, which counts the image noise only: "
-            "something else moves it (the shape's error, the normals under the highlights "
-            "most, or a parameter the fit trades against it); take the halves' figure as "
-            "the offset's uncertainty"
-        )
+    _beyond_noise(
+        result,
+        spread,
+        reported,
+        "(half the difference between the even and the odd frames' fits)",
+        ", which counts the image noise only: something else moves it (the shape's error, the "
+        "normals under the highlights most, or a parameter the fit trades against it); take "
+        "the halves' figure as the offset's uncertainty",
+    )
 
 
 # The normals' error a reconstruction shares between its frames: each view's spline smooths
@@ -221,25 +219,45 @@ def offset_normal_tilt(result, tracks, fit, reported) -> None:
     size, where the standard errors are 0.02-0.09 mm, but not a bound (the 5 frames' 0.76
     mm along the axis against 0.16). A warning says so where the change is more than
     `HALVES_BEYOND_NOISE` times the standard error. Two refits more."""
-    offsets = []
-    for degrees in (NORMAL_TILT_DEG, -NORMAL_TILT_DEG):
-        estimate = fit([result.model], tilted_normals(tracks, degrees))
-        if not np.isfinite(estimate.cost):
-            return
-        offsets.append(np.asarray(estimate.model.light.position_mm, float))
-    change = np.abs(offsets[0] - offsets[1]) / 2
+    tilted = [tilted_normals(tracks, d) for d in (NORMAL_TILT_DEG, -NORMAL_TILT_DEG)]
+    refitted = _refitted_offsets(result, fit, tilted)
+    if refitted is None:
+        return
+    _, change = refitted
     result.details["offset_normal_tilt_deg"] = NORMAL_TILT_DEG
     result.details["offset_per_normal_tilt_mm"] = change.tolist()
+    _beyond_noise(
+        result,
+        change,
+        reported,
+        f"when every normal is tilted {NORMAL_TILT_DEG:g} degrees toward or away from the "
+        "optical axis (a reconstruction's normals are about that far off, and every frame's "
+        "alike where its smoothing flattens the surface)",
+        ": the shape, not the image noise, bounds where the light is (refining it by the "
+        "shading, reconstruct --shading near, helps)",
+    )
+
+
+def _refitted_offsets(result, fit, variants):
+    """The chosen model refitted on each of the two `variants` of its tracks: their offsets
+    and half their difference per axis, or None where a refit is not finite."""
+    offsets = []
+    for tracks in variants:
+        estimate = fit([result.model], tracks)
+        if not np.isfinite(estimate.cost):
+            return None
+        offsets.append(np.asarray(estimate.model.light.position_mm, float))
+    return offsets, np.abs(offsets[0] - offsets[1]) / 2
+
+
+def _beyond_noise(result, change, reported, how: str, then: str) -> None:
+    """A warning where the offset's `change` (per axis, moved `how`) is more than
+    `HALVES_BEYOND_NOISE` times its standard error (`reported`), ending with `then`."""
     noise = np.asarray([np.nan if e is None else e for e in reported], float)
     if np.any(change > HALVES_BEYOND_NOISE * noise):
         unit = label(result.details["length_unit"])
         result.warnings.append(
-            f"the light's offset moves by {np.round(change, 2).tolist()} {unit} when every "
-            f"normal is tilted {NORMAL_TILT_DEG:g} degrees toward or away from the optical "
-            f"axis (a reconstruction's normals are about that far off, and every frame's "
-            "alike where its smoothing flattens the surface), more than "
-            f"{HALVES_BEYOND_NOISE:g} times its standard error "
-            f"{np.round(noise, 2).tolist()} {unit}: the shape, not the image noise, bounds "
-            "where the light is (refining it by the shading, reconstruct --shading near, "
-            "helps)"
+            f"the light's offset moves by {np.round(change, 2).tolist()} {unit} {how}, more "
+            f"than {HALVES_BEYOND_NOISE:g} times its standard error "
+            f"{np.round(noise, 2).tolist()} {unit}{then}"
         )
