@@ -123,15 +123,12 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
-        errors = summary["offset_stderr_mm"]
-        offset += " +- " + ", ".join("?" if v is None else f"{v:.2f}" for v in errors)
+        offset += " +- " + _uncertainties(summary["offset_stderr_mm"])
     if "offset_halves_stderr_mm" in summary:
-        spread = summary["offset_halves_stderr_mm"]
-        offset += "; even / odd frames +- " + ", ".join(f"{v:.2f}" for v in spread)
+        offset += "; even / odd frames +- " + _uncertainties(summary["offset_halves_stderr_mm"])
     if "offset_per_normal_tilt_mm" in summary:
-        change = summary["offset_per_normal_tilt_mm"]
-        tilt = summary["offset_normal_tilt_deg"]
-        offset += f"; normals +-{tilt:g} deg: +- " + ", ".join(f"{v:.2f}" for v in change)
+        change = _uncertainties(summary["offset_per_normal_tilt_mm"])
+        offset += f"; normals +-{summary['offset_normal_tilt_deg']:g} deg: +- {change}"
     print(
         f"light offset ({offset}) {label(capture.length_unit)}, "
         f"falloff {'+'.join(summary['falloff']) or 'none'}, "
@@ -206,3 +203,11 @@ def _calibrate_light_field(args: argparse.Namespace) -> int:
     for warning in result.warnings:
         print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _uncertainties(values) -> str:
+    """An offset's uncertainties per axis: two decimals, or one significant digit below
+    0.01 (in median depths they are often that small; "?" where there is none)."""
+    return ", ".join(
+        "?" if v is None else f"{v:.2f}" if v == 0 or abs(v) >= 0.01 else f"{v:.1g}" for v in values
+    )
