@@ -13,6 +13,7 @@ depth's median relative error.
 
     python benchmarks/near_light_stereo.py --size 320x256 --frames 8 --seeds 1 2 3 4
     python benchmarks/near_light_stereo.py --shading none --frames 8 --seeds 1 2 3
+    python benchmarks/near_light_stereo.py --shading none --frames 5 --seeds 0 --texture-smoothing 2
 """
 
 import argparse
@@ -35,7 +36,9 @@ def _images_only(capture: Path, out: Path) -> Path:
     return out
 
 
-def run(width: int, height: int, frames: int, seed: int, work: Path, shading: str) -> dict:
+def run(
+    width: int, height: int, frames: int, seed: int, work: Path, shading: str, smoothing=None
+) -> dict:
     from ctjax.calibration import calibrate_near_light
     from ctjax.io import load_capture
     from ctjax.lights import InverseSquare
@@ -49,7 +52,8 @@ def run(width: int, height: int, frames: int, seed: int, work: Path, shading: st
     truth = synthesize(work / "truth", options)
     started = time.perf_counter()
     images = _images_only(truth, work / "images")
-    report = reconstruct(images, work / "refined", shading=False if shading == "none" else shading)
+    shading = False if shading == "none" else shading
+    report = reconstruct(images, work / "refined", shading=shading, texture_smoothing=smoothing)
     seconds = time.perf_counter() - started
     shading = report["surface"].get("shading", {"refined": True})
     refined = load_capture(work / "refined")
@@ -80,6 +84,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--shading", choices=("near", "none"), default="near")
+    parser.add_argument("--texture-smoothing", type=float, default=None)
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     width, height = map(int, args.size.split("x"))
@@ -90,7 +95,15 @@ def main() -> None:
     )
     for seed in args.seeds:
         with tempfile.TemporaryDirectory() as folder:
-            r = run(width, height, args.frames, seed, Path(folder), args.shading)
+            r = run(
+                width,
+                height,
+                args.frames,
+                seed,
+                Path(folder),
+                args.shading,
+                args.texture_smoothing,
+            )
         joint = "-" if r["joint_mm"] is None else f"{r['joint_mm']:.2f}"
         print(
             f"{seed} | {joint} | {r['joint_sigma']:.3f} | {r['calibrated_mm']:.2f} | "

@@ -3,6 +3,7 @@ depth (the correspondence between frames) or its poses; and what the texture ref
 the surfaces (`ctjax.sfm._photometric`) buys.
 
     .venv/bin/python benchmarks/sfm_bias.py [--out DIR] [--frames 5 --width 320 --height 256]
+        [--seed 0] [--texture-smoothing X]
 
 Synthesises the demo's capture (textured, 1 level of noise), reconstructs it from its images
 alone (`ctjax.sfm.reconstruct`, metric scale from the true working distance as the demo
@@ -101,6 +102,7 @@ def main():
     parser.add_argument("--height", type=int, default=256)
     parser.add_argument("--texture-contrast", type=float, default=0.3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--texture-smoothing", type=float, default=None)
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="ctjax-sfm-bias-"))
     options = SynthOptions(
@@ -124,7 +126,10 @@ def main():
         for image in sorted((truth_dir / "images").iterdir()):
             shutil.copy(image, sfm_dir / "images" / image.name)
         started = time.perf_counter()
-        reconstruct(sfm_dir, scale_mm=scale_mm, photometric=photometric)
+        smoothing = args.texture_smoothing if photometric else None
+        reconstruct(
+            sfm_dir, scale_mm=scale_mm, photometric=photometric, texture_smoothing=smoothing
+        )
         errors = _normal_errors(truth, load_capture(sfm_dir))
         errors["reconstruct_s"] = round(time.perf_counter() - started, 1)
         row[f"{name}_normals"] = errors

@@ -76,13 +76,14 @@ class Reconstruction:
     report: dict
 
 
-def _check_scale(scale_mm, volume_mm3, knot_spacing_px=None) -> None:
+def _check_scale(scale_mm, volume_mm3, knot_spacing_px=None, texture_smoothing=None) -> None:
     if scale_mm is not None and volume_mm3 is not None:
         raise ParameterError("give scale_mm or volume_mm3, not both")
     given = (
         ("scale_mm", scale_mm),
         ("volume_mm3", volume_mm3),
         ("knot_spacing_px", knot_spacing_px),
+        ("texture_smoothing", texture_smoothing),
     )
     for name, value in given:
         if value is not None and not (math.isfinite(value) and value > 0):
@@ -118,6 +119,7 @@ def reconstruct_capture(
     volume_mm3: float | None = None,
     knot_spacing_px: float | None = None,
     photometric: bool = True,
+    texture_smoothing: float | None = None,
     stereo: str = "scale",
     focal: str = "fixed",
     progress: Callable[[str], None] | None = None,
@@ -140,7 +142,8 @@ def reconstruct_capture(
 
     `photometric`: refine each view's surface by the texture seen from the other frames
     (`_photometric.py`; on by default: SfM's points alone leave the normals 2-3 degrees off
-    where the BRDF is measured).
+    where the BRDF is measured). `texture_smoothing`: its thin-plate penalty weight relative
+    to the data's (default `_photometric.SMOOTHING`; docs: reconstruct, what 2 changes).
 
     `focal`: `"fixed"` (the camera's, default) or `"refine"`: refined by bundle adjustment
     from two starts and kept where they agree (`_focal.py`; an uncalibrated video's guessed
@@ -149,7 +152,13 @@ def reconstruct_capture(
     Raises `ReconstructionError` (too few features, no initial pair); frames that do not
     register are listed in the report and get no geometry.
     """
-    _check_scale(scale_mm, volume_mm3, knot_spacing_px)
+    _check_scale(scale_mm, volume_mm3, knot_spacing_px, texture_smoothing)
+    if texture_smoothing is not None and (not photometric or stereo == "pairs"):
+        raise ParameterError(
+            "texture_smoothing (--texture-smoothing) is the texture refinement's: not with "
+            + ("photometric=False (--no-photometric)" if not photometric else "--stereo pairs")
+        )
+    smoothing = SMOOTHING if texture_smoothing is None else float(texture_smoothing)
     say = progress or (lambda message: None)
     if stereo == "pairs":  # no SfM: each frame's pair, poses by PnP (`_pairs.py`)
         if focal != "fixed" or scale_mm is not None or volume_mm3 is not None:
@@ -215,12 +224,12 @@ def reconstruct_capture(
         views[name] = ViewSurface(name, scaled, hulls[name], pose, counts[name])
     refinements = None
     if photometric and len(views) > 1:
-        views, refinements = refine_views(camera, views, capture.frames, say)
+        views, refinements = refine_views(camera, views, capture.frames, say, smoothing)
 
     report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
     if pairs:
         report["stereo"] = stereo_report(pairs, capture.stereo, stereo)
-    report["surface"]["photometric"] = _photometric_report(refinements)
+    report["surface"]["photometric"] = _photometric_report(refinements, smoothing)
     report["focal"] = focal_report
     return Reconstruction(camera, views, sparse, report)
 
@@ -228,14 +237,14 @@ def reconstruct_capture(
 STEREO_USES = ("scale", "surface", "none", "pairs")
 
 
-def _photometric_report(refinements) -> dict:
+def _photometric_report(refinements, smoothing: float) -> dict:
     if refinements is None:
         return {"refined": False}
     number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
     return {
         "refined": True,
         "model": PHOTOMETRIC_MODEL,
-        "smoothing": SMOOTHING,
+        "smoothing": smoothing,
         "points_weight": POINTS_WEIGHT,
         "texture_loss_per_frame": {
             n: {"before": number(r.residual_before), "after": number(r.residual_after)}
@@ -286,6 +295,7 @@ def reconstruct(
     volume_mm3: float | None = None,
     force: bool = False,
     photometric: bool = True,
+    texture_smoothing: float | None = None,
     shading: bool | str = False,
     stereo: str = "scale",
     focal: str = "fixed",
@@ -311,11 +321,11 @@ def reconstruct(
     `reconstruct_capture`; a refined focal length is written into `out`'s camera.json (in
     place only with `force`), the given one kept in the report. `knot_spacing_px`: the dense
     surfaces' knot spacing (default: a twentieth of the image's larger side), the scale of
-    the relief their normals resolve.
+    the relief their normals resolve. `texture_smoothing`: see `reconstruct_capture`.
 
     Returns the report (see `reconstruct_capture`).
     """
-    _check_scale(scale_mm, volume_mm3, knot_spacing_px)
+    _check_scale(scale_mm, volume_mm3, knot_spacing_px, texture_smoothing)
     if shading not in (None, False, True, *SHADING_LIGHTS):
         raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {shading!r}")
     root = Path(capture_dir)
@@ -342,6 +352,7 @@ def reconstruct(
         scale_mm=scale_mm,
         volume_mm3=volume_mm3,
         photometric=photometric,
+        texture_smoothing=texture_smoothing,
         stereo=stereo,
         focal=focal,
         knot_spacing_px=knot_spacing_px,
