@@ -56,9 +56,9 @@ MASK_DILATE_PX = 8
 # default of `reconstruct(texture_smoothing=)`. Chosen before the SfM points anchored the
 # refinement (then 2-3 followed the noise, 20 and more flattened the bumps). Measured again
 # with the points (docs: reconstruct, "The texture refinement's smoothing"): 2 gives better
-# normals and BRDF on the synthetic captures (640x512 x 8: sigma +5.8% -> +2.1%, F_tilde
-# -8% -> +3%) and the cholecystectomy video's frames agree better (6.3 -> 5.2 degrees), but
-# the sinus video's disagree more (8.2 -> 9.7 degrees) and its fit's RMSE rises 12%: kept.
+# normals and sigma on 4 synthetic captures (640x512 x 8: sigma +5.8% -> +2.1%), F_tilde
+# better on 2 and worse on 2 (-8.6% -> -24.5%), the cholecystectomy video's frames agree
+# better (6.3 -> 5.2 degrees), the sinus video's less (8.2 -> 9.7; its RMSE +12%): kept.
 SMOOTHING = 5.0
 # The SfM points' weight beside the texture's (0: the texture alone). Above 1 because the
 # texture's residuals are correlated (neighbouring pixels share the 1.5 px high-pass, a view's
