@@ -152,11 +152,14 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     import shutil
 
     from ctjax.calibration import _offset_checks
+    from ctjax.calibration._near_light import _placing_train
     from ctjax.calibration._offset_checks import (
         HIGHLIGHT_MARGIN_PX,
         away_from_highlights,
         placing_views,
     )
+    from ctjax.fitting._map_least_squares import TrackSamples
+    from ctjax.heldout import HeldOutTracks
     from ctjax.lights import InverseSquare
     from ctjax.observations import Observations
     from ctjax.sfm._photometric import MASK_DILATE_PX
@@ -190,11 +193,23 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     not_reconstructed = Observations.of(load_capture(roots["offset"]))
     placed, warning = placing_views(not_reconstructed, tracks)
     assert placed is tracks and warning is None
+    # The calibration frames' fits are placed by the same views of their own tracks.
+    split = dict(max_points=4000, heldout_points=500)
+    heldout = HeldOutTracks.split(observations, **split)
+    train = _placing_train(observations, heldout, 4000, 0, False)
+    calibration = observations.tracks(frames=heldout.calibration, max_points=4000, seed=0)
+    expected = TrackSamples.of(away_from_highlights(observations, calibration))
+    np.testing.assert_array_equal(train.weight, expected.weight)
+    assert np.sum(train.weight > 0) < np.sum(heldout.train.weight > 0)
+    other = HeldOutTracks.split(not_reconstructed, **split)
+    assert _placing_train(not_reconstructed, other, 4000, 0, False) is None
 
     result = calibrate_near_light(observations, falloff=(InverseSquare(68.0),), max_samples=4000)
     fit = result.to_json()
     assert fit["offset_detected"] and "light_placed_by" in fit
     np.testing.assert_allclose(fit["offset_mm"], [6.0, -4.0, 0.0], atol=0.5)
+    # The calibration frames' fit too (measured: 0.05 mm off).
+    np.testing.assert_allclose(fit["offset_fitted_mm"], [6.0, -4.0, 0.0], atol=0.25)
     # The BRDF from every view; the light's standard errors from the views that placed it.
     assert fit["sigma"] == pytest.approx(scenes["offset"].sigma, rel=0.01)
     assert all(0 < e < 0.5 for e in fit["offset_stderr_mm"])
