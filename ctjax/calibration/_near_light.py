@@ -391,7 +391,8 @@ def near_light_map(
         if placing_train is None:
             return fit(starts, **fixed), None
         placed = fit(starts, placing_train, **fixed)
-        every_view = fit([placed.model], freeze=_light_parameters(placed.model))
+        # Held, not frozen: the same tracks' shapes, so the same compiled program.
+        every_view = fit([placed.model], hold=tuple(_light_parameters(placed.model)))
         return every_view, (placed.model, placing_train)
 
     def fit_choice(choice):
