@@ -325,17 +325,6 @@ class HeldOutTracks:
         rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
         return facet_marginal(self.train, rotations, light, **options)
 
-    def without_views(self, dropped: np.ndarray) -> "HeldOutTracks":
-        """This split with the views of `test` that `dropped` flags ((P, M) bool, as the
-        tracks `test` was built from) neither judged nor used for any point's albedo: e.g.
-        a reconstructed shape's views near the highlights (`ctjax.calibration`)."""
-        keep = np.zeros(np.shape(self.test.weight), bool)  # views first, padded points
-        dropped = np.asarray(dropped, bool).T
-        keep[:, : dropped.shape[1]] = ~dropped
-        weight = on_device(np.where(keep, np.asarray(self.test.weight), 0), self.test.weight.dtype)
-        test = eqx.tree_at(lambda s: s.weight, self.test, weight)
-        return dataclasses.replace(self, test=test, judged=self.judged & keep)
-
     def heldout_rmse(self, model) -> float:
         """RMSE (8-bit levels) of `model` on the held-out views (see the class doc; its
         per-frame parameters, if any, fitted there: `with_heldout_frames`)."""

@@ -156,7 +156,6 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     from ctjax.calibration._offset_checks import (
         HIGHLIGHT_MARGIN_PX,
         away_from_highlights,
-        judging_split,
         placing_views,
     )
     from ctjax.fitting._map_least_squares import TrackSamples
@@ -204,19 +203,10 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     assert np.sum(train.weight > 0) < np.sum(heldout.train.weight > 0)
     other = HeldOutTracks.split(not_reconstructed, **split)
     assert _placing_train(not_reconstructed, other, 4000, 0, False) is None
-    # The held-out views near the highlights judge no light: neither judged nor an albedo's.
-    judging = judging_split(observations, heldout, 500, 0)
-    test = observations.tracks(max_points=500, seed=1, anchor_frames=heldout.heldout)
-    away = TrackSamples.of(away_from_highlights(observations, test))
-    np.testing.assert_array_equal(judging.test.weight, away.weight)
-    np.testing.assert_array_equal(judging.judged, heldout.judged & (away.weight > 0))
-    assert 0 < np.sum(judging.judged) < np.sum(heldout.judged)
-    assert judging.train is heldout.train
-    assert judging_split(not_reconstructed, other, 500, 0) is other
 
     result = calibrate_near_light(observations, falloff=(InverseSquare(68.0),), max_samples=4000)
     fit = result.to_json()
-    assert fit["offset_detected"] and {"light_placed_by", "heldout_judged_by"} <= set(fit)
+    assert fit["offset_detected"] and "light_placed_by" in fit
     np.testing.assert_allclose(fit["offset_mm"], [6.0, -4.0, 0.0], atol=0.5)
     # The calibration frames' fit too (measured: 0.05 mm off).
     np.testing.assert_allclose(fit["offset_fitted_mm"], [6.0, -4.0, 0.0], atol=0.25)

@@ -129,14 +129,12 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     if "offset_per_normal_tilt_mm" in summary:
         change = _uncertainties(summary["offset_per_normal_tilt_mm"])
         offset += f"; normals +-{summary['offset_normal_tilt_deg']:g} deg: +- {change}"
-    # The held-out views the light was judged by (a reconstructed shape's: `judging_split`).
-    away = ", away from the highlights" if "heldout_judged_by" in summary else ""
     print(
         f"light offset ({offset}) {label(capture.length_unit)}, "
         f"falloff {'+'.join(summary['falloff']) or 'none'}, "
         f"albedo {summary['albedo']}, status {summary['status']}; "
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
-        f"(held-out{away}) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
+        f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
     print(_brdf_line(summary))
     if "highlight_alignment" in summary:

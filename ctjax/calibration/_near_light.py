@@ -56,7 +56,6 @@ from ..specular import flag_misoriented
 from ._offset_checks import (
     HIGHLIGHT_MARGIN_PX,
     far_offset,
-    judging_split,
     offset_halves,
     offset_normal_tilt,
     placing_views,
@@ -335,8 +334,7 @@ def near_light_map(
     and roughnesses (by projected cost; 2: at 320x256 x 8 frames, offset (6, -4, 0) mm with
     inverse square, 3 starts and 1 reached the same offset and sigma, 50 s and 23 s against
     37 s), every point's albedo and F_tilde eliminated in closed form (`fit_model_map`).
-    The falloff set is chosen on held-out frames (`heldout_map_rmse`; on a reconstructed
-    shape by the held-out views away from the highlights, `judging_split`); the chosen model is
+    The falloff set is chosen on held-out frames (`heldout_map_rmse`); the chosen model is
     then refitted on the surface points of every frame, so its parameters use all the data
     (on the default demo capture sigma +6.2% from the calibration frames, +4.x% from all).
     `right_views`: a stereo capture's right images too, in the fits (calibration frames,
@@ -369,8 +367,6 @@ def near_light_map(
     # A reconstructed shape's views near the highlights do not place the light: in the
     # calibration frames' fits as in the refit on every frame below.
     placing_train = _placing_train(capture, heldout, max_points, seed, right_views)
-    # ...and, held out, do not judge it: the falloff and the offset are chosen by the rest.
-    judging = judging_split(capture, heldout, heldout_points, seed)
 
     def fit(starts, tracks=heldout.train, **fixed):  # fixed: `freeze` or `hold`
         return fit_model_map(
@@ -401,7 +397,7 @@ def near_light_map(
 
     def fit_choice(choice):
         chosen, placed = placed_fit(_starts(choice, capture, diffuse))
-        return chosen, judging.heldout_rmse(chosen.model), placed
+        return chosen, heldout.heldout_rmse(chosen.model), placed
 
     fits, errors, placements = [], [], []
     for choice, (chosen, error, placed) in zip(
@@ -412,7 +408,7 @@ def near_light_map(
         placements.append(placed)
         say(f"  falloff {_name(choice)}: held-out RMSE {error:.3f} levels")
     chosen = simplest_within(choices, errors)
-    offset_fit = judging.judge(fits[chosen], noise_floor=False)
+    offset_fit = heldout.judge(fits[chosen], noise_floor=False)
     if not np.isfinite(offset_fit.heldout_rmse):
         raise CtjaxError("the near-light fit did not produce finite estimates")
     offset = np.asarray(offset_fit.model.light.position_mm, float)
@@ -422,7 +418,7 @@ def near_light_map(
     reported = offset_fit.details["stderr"].get("light.position_mm", [None] * 3)
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     say("standard errors, and the same model with the light at the lens")
-    lens_fit = judging.judge(
+    lens_fit = heldout.judge(
         # Held, not frozen: the chosen offset fit's compiled program serves.
         placed_fit(_at_the_lens(choices[chosen], diffuse), hold=("light.position_mm",))[0],
         noise_floor=False,
@@ -470,11 +466,6 @@ def near_light_map(
         "offset_heldout_rmse": offset_fit.heldout_rmse,
         "lens_heldout_rmse": lens_fit.heldout_rmse,
     }
-    if judging is not heldout:
-        result.details["heldout_judged_by"] = (
-            f"the held-out views farther than {HIGHLIGHT_MARGIN_PX} px from their frame's S "
-            "and clipped pixels (the shape is reconstructed), as the light is placed"
-        )
     if right_views:  # the right views the refit on every frame used
         result.details["n_right_views"] = int(right.sum())
     if not detected:

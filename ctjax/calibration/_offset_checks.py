@@ -53,31 +53,6 @@ def placing_views(capture: Observations, tracks, right=None):
     )
 
 
-def judging_split(capture: Observations, heldout, heldout_points, seed):
-    """`heldout` (`HeldOutTracks.split(capture, ..., heldout_points=, seed=)`) without the
-    held-out views that do not place the light (`placing_views`): a reconstructed shape's
-    views near the highlights neither judge a light nor give a point's albedo. The light
-    placed by the other views is then judged by them too, and the falloff and the offset
-    are chosen by them; judged with them, the held-out views where the bridged normals
-    miss the highlights favoured whichever light broadened the lobe. `ctjax synth --stereo
-    5 --light-offset 4 -3 0 --inverse-square` at 320x256 x 5 (seed 1, made with JAX in
-    float32), reconstructed: the light at the lens with sigma 0.644 explained them better
-    (1.745 against 1.848 levels), and no offset was reported where the fitted one lay 0.37
-    mm off the truth (sigma 0.200 for 0.2); judged away from the highlights, the offset
-    is found 0.17 mm off. The same capture made in float64 (the command line's) and seeds
-    0, 2 and 3 chose as before; seed 2 made in float32 chose the lens instead of an offset
-    1.37 mm off (2.11 on the calibration frames)."""
-    if not reconstructed(capture):
-        return heldout
-    test = capture.tracks(  # the split's own (`Observations.tracks` keeps them)
-        max_points=heldout_points, seed=seed + 1, anchor_frames=heldout.heldout
-    )
-    placing, _ = placing_views(capture, test)
-    if placing is test:
-        return heldout
-    return heldout.without_views((test.weight > 0) & (placing.weight == 0))
-
-
 def away_from_highlights(capture: Observations, tracks, right=None):
     """`tracks` with every view within `HIGHLIGHT_MARGIN_PX` of its frame's S or clipped
     pixels weighted 0. `right`: which observations are a stereo capture's right views; one
