@@ -250,7 +250,12 @@ def _photometric_report(refinements, smoothing: float) -> dict:
             n: {"before": number(r.residual_before), "after": number(r.residual_after)}
             for n, r in refinements.items()
         },
-        # A frame's surface is replaced only where the refinement lowered its loss.
+        # The objective the steps minimise (texture, points and penalty; the texture's loss
+        # alone may rise): a frame's surface is replaced only where a step lowered it.
+        "objective_per_frame": {
+            n: {"before": number(r.objective_before), "after": number(r.objective_after)}
+            for n, r in refinements.items()
+        },
         "kept_per_frame": {n: r.kept for n, r in refinements.items()},
         "kept_frames": sum(r.kept for r in refinements.values()),
         "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
