@@ -80,6 +80,12 @@ MAX_PIXELS = 250_000
 # unmasked specular and moving overlays are down-weighted).
 _CAUCHY = 3.0
 
+PHOTOMETRIC_MODEL = (
+    "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
+    "the same texture (high-pass of the log image) in the nearest frames, highlights masked, "
+    "while staying near its SfM points (weight points_weight beside the texture's)"
+)
+
 
 @dataclasses.dataclass(frozen=True)
 class Texture:
@@ -339,3 +345,31 @@ def refine_views(
         refined[name] = dataclasses.replace(view, surface=result.surface)
         details[name] = result
     return refined, details
+
+
+def photometric_report(refinements, smoothing: float) -> dict:
+    """`reconstruct`'s report of the refinement (`surface.photometric`): {name:
+    Refinement} from `refine_views`, None where it did not run."""
+    if refinements is None:
+        return {"refined": False}
+    number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
+    return {
+        "refined": True,
+        "model": PHOTOMETRIC_MODEL,
+        "smoothing": smoothing,
+        "points_weight": POINTS_WEIGHT,
+        "texture_loss_per_frame": {
+            n: {"before": number(r.residual_before), "after": number(r.residual_after)}
+            for n, r in refinements.items()
+        },
+        # The objective the steps minimise (texture, points and penalty; the texture's loss
+        # alone may rise): a frame's surface is replaced only where a step lowered it.
+        "objective_per_frame": {
+            n: {"before": number(r.objective_before), "after": number(r.objective_after)}
+            for n, r in refinements.items()
+        },
+        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
+        "kept_frames": sum(r.kept for r in refinements.values()),
+        "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
+        "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
+    }
