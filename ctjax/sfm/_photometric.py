@@ -18,8 +18,7 @@ other frames by the SfM poses, land on the same texture. Gauss-Newton on
 with T the high-pass of the log image per channel (log turns albedo times shading into a
 sum; subtracting a 1.5 px blur removes the shading, which changes from view to view, and
 keeps the texture's detail, which does not) and pi_m the projection into frame m, plus the
-SfM points' squared depth residuals (weight `POINTS_WEIGHT`); a step is accepted by that
-objective (halved where it does not lower it). The view itself is one of the
+SfM points' squared depth residuals (weight `POINTS_WEIGHT`). The view itself is one of the
 frames, but a pixel under its own highlight is still refined from the frames where the same
 point is not (the light moves with the camera). Highlights (S and clipped pixels, dilated by
 8 px: the specular rim is not multiplicative and does move) and pixels outside the field of
@@ -69,8 +68,6 @@ SMOOTHING = 5.0
 # (10); at 320x256 x 5 mixed over 5 seeds (noise dominates); 100 flattened the bumps.
 POINTS_WEIGHT = 10.0
 ITERATIONS = 3
-# A Gauss-Newton step that does not lower the objective is halved at most this many times.
-HALVINGS = 3
 # Frames a view is compared with besides itself: the nearest in camera position.
 PARTNERS = 4
 # Pixels used per view (every k-th above it). The noise limits the slopes: a quarter of
@@ -79,12 +76,6 @@ MAX_PIXELS = 250_000
 # Cauchy scale, in robust standard deviations of the texture residuals (occlusions,
 # unmasked specular and moving overlays are down-weighted).
 _CAUCHY = 3.0
-
-PHOTOMETRIC_MODEL = (
-    "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
-    "the same texture (high-pass of the log image) in the nearest frames, highlights masked, "
-    "while staying near its SfM points (weight points_weight beside the texture's)"
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,12 +104,9 @@ class Refinement:
     """A refined surface and what the refinement did: the texture residuals' mean Cauchy
     loss before and after (its scale: 3 robust standard deviations of the residuals of
     the surface fitted to the points, in which 1.0 is 1.7 such scales), the median
-    |depth change| over the refined pixels (the surface's length unit) and the pixels used;
-    the objective the steps minimise (the texture's loss, the points' and the roughness
-    penalty's, in the texture's chi-square units) before and after. `kept`: a step lowered
-    the objective and the refined surface replaces the SfM one; else `surface` is the
-    unrefined one. The texture's loss alone may rise where the objective falls (the points
-    and the penalty pull the other way)."""
+    |depth change| over the refined pixels (the surface's length unit) and the pixels used.
+    `kept`: the refined surface lowered the loss and replaces the SfM one; else `surface`
+    is the unrefined one (`residual_after` is then the lowest loss an iterate reached)."""
 
     surface: DepthSurface
     residual_before: float
@@ -126,8 +114,6 @@ class Refinement:
     depth_change: float
     pixels: int
     kept: bool = True
-    objective_before: float = math.nan
-    objective_after: float = math.nan
 
 
 def _rays(camera: Camera, u, v) -> np.ndarray:
@@ -180,18 +166,6 @@ def _cauchy_cost(residual, counts, scale) -> float:
     return float(np.sum(loss * counts[..., None]) / max(3 * int(counts.sum()), 1))
 
 
-def _irls_weight(residual, counts, scale):
-    """Gauss-Newton's weight of each texture residual for the Cauchy loss."""
-    return counts[..., None] / (1 + (residual / (_CAUCHY * scale)) ** 2) / scale**2
-
-
-def _texture_energy(residual, counts, scale) -> float:
-    """The texture's Cauchy loss summed in the units of `_irls_weight` (whose gradient and
-    Gauss-Newton Hessian those weights give)."""
-    loss = np.log1p((residual / (_CAUCHY * scale)) ** 2) * (_CAUCHY**2 / 2)
-    return float(np.sum(loss * counts[..., None]))
-
-
 def _robust_scale(residual, counts) -> float:
     values = np.abs(residual[counts])
     return float(1.4826 * np.median(values)) if values.size else 0.0
@@ -220,80 +194,63 @@ def refine_surface(
     rays = _rays(camera, u, v)
     anchors = _point_equations(surface)
     start = surface.coefficients.ravel()
-
-    def texture_terms(coefficients):
-        points = (design @ coefficients)[:, None] * rays
-        return _pair_sums(
-            [_sample(camera, points, rays, pose, tex) for pose, tex in (own, *partners)]
-        )
-
-    residual, slope, counts = texture_terms(start)
-    scale = _robust_scale(residual, counts) if counts.any() else 0.0
-    if not scale > 0:
-        return Refinement(surface, math.nan, math.nan, 0.0, u.size, kept=False)
-    before = after = _cauchy_cost(residual, counts, scale)
-    # The objective each step minimises, and by which it is accepted: the texture's robust
-    # loss (in its chi-square units), the points' and the thin-plate energy, whose weight is
-    # set once, at the start (relative to the data's curvature there, as `fit_depth_surface`
-    # scales its penalty). A step that does not lower it is halved, at most `HALVINGS` times.
-    weight = _irls_weight(residual, counts, scale)
-    hessian = np.sum(weight * slope * slope, axis=(0, 2))
-    curvature = np.trace((design.T @ design.multiply(hessian[:, None]).tocsr()).toarray())
-    if anchors is not None:
-        curvature += np.trace(anchors[0])
-    roughness = smoothing * curvature / np.trace(penalty) * penalty
-
-    def objective(coefficients, residual, counts):
-        value = _texture_energy(residual, counts, scale)
-        value += 0.5 * coefficients @ roughness @ coefficients
-        if anchors is not None:
-            normal, rhs, squares = anchors  # 1/2 |z(points) - z|^2_W, expanded
-            value += 0.5 * (coefficients @ normal @ coefficients + squares) - coefficients @ rhs
-        return value
-
-    coefficients, energy = start, objective(start, residual, counts)
-    initial, steps = energy, 0
-    for _ in range(iterations):
-        weight = _irls_weight(residual, counts, scale)
+    coefficients, scale, before, after = start.copy(), None, math.nan, math.nan
+    # The iterate of lowest loss is kept (Gauss-Newton on a robust loss may overshoot):
+    # the start, unless a step lowered the loss.
+    best, best_cost = start, math.inf
+    for iteration in range(iterations + 1):
+        depth = design @ coefficients
+        points = depth[:, None] * rays
+        samples = [_sample(camera, points, rays, pose, tex) for pose, tex in (own, *partners)]
+        residual, slope, counts = _pair_sums(samples)
+        if not counts.any():
+            break
+        scale = _robust_scale(residual, counts) if scale is None else scale
+        if scale == 0:
+            break
+        cost = _cauchy_cost(residual, counts, scale)
+        before = cost if iteration == 0 else before
+        if cost < best_cost:
+            best, best_cost = coefficients, cost
+        after = cost
+        if iteration == iterations:
+            break
+        weight = counts[..., None] / (1 + (residual / (_CAUCHY * scale)) ** 2) / scale**2
         hessian = np.sum(weight * slope * slope, axis=(0, 2))
         gradient = np.sum(weight * slope * residual, axis=(0, 2))
-        step = _gauss_newton_step(design, roughness, (hessian, gradient), coefficients, anchors)
-        for halving in range(HALVINGS + 1):
-            trial = coefficients + (step - coefficients) / 2**halving
-            terms = texture_terms(trial)
-            trial_energy = objective(trial, terms[0], terms[2]) if terms[2].any() else math.inf
-            if trial_energy < energy:
-                break
-        else:
-            break
-        coefficients, energy, (residual, slope, counts) = trial, trial_energy, terms
-        after, steps = _cauchy_cost(residual, counts, scale), steps + 1
+        coefficients = _gauss_newton_step(
+            design, penalty, (hessian, gradient), coefficients, anchors, smoothing
+        )
+    kept = math.isfinite(best_cost) and best_cost < before
+    coefficients = best if kept else start
+    after = best_cost if math.isfinite(best_cost) else after
     refined = dataclasses.replace(
         surface, coefficients=coefficients.reshape(surface.coefficients.shape)
     )
     change = np.abs(design @ coefficients - design @ start)
-    median_change = float(np.median(change)) if change.size else 0.0
-    return Refinement(refined, before, after, median_change, u.size, steps > 0, initial, energy)
+    return Refinement(
+        refined, before, after, float(np.median(change)) if change.size else 0.0, u.size, kept
+    )
 
 
 def _point_equations(surface: DepthSurface):
-    """The SfM points' normal equations (D^T W D, D^T W z) and z^T W z, each point weighted
-    by its robust weight over the surface's residual variance: in the same chi-square units
-    as the texture's, whose residuals are divided by their own robust scale. None when the
+    """The SfM points' normal equations (D^T W D, D^T W z), each point weighted by its
+    robust weight over the surface's residual variance: in the same chi-square units as
+    the texture's, whose residuals are divided by their own robust scale. None when the
     surface keeps no points or `POINTS_WEIGHT` is 0."""
     if surface.points is None or POINTS_WEIGHT == 0 or not surface.residual_rms > 0:
         return None
     u, v, z, weight = surface.points
     design = design_matrix(surface.u_axis, surface.v_axis, u, v)
     w = POINTS_WEIGHT * weight / surface.residual_rms**2
-    normal = (design.T @ design.multiply(w[:, None]).tocsr()).toarray()
-    return normal, design.T @ (w * z), float(np.sum(w * z * z))
+    return (design.T @ design.multiply(w[:, None]).tocsr()).toarray(), design.T @ (w * z)
 
 
-def _gauss_newton_step(design, roughness, texture, coefficients, anchors):
+def _gauss_newton_step(design, penalty, texture, coefficients, anchors, smoothing):
     """The Gauss-Newton update of the spline's coefficients: minimise the linearised texture
     residuals (`texture`: per pixel, the Hessian and gradient of their loss in depth), the
-    SfM points' (`anchors`) and the thin-plate energy (`roughness`, weighted)."""
+    SfM points' (`anchors`) and the thin-plate energy (weight `smoothing` relative to the
+    data's)."""
     hessian, gradient = texture
     normal = (design.T @ design.multiply(hessian[:, None]).tocsr()).toarray()
     rhs = normal @ coefficients - design.T @ gradient
@@ -303,7 +260,7 @@ def _gauss_newton_step(design, roughness, texture, coefficients, anchors):
     if not trace > 0:
         return coefficients
     ridge = 1e-6 * trace / len(normal)
-    system = normal + roughness + ridge * np.eye(len(normal))
+    system = normal + smoothing * trace / np.trace(penalty) * penalty + ridge * np.eye(len(normal))
     return solve_banded(system, rhs + ridge * coefficients)
 
 
@@ -332,44 +289,12 @@ def refine_views(
             smoothing=smoothing,
         )
         losses = f"texture loss {result.residual_before:.4f} -> {result.residual_after:.4f}"
-        if result.kept:  # the texture's loss alone may rise where the objective falls
-            fall = 1 - result.objective_after / result.objective_before
-            losses += f", objective (texture, points, penalty) {-fall:+.2%}"
         say(
             f"surface of {name} refined by its texture in {len(others)} other frame(s): {losses}"
             if result.kept
-            else f"surface of {name} kept as SfM gave it: no step by its texture in "
-            f"{len(others)} other frame(s) lowered the objective (texture loss "
-            f"{result.residual_before:.4f} at the start)"
+            else f"surface of {name} kept as SfM gave it: its texture in {len(others)} other "
+            f"frame(s) did not lower the loss ({result.residual_before:.4f} at the start)"
         )
         refined[name] = dataclasses.replace(view, surface=result.surface)
         details[name] = result
     return refined, details
-
-
-def photometric_report(refinements, smoothing: float) -> dict:
-    """`reconstruct`'s report of the refinement (`surface.photometric`): {name:
-    Refinement} from `refine_views`, None where it did not run."""
-    if refinements is None:
-        return {"refined": False}
-    number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
-    return {
-        "refined": True,
-        "model": PHOTOMETRIC_MODEL,
-        "smoothing": smoothing,
-        "points_weight": POINTS_WEIGHT,
-        "texture_loss_per_frame": {
-            n: {"before": number(r.residual_before), "after": number(r.residual_after)}
-            for n, r in refinements.items()
-        },
-        # The objective the steps minimise (texture, points and penalty; the texture's loss
-        # alone may rise): a frame's surface is replaced only where a step lowered it.
-        "objective_per_frame": {
-            n: {"before": number(r.objective_before), "after": number(r.objective_after)}
-            for n, r in refinements.items()
-        },
-        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
-        "kept_frames": sum(r.kept for r in refinements.values()),
-        "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
-        "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
-    }

@@ -29,7 +29,7 @@ from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel
 from ._focal import sparse_with_focal, with_focal
 from ._pairs import pairs_reconstruction
-from ._photometric import SMOOTHING, photometric_report, refine_views
+from ._photometric import POINTS_WEIGHT, SMOOTHING, refine_views
 from ._stereo import stereo_points, stereo_report, stereo_scale
 from ._surface import DepthSurface, fit_depth_surface
 
@@ -39,6 +39,11 @@ SURFACE_MODEL = (
     "penalised cubic B-spline depth map per view (P-spline, thin-plate-like curvature "
     "penalty chosen by block cross-validation, Tukey-robust), fitted to the points of all "
     "frames; normals from its analytic derivatives"
+)
+PHOTOMETRIC_MODEL = (
+    "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
+    "the same texture (high-pass of the log image) in the nearest frames, highlights masked, "
+    "while staying near its SfM points (weight points_weight beside the texture's)"
 )
 
 
@@ -224,12 +229,33 @@ def reconstruct_capture(
     report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
     if pairs:
         report["stereo"] = stereo_report(pairs, capture.stereo, stereo)
-    report["surface"]["photometric"] = photometric_report(refinements, smoothing)
+    report["surface"]["photometric"] = _photometric_report(refinements, smoothing)
     report["focal"] = focal_report
     return Reconstruction(camera, views, sparse, report)
 
 
 STEREO_USES = ("scale", "surface", "none", "pairs")
+
+
+def _photometric_report(refinements, smoothing: float) -> dict:
+    if refinements is None:
+        return {"refined": False}
+    number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
+    return {
+        "refined": True,
+        "model": PHOTOMETRIC_MODEL,
+        "smoothing": smoothing,
+        "points_weight": POINTS_WEIGHT,
+        "texture_loss_per_frame": {
+            n: {"before": number(r.residual_before), "after": number(r.residual_after)}
+            for n, r in refinements.items()
+        },
+        # A frame's surface is replaced only where the refinement lowered its loss.
+        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
+        "kept_frames": sum(r.kept for r in refinements.values()),
+        "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
+        "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
+    }
 
 
 def _scale(camera, surface, hull, points):
