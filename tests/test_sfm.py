@@ -219,7 +219,7 @@ def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
 def test_little_parallax_is_named():
     from types import SimpleNamespace
 
-    from ctjax.sfm._reconstruct import MIN_BASELINE, _baseline
+    from ctjax.sfm._report import MIN_BASELINE, _baseline
 
     def view(x):
         pose = np.eye(4)

@@ -255,3 +255,32 @@ def test_reconstruct_from_the_pairs_alone(stereo_capture, tmp_path):
         reconstruct(stereo_capture, tmp_path / "x", stereo="pairs", scale_mm=60.0)
     with pytest.raises(ParameterError, match="knot_spacing_px must be a positive"):
         reconstruct(stereo_capture, tmp_path / "x", stereo="pairs", knot_spacing_px=0.0)
+
+
+def test_a_stereo_capture_falls_back_to_its_pairs_where_sfm_fails(stereo_capture, monkeypatch):
+    """A scope held still gives SfM no initial pair; a stereo capture is then reconstructed
+    from its pairs (`--stereo pairs`), in mm, with the reason in the report. A mono capture,
+    or a size given by the user, keeps SfM's error."""
+    from ctjax import ReconstructionError
+    from ctjax.sfm import _reconstruct
+
+    reason = "structure-from-motion found no initial image pair among 3 frames"
+
+    def no_pair(*args, **kwargs):
+        raise ReconstructionError(reason)
+
+    monkeypatch.setattr(_reconstruct, "sparse_with_focal", no_pair)
+    capture = load_capture(stereo_capture)
+    found = reconstruct_capture(capture, texture_smoothing=2.0)
+    report = found.report
+    assert report["sfm_failed"] == reason and found.sparse is None
+    assert report["length_unit"] == "mm" and report["scale"]["method"] == "stereo"
+    assert report["registered"] == ["frame_000", "frame_001", "frame_002"]
+    assert report["warnings"][0].startswith(reason) and "--stereo pairs" in report["warnings"][0]
+    assert "--texture-smoothing not applied" in report["warnings"][1]
+    for mono in (dataclasses.replace(capture, stereo=None), capture):
+        with pytest.raises(ReconstructionError, match="no initial image pair"):
+            reconstruct_capture(mono, scale_mm=None if mono.stereo is None else 60.0)
+    monkeypatch.setattr(_reconstruct, "pairs_reconstruction", lambda *a: no_pair())
+    with pytest.raises(ReconstructionError, match="from the stereo pairs alone: structure"):
+        reconstruct_capture(capture)

@@ -116,6 +116,13 @@ class Refinement:
     kept: bool = True
 
 
+PHOTOMETRIC_MODEL = (
+    "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
+    "the same texture (high-pass of the log image) in the nearest frames, highlights masked, "
+    "while staying near its SfM points (weight points_weight beside the texture's)"
+)
+
+
 def _rays(camera: Camera, u, v) -> np.ndarray:
     return np.stack(
         [
@@ -298,3 +305,25 @@ def refine_views(
         refined[name] = dataclasses.replace(view, surface=result.surface)
         details[name] = result
     return refined, details
+
+
+def photometric_report(refinements, smoothing: float) -> dict:
+    """The texture refinement in `ctjax reconstruct`'s report (`surface.photometric`)."""
+    if refinements is None:
+        return {"refined": False}
+    number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
+    return {
+        "refined": True,
+        "model": PHOTOMETRIC_MODEL,
+        "smoothing": smoothing,
+        "points_weight": POINTS_WEIGHT,
+        "texture_loss_per_frame": {
+            n: {"before": number(r.residual_before), "after": number(r.residual_after)}
+            for n, r in refinements.items()
+        },
+        # A frame's surface is replaced only where the refinement lowered its loss.
+        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
+        "kept_frames": sum(r.kept for r in refinements.values()),
+        "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
+        "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
+    }

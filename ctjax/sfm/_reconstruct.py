@@ -22,29 +22,20 @@ import cv2
 import numpy as np
 
 from .._camera import Camera
-from .._errors import CaptureError, ParameterError
+from .._errors import CaptureError, CtjaxError, ParameterError, ReconstructionError
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
 from ._colmap import SparseModel
 from ._focal import sparse_with_focal, with_focal
 from ._pairs import pairs_reconstruction
-from ._photometric import POINTS_WEIGHT, SMOOTHING, refine_views
+from ._photometric import SMOOTHING, photometric_report, refine_views
+from ._report import reconstruction_report
 from ._stereo import stereo_points, stereo_report, stereo_scale
 from ._surface import DepthSurface, fit_depth_surface
 
 # Fraction kept along each axis for the bounding box of `volume_mm3` (robust to stray points).
 _BOX_PERCENTILES = (0.5, 99.5)
-SURFACE_MODEL = (
-    "penalised cubic B-spline depth map per view (P-spline, thin-plate-like curvature "
-    "penalty chosen by block cross-validation, Tukey-robust), fitted to the points of all "
-    "frames; normals from its analytic derivatives"
-)
-PHOTOMETRIC_MODEL = (
-    "each view's spline refined by Gauss-Newton so that its pixels' surface points land on "
-    "the same texture (high-pass of the log image) in the nearest frames, highlights masked, "
-    "while staying near its SfM points (weight points_weight beside the texture's)"
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,7 +158,16 @@ def reconstruct_capture(
         found, report = pairs_reconstruction(capture, knot_spacing_px or knot, say)
         views = {name: ViewSurface(name, *parts) for name, parts in found.items()}
         return Reconstruction(capture.camera, views, None, report)
-    sparse, camera, focal_report = sparse_with_focal(capture, focal, progress, verbose)
+    try:
+        sparse, camera, focal_report = sparse_with_focal(capture, focal, progress, verbose)
+    except ReconstructionError as error:
+        # A stereo capture still has its pairs: metric depth at every instant, whatever the
+        # scope's motion (held still, SfM finds no pair of frames with parallax).
+        if capture.stereo is None or stereo not in ("scale", "surface") or focal != "fixed":
+            raise
+        if scale_mm is not None or volume_mm3 is not None:
+            raise
+        return _pairs_instead(capture, error, knot_spacing_px, texture_smoothing, progress)
     reference = sparse.registered[0]
     ref_from_world = sparse.cam_from_world[reference]
     points = _to_camera(ref_from_world, sparse.points)
@@ -226,10 +226,12 @@ def reconstruct_capture(
     if photometric and len(views) > 1:
         views, refinements = refine_views(camera, views, capture.frames, say, smoothing)
 
-    report = _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px)
+    report = reconstruction_report(
+        sparse, views, reference, points, scale_info, counts, knot_spacing_px
+    )
     if pairs:
         report["stereo"] = stereo_report(pairs, capture.stereo, stereo)
-    report["surface"]["photometric"] = _photometric_report(refinements, smoothing)
+    report["surface"]["photometric"] = photometric_report(refinements, smoothing)
     report["focal"] = focal_report
     return Reconstruction(camera, views, sparse, report)
 
@@ -237,25 +239,26 @@ def reconstruct_capture(
 STEREO_USES = ("scale", "surface", "none", "pairs")
 
 
-def _photometric_report(refinements, smoothing: float) -> dict:
-    if refinements is None:
-        return {"refined": False}
-    number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
-    return {
-        "refined": True,
-        "model": PHOTOMETRIC_MODEL,
-        "smoothing": smoothing,
-        "points_weight": POINTS_WEIGHT,
-        "texture_loss_per_frame": {
-            n: {"before": number(r.residual_before), "after": number(r.residual_after)}
-            for n, r in refinements.items()
-        },
-        # A frame's surface is replaced only where the refinement lowered its loss.
-        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
-        "kept_frames": sum(r.kept for r in refinements.values()),
-        "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
-        "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
-    }
+def _pairs_instead(capture, error, knot_spacing_px, texture_smoothing, progress):
+    """`--stereo pairs` where structure-from-motion failed on a stereo capture, with the
+    reason in the report (`sfm_failed`) and its first warning."""
+    say = progress or (lambda message: None)
+    say(f"{error}: each frame's depth from its own stereo pair instead (--stereo pairs)")
+    try:
+        result = reconstruct_capture(
+            capture, stereo="pairs", knot_spacing_px=knot_spacing_px, progress=progress
+        )
+    except CtjaxError as second:
+        raise ReconstructionError(f"{error}; from the stereo pairs alone: {second}") from second
+    warnings = [
+        f"{error}: each frame's depth and normals come from its own stereo pair instead, its "
+        "pose by PnP (--stereo pairs; noisier normals than SfM's)"
+    ]
+    if texture_smoothing is not None:
+        warnings.append("--texture-smoothing not applied: no texture refinement with the pairs")
+    result.report["sfm_failed"] = str(error)
+    result.report["warnings"][:0] = warnings
+    return result
 
 
 def _scale(camera, surface, hull, points):
@@ -536,65 +539,3 @@ def _view_surfaces(camera, sparse, points, world_from_ref, unit, knot_spacing_px
         cams[name] = cam_from_ref
 
     return surfaces, hulls, counts, cams
-
-
-# Below this baseline (the largest distance between registered cameras, relative to the
-# working distance), reconstruct warns of little parallax.
-MIN_BASELINE = 0.02
-
-
-def _baseline(views, scale_info) -> float | None:
-    """The largest distance between two registered cameras over the reference frame's
-    median depth (None with fewer than two)."""
-    centres = np.array([view.pose[:3, 3] for view in views.values()])
-    depth = scale_info["median_reference_depth"] * scale_info["factor"]
-    if len(centres) < 2 or not np.isfinite(depth) or depth <= 0:
-        return None
-    spread = np.linalg.norm(centres[:, None] - centres[None], axis=-1).max()
-    return float(spread / depth)
-
-
-def _report(sparse, views, reference, points, scale_info, counts, knot_spacing_px) -> dict:
-    """`ctjax reconstruct`'s JSON report."""
-    coverage = {name: float(view.hull.mean()) for name, view in views.items()}
-    unregistered = [n for n in sparse.names if n not in views]
-    warnings = [
-        f"frame {n} did not register (skipped; no depth or normals for it)" for n in unregistered
-    ]
-    if not scale_info["metric"]:
-        warnings.append(
-            "depth is up to scale (unit: median depth of the reference frame); give "
-            "--scale-mm or --volume-mm3 (scale_mm=, volume_mm3= in Python) for millimetres"
-        )
-    baseline = _baseline(views, scale_info)
-    if baseline is not None and baseline < MIN_BASELINE:
-        warnings.append(
-            f"little parallax: the registered cameras are at most {baseline:.1%} of the "
-            "working distance apart, and depth from so short a baseline is poorly "
-            "determined (move the camera more between frames)"
-        )
-    report = {
-        "frames": len(sparse.names),
-        "registered": [n for n in sparse.names if n in views],
-        "unregistered": unregistered,
-        "reference_frame": reference,
-        "points": len(sparse.points),
-        "mean_reprojection_error_px": sparse.mean_reprojection_error,
-        "mean_track_length": float(np.mean(sparse.track_lengths)) if len(points) else 0.0,
-        "coverage": float(np.mean(list(coverage.values()))) if coverage else 0.0,
-        "coverage_per_frame": coverage,
-        "baseline_over_depth": _baseline(views, scale_info),
-        "keypoints": sparse.keypoints,
-        "matching": sparse.matching,
-        "scale": scale_info,
-        "length_unit": unit_of_reconstruction({"scale": scale_info}),
-        "surface": {
-            "model": SURFACE_MODEL,
-            "knot_spacing_px": float(knot_spacing_px),
-            "points_per_frame": counts,
-            "residual_rms_per_frame": {n: v.surface.residual_rms for n, v in views.items()},
-        },
-        "world_frame": f"camera frame of {reference} (its pose is the identity)",
-        "warnings": warnings,
-    }
-    return report
