@@ -38,6 +38,7 @@ from .effects import CameraGamma as CameraGamma
 from .effects import SRGBResponse as SRGBResponse
 from .lights import ColocatedLight as ColocatedLight
 from .lights import InverseSquare as InverseSquare
+from .lights import LensPlaneLight as LensPlaneLight
 from .lights import LightField as LightField
 from .lights import PointLight as PointLight
 from .lights import SpotFalloff as SpotFalloff

@@ -39,13 +39,19 @@ def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets):
     root = synthesize(tmp_path / "c", options)
     out = tmp_path / "light.json"
     argv = ["calibrate-light", str(root), "--model", "near", "--json", str(out)]
-    assert main([*argv, "--falloff", "inverse_square+spot", "--facets"]) == 0
+    # A light 1 mm in front of the lens plane: its offset fitted along the axis too.
+    assert main([*argv, "--falloff", "inverse_square+spot", "--facets", "--offset", "free"]) == 0
     result = json.loads(out.read_text())
+    assert result["offset_axes"] == "free" and result["shading_model"]["light"]["class"] == (
+        "PointLight"
+    )
     # The lobe about every point's own facet under the fitted light (tests/test_facets.py).
     assert result["facets"]["sigma"] > 0 and np.isfinite(result["facets"]["ratio"])
     assert "a lobe about every point's own facet" in capsys.readouterr().out
     assert main([*argv[:-2], "--model", "field", "--json", str(out), "--facets"]) == 2
     assert "--facets is for the near light" in capsys.readouterr().err
+    assert main([*argv[:-2], "--model", "field", "--json", str(out), "--offset", "free"]) == 2
+    assert "--offset is for the near light" in capsys.readouterr().err
     np.testing.assert_allclose(result["offset_mm"], [-3.0, 7.0, 1.0], atol=1.0)
     assert set(result["falloff"]) == {"inverse_square", "spot"}
     assert result["falloff"]["spot"]["exponent"] == pytest.approx(3.0, rel=0.1)
@@ -212,13 +218,17 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     np.testing.assert_allclose(fit["offset_fitted_mm"], [6.0, -4.0, 0.0], atol=0.25)
     # The BRDF from every view; the light's standard errors from the views that placed it.
     assert fit["sigma"] == pytest.approx(scenes["offset"].sigma, rel=0.01)
-    assert all(0 < e < 0.5 for e in fit["offset_stderr_mm"])
-    assert {"light.position_mm", "brdf.lobes[1].distribution.sigma"} <= set(fit["stderr"])
+    # In the lens plane (the default): x and y fitted, z held at 0 (no standard error).
+    assert fit["offset_axes"] == "lens_plane" and fit["offset_stderr_mm"][2] == 0
+    assert all(0 < e < 0.5 for e in fit["offset_stderr_mm"][:2])
+    assert {"light.offset_mm", "brdf.lobes[1].distribution.sigma"} <= set(fit["stderr"])
     # The offset with every normal tilted toward and away from the optical axis (a
     # reconstructed shape's): it moves by more than its standard error says, and is said to
-    # (measured: (0.47, 0.25, 2.56) mm against (0.02, 0.02, 0.11): along the axis most).
+    # (measured with the axis free: (0.47, 0.25, 2.56) mm against (0.02, 0.02, 0.11), along
+    # the axis most; in the lens plane (0.67, 0.25, 0) against (0.014, 0.019, 0)).
     tilt = np.asarray(fit["offset_per_normal_tilt_mm"])
-    assert fit["offset_normal_tilt_deg"] == 0.5 and np.all(np.isfinite(tilt) & (tilt > 0))
+    assert fit["offset_normal_tilt_deg"] == 0.5 and np.all(np.isfinite(tilt))
+    assert np.all(tilt[:2] > 0) and tilt[2] == 0
     assert np.any(tilt > 3 * np.asarray(fit["offset_stderr_mm"]))
     assert any("when every normal is tilted 0.5 degrees" in w for w in result.warnings)
 

@@ -48,3 +48,27 @@ def test_bad_guides_are_named():
         LightGuides(4.0, 0.0, 0)
     with pytest.raises(ParameterError, match="radius_mm"):
         LightGuides(-1.0, 0.0, 2)
+
+
+def test_a_light_in_the_lens_plane_is_the_point_light_at_z_0():
+    """`LensPlaneLight` (calibrate-light's default offset): a `PointLight` at (x, y, 0), its
+    two coordinates the fitted parameters, named apart from the free light's offset."""
+    from ctjax import LensPlaneLight
+    from ctjax._json import named_parameters
+    from ctjax.fitting import free_parameters
+
+    falloff = (InverseSquare(60.0),)
+    point = _vec(3.0, -2.0, 55.0)
+    normal = _vec(0.1 / 1.0062, 0.05 / 1.0062, -1 / 1.0062)
+    plane = LensPlaneLight((4.0, -3.0), falloff=falloff)
+    np.testing.assert_allclose(
+        _shade(plane, point, normal),
+        _shade(PointLight((4.0, -3.0, 0.0), falloff=falloff), point, normal),
+        rtol=1e-12,
+    )
+    np.testing.assert_array_equal(plane.position_mm, [4.0, -3.0, 0.0])
+    model = ShadingModel(cook_torrance_brdf(0.8, 0.3, 0.2), plane)
+    assert "light.offset_mm" in {p.name for p in free_parameters(model)}
+    assert named_parameters(plane)["lens_plane_offset_mm"] == [4.0, -3.0]
+    with pytest.raises(ParameterError, match="offset_mm"):
+        LensPlaneLight((4.0, -3.0, 0.0))

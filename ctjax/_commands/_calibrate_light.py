@@ -35,6 +35,14 @@ def add_calibrate_light_parser(commands) -> None:
     )
     add_falloff_argument(light)
     light.add_argument(
+        "--offset",
+        choices=("lens-plane", "free"),
+        default="lens-plane",
+        help="near: fit the light's offset in the lens plane (default: a scope's light leaves "
+        "the face of its tip, beside or around the lens) or along the optical axis too (free: "
+        "the axis is what the images determine worst)",
+    )
+    light.add_argument(
         "--engine",
         choices=("optimistix", "closed-form"),
         default="optimistix",
@@ -94,6 +102,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         if args.facets or args.facet_marginal:
             option = "--facets" if args.facets else "--facet-marginal"
             raise CtjaxError(f"{option} is for the near light (--model near)")
+        if args.offset != "lens-plane":
+            raise CtjaxError("--offset is for the near light (--model near)")
         return _calibrate_light_field(args)
     observations = load_observations(args)
     capture = observations.capture
@@ -107,6 +117,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         right_views=args.right_views,
         workers=args.workers,
         diffuse=diffuse_lobe_named(args.diffuse),
+        offset_axes=args.offset.replace("-", "_"),
     )
     summary = result.to_json()
     if args.facets or args.facet_marginal:
@@ -126,6 +137,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         offset += " +- " + _uncertainties(summary["offset_stderr_mm"])
     if "offset_halves_stderr_mm" in summary:
         offset += "; even / odd frames +- " + _uncertainties(summary["offset_halves_stderr_mm"])
+    if summary.get("offset_axes") == "lens_plane":
+        offset += "; in the lens plane"
     if "offset_per_normal_tilt_mm" in summary:
         change = _uncertainties(summary["offset_per_normal_tilt_mm"])
         offset += f"; normals +-{summary['offset_normal_tilt_deg']:g} deg: +- {change}"

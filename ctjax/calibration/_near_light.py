@@ -18,7 +18,7 @@ import numpy as np
 
 from .._determined import flag_model
 from .._errors import CtjaxError
-from .._json import falloff_json
+from .._json import falloff_json, paper_names
 from .._result import Estimate
 from .._right_views import with_right_views
 from .._threads import checked_workers, in_order
@@ -46,7 +46,7 @@ from ..heldout import (
     simplest_within,
 )
 from ..io import Capture
-from ..lights import AbstractFalloff, InverseSquare, PointLight, SpotFalloff
+from ..lights import AbstractFalloff, InverseSquare, LensPlaneLight, PointLight, SpotFalloff
 from ..lights._point import offset_starts
 from ..lobes import BRDF, Lambertian
 from ..lobes._diffuse import with_diffuse_lobe
@@ -94,16 +94,49 @@ def _paper(diffuse: type[Lambertian]) -> ShadingModel:
     return eqx.tree_at(lambda m: m.brdf, model, with_diffuse_lobe(model.brdf, diffuse))
 
 
+# Where the light's offset is fitted: in the lens plane (`LensPlaneLight`, the default: the
+# scope's light leaves the face of its tip) or anywhere (`PointLight`).
+OFFSET_AXES = ("lens_plane", "free")
+
+
+def _light(offset, falloff, axes: str):
+    """The light at `offset` (x, y, z) with `falloff`, fitted along `axes` (`OFFSET_AXES`)."""
+    if axes == "lens_plane":
+        return LensPlaneLight(jnp.asarray(offset[:2], float), falloff=tuple(falloff))
+    return PointLight(jnp.asarray(offset, float), falloff=tuple(falloff))
+
+
+def _position(model) -> str:
+    """The dotted name of `model`'s light position (`hold` and `freeze` take it)."""
+    return f"light.{type(model.light).position_field}"
+
+
+def _axes(model) -> str:
+    """Where `model`'s light offset was fitted (`OFFSET_AXES`)."""
+    return "lens_plane" if isinstance(model.light, LensPlaneLight) else "free"
+
+
+def _position_stderr(stderr: dict, model, default):
+    """The standard errors of `model`'s light position along x, y, z (0 along the axis in
+    the lens plane, where it is not fitted) from `stderr` (by dotted name), or `default`."""
+    errors = stderr.get(_position(model))
+    if errors is None:
+        return default
+    return [*errors, 0.0] if len(errors) == 2 else list(errors)
+
+
 def _starts(
-    falloff: tuple[AbstractFalloff, ...], capture, diffuse: type[Lambertian] = Lambertian
+    falloff: tuple[AbstractFalloff, ...],
+    capture,
+    diffuse: type[Lambertian] = Lambertian,
+    axes: str = "lens_plane",
 ) -> list[ShadingModel]:
     """Starting models from every offset of `offset_starts` and several roughnesses."""
     starts = []
     unit = length_unit_of(capture)
     for offset in offset_starts(unit, median_depth_mm(capture)):
-        base = _paper(diffuse)
-        light = PointLight(jnp.asarray(offset, float), falloff=tuple(falloff))
-        starts.extend(roughness_variants(eqx.tree_at(lambda m: m.light, base, light)))
+        light = _light(offset, falloff, axes)
+        starts.extend(roughness_variants(eqx.tree_at(lambda m: m.light, _paper(diffuse), light)))
     return starts
 
 
@@ -136,6 +169,7 @@ def calibrate_near_light(
     right_views: bool = False,
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
+    offset_axes: str = "lens_plane",
 ) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
@@ -154,8 +188,13 @@ def calibrate_near_light(
     `workers`: falloff sets fitted at once, on threads (default: the cores, at most 4); the
     results do not depend on it. `diffuse`: the diffuse term (`ctjax.lobes.diffuse_lobes`:
     `Lambertian`, the paper's, or e.g. `OrenNayar`, whose shape is fitted with the rest).
+    `offset_axes`: `"lens_plane"` (default) fits the light's offset in the lens plane
+    (`LensPlaneLight`: the scope's light leaves the face of its tip), `"free"` along the
+    optical axis too (`PointLight`); the JSON's `offset_mm` has x, y, z either way.
     """
     say = progress or (lambda message: None)
+    if offset_axes not in OFFSET_AXES:
+        raise CtjaxError(f"offset_axes must be one of {OFFSET_AXES}, got {offset_axes!r}")
     workers = checked_workers(workers)
     capture = Observations.of(capture)
     if any(f.depth is None for f in capture.frames):
@@ -177,6 +216,7 @@ def calibrate_near_light(
             right_views=right_views,
             workers=workers,
             diffuse=diffuse,
+            offset_axes=offset_axes,
         )
         return _with_highlight_alignment(fit, capture)
     if right_views:
@@ -190,7 +230,7 @@ def calibrate_near_light(
 
     def fit_choice(choice):
         return fit_model(
-            _starts(choice, capture, diffuse),
+            _starts(choice, capture, diffuse, offset_axes),
             heldout.train,
             pixel_predict,
             columns=pixel_columns,
@@ -209,6 +249,8 @@ def calibrate_near_light(
         "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
         "falloff": falloff_json(fit.model.light),
         "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
+        "offset_mm": np.asarray(fit.model.light.position_mm, float).tolist(),
+        "offset_axes": _axes(fit.model),
     }
     fit.details["albedo"] = "uniform"
     fit.seconds = {"total": time.perf_counter() - started}
@@ -229,9 +271,9 @@ def _with_highlight_alignment(fit: Estimate, capture: Observations) -> Estimate:
 
 
 def _at_the_lens(
-    falloff: tuple[AbstractFalloff, ...], diffuse: type[Lambertian] = Lambertian
+    falloff: tuple[AbstractFalloff, ...], diffuse: type[Lambertian], axes: str
 ) -> list[ShadingModel]:
-    light = PointLight(jnp.zeros(3), falloff=tuple(falloff))
+    light = _light((0.0, 0.0, 0.0), falloff, axes)
     return roughness_variants(eqx.tree_at(lambda m: m.light, _paper(diffuse), light))
 
 
@@ -245,6 +287,8 @@ def _details(result, capture, choices, errors, detected, offset, reported) -> di
         "falloff": falloff_json(result.model.light),
         "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
         "offset_detected": detected,
+        "offset_mm": np.asarray(result.model.light.position_mm, float).tolist(),
+        "offset_axes": _axes(result.model),
         "offset_fitted_mm": offset.tolist(),
         "offset_stderr_mm": reported,  # None where the data do not determine it
         "length_unit": length_unit_of(capture),
@@ -271,7 +315,7 @@ def _take_refit(result, every, tracks, detected: bool, reported, placed=None):
     result.rmse["all_frames"] = every.rmse["calibration"]
     if detected:
         result.details["stderr"] = _standard_errors(every.model, tracks, placed)
-        reported = result.details["stderr"].get("light.position_mm", reported)
+        reported = _position_stderr(result.details["stderr"], every.model, reported)
     return reported
 
 
@@ -325,6 +369,7 @@ def near_light_map(
     right_views: bool = False,
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
+    offset_axes: str = "lens_plane",
 ) -> Estimate:
     """The near-light model on textured tissue: one albedo per surface point.
 
@@ -348,7 +393,7 @@ def near_light_map(
     within 2 standard errors of 0, the estimate is the light at the lens, reported with
     `offset_bound_mm` (the fitted offset's norm plus 2 standard errors): the data cannot
     tell an offset below it from none. `workers`: falloff sets fitted at once, on threads.
-    `diffuse`: the diffuse term, as `calibrate_near_light`'s.
+    `diffuse`, `offset_axes`: as `calibrate_near_light`'s.
     """
     started = time.perf_counter()
     workers = checked_workers(workers)
@@ -396,7 +441,7 @@ def near_light_map(
         return every_view, (placed.model, placing_train)
 
     def fit_choice(choice):
-        chosen, placed = placed_fit(_starts(choice, capture, diffuse))
+        chosen, placed = placed_fit(_starts(choice, capture, diffuse, offset_axes))
         return chosen, heldout.heldout_rmse(chosen.model), placed
 
     fits, errors, placements = [], [], []
@@ -415,15 +460,21 @@ def near_light_map(
     offset_fit.details["stderr"] = _standard_errors(
         offset_fit.model, heldout.train, placements[chosen]
     )
-    reported = offset_fit.details["stderr"].get("light.position_mm", [None] * 3)
+    reported = _position_stderr(offset_fit.details["stderr"], offset_fit.model, [None] * 3)
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     say("standard errors, and the same model with the light at the lens")
     lens_fit = heldout.judge(
         # Held, not frozen: the chosen offset fit's compiled program serves.
-        placed_fit(_at_the_lens(choices[chosen], diffuse), hold=("light.position_mm",))[0],
+        placed_fit(
+            _at_the_lens(choices[chosen], diffuse, offset_axes),
+            hold=(_position(offset_fit.model),),
+        )[0],
         noise_floor=False,
     )
-    significant = bool(np.all(np.isfinite(stderr)) and np.linalg.norm(offset / stderr) > 2)
+    fitted = stderr > 0  # the axis in the lens plane is not
+    significant = bool(
+        np.all(np.isfinite(stderr)) and np.linalg.norm(offset[fitted] / stderr[fitted]) > 2
+    )
     better = offset_fit.heldout_rmse < (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse
     detected = significant and better
     result = offset_fit if detected else lens_fit
@@ -438,7 +489,7 @@ def near_light_map(
         placing, warning = placing_views(capture, tracks, right if right_views else None)
         result.warnings.extend([warning] if warning else [])
     # Frozen, not held: other tracks, another program anyway, and fewer Jacobian columns.
-    every = fit([result.model], placing, freeze=() if detected else ("light.position_mm",))
+    every = fit([result.model], placing, freeze=() if detected else (_position(result.model),))
     placed = None
     if placing is not tracks and np.isfinite(every.cost):
         say("the BRDF on every view, the light held where the views away from S put it")
@@ -476,7 +527,10 @@ def near_light_map(
     # Without an offset the estimate is the light at the lens with a bound, which an
     # offset's standard error that could not be computed leaves infinite.
     gain = _lobe_gain(result, every, tracks)
-    return flag_model(result, None if detected else {"offset_mm": reported}, lobe_gain=gain)
+    # The bound by the light's own parameter (in the lens plane: x and y).
+    name = paper_names(result.model).get(_position(result.model), "offset_mm")
+    bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
+    return flag_model(result, None if detected else {name: bound}, lobe_gain=gain)
 
 
 def _lobe_gain(result, every, tracks) -> float | None:

@@ -1,3 +1,5 @@
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 
@@ -50,6 +52,9 @@ class PointLight(AbstractLight):
     - `intensity`: irradiance factor (with `InverseSquare`, at its reference distance).
     - `falloff`: irradiance factors of position (`InverseSquare`, `SpotFalloff`).
     """
+
+    # The dotted name of the fitted position (`hold` and `freeze` take it).
+    position_field: ClassVar[str] = "position_mm"
 
     position_mm: Float[Array, "3"] = eqx.field(converter=as_float, metadata=named("offset_mm"))
     intensity: Float[Array, ""] = eqx.field(
