@@ -226,6 +226,31 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
     assert "--facet-marginal needs the albedo map" in capsys.readouterr().err
 
 
+def test_a_frame_without_a_pose_falls_back_to_the_uniform_albedo_with_a_warning(tmp_path, capsys):
+    """One frame missing from poses.json: the default is still the uniform albedo, but the
+    fit says which frames lack what (a warning on stderr and in the JSON); not when the
+    user asked for the uniform albedo, nor when no frame has a pose."""
+    from ctjax.estimation import why_no_albedo_map
+
+    root = synthesize(tmp_path / "c", SynthOptions(width=64, height=48, frames=2, seed=3))
+    poses = json.loads((root / "poses.json").read_text())
+    (root / "poses.json").write_text(json.dumps({"frame_000": poses["frame_000"]}))
+    why = why_no_albedo_map(load_capture(root))
+    assert "frame(s) frame_001 (no pose): the albedo map follows" in why
+    assert "the uniform albedo (the paper's) is fitted instead" in why
+    out = tmp_path / "fit.json"
+    capsys.readouterr()
+    assert main(["fit", str(root), "--json", str(out)]) == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if "frame_001" in line]
+    assert warned == [f"ctjax fit: warning: {why}"]
+    result = json.loads(out.read_text())
+    assert result["albedo"] == "uniform" and result["warnings"][0] == why
+    assert main(["fit", str(root), "--json", str(out), "--albedo", "uniform"]) == 0
+    assert "frame_001" not in capsys.readouterr().err
+    (root / "poses.json").unlink()
+    assert why_no_albedo_map(load_capture(root)) is None
+
+
 def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):
     from ctjax.estimation._branch_and_bound_map import fit_brdf_map, track_shading
     from ctjax.fitting import fit_model_map, paper_model

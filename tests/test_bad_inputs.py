@@ -77,6 +77,12 @@ def _camera(root, **changes):
     (root / "camera.json").write_text(json.dumps(data))
 
 
+def _scale_pose(root, factor):
+    poses = json.loads((root / "poses.json").read_text())
+    poses["frame_001"] = (np.diag([factor] * 3 + [1.0]) @ poses["frame_001"]).tolist()
+    (root / "poses.json").write_text(json.dumps(poses))
+
+
 def _images(root):
     return sorted((root / "images").glob("*.png"))
 
@@ -157,6 +163,20 @@ CAPTURE_CASES = [
         CAPTURE_COMMANDS,
         "fy must be positive",
         id="negative-focal-length",
+    ),
+    pytest.param(
+        lambda r: _camera(r, cx=5000),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "cx 5000 is outside the image (0..64)",
+        id="principal-point-off-the-image",
+    ),
+    pytest.param(
+        lambda r: _scale_pose(r, 2.0),
+        LOAD,
+        CAPTURE_COMMANDS,
+        "the pose of 'frame_001' is not a rigid transform",
+        id="scaled-pose",
     ),
     pytest.param(
         lambda r: _rewrite_image(r, np.zeros((10, 10, 3), np.uint8)),

@@ -149,8 +149,34 @@ def _break(root, how):
         shutil.copy(root / "images" / "f0.png", root / "images" / "f2.png")
     elif how == "malformed poses":
         (root / "poses.json").write_text(json.dumps({"f0": [[1, 0], [0, 1]]}))
+    elif how in NOT_RIGID:
+        pose = np.asarray(json.loads((root / "poses.json").read_text())["f1"])
+        _edit(root / "poses.json", f1=(NOT_RIGID[how] @ pose).tolist())
+    elif how in CAMERA_EDITS:
+        _edit(root / "camera.json", **CAMERA_EDITS[how])
     else:
         raise AssertionError(how)
+
+
+def _edit(path, **changes):
+    path.write_text(json.dumps({**json.loads(path.read_text()), **changes}))
+
+
+# Left-multiplied into a pose: a matrix that is not a rigid transform (F2 of the fuzz sweep).
+NOT_RIGID = {
+    "pose with a projective last row": np.array(
+        [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0.1, 1.0]]
+    ),
+    "scaled pose": np.diag([2.0, 2.0, 2.0, 1.0]),
+    "sheared pose": np.array([[1, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]),
+    "reflected pose": np.diag([1.0, 1.0, -1.0, 1.0]),
+}
+CAMERA_EDITS = {
+    "k4": {"k1": 0.1, "k4": 0.01, "k6": 0.001},
+    "distortion array": {"distortion": [0.1, 0.01, 0.0, 0.0, 0.0]},
+    "cx outside the image": {"cx": 5000},
+    "cy outside the image": {"cy": -3.5},
+}
 
 
 BAD = {
@@ -172,6 +198,15 @@ BAD = {
     "corrupt depth file": "cannot read depth",
     "malformed poses": "4x4",
     "duplicate frames": r"duplicate frames \(identical images\): f2 = f0",
+    "pose with a projective last row": r"poses.json: the pose of 'f1' is not a rigid transform "
+    r"\(its last row is \[0.0, 0.0, 0.1, 1.05\], not \[0, 0, 0, 1\]\)",
+    "scaled pose": "the pose of 'f1' is not a rigid transform .*a scale or a shear",
+    "sheared pose": "the pose of 'f1' is not a rigid transform .*a scale or a shear",
+    "reflected pose": "the pose of 'f1' is not a rigid transform .*a reflection",
+    "k4": r"camera.json: unsupported distortion key\(s\) k4, k6: ctjax applies k1, k2, p1",
+    "distortion array": r"unsupported distortion key\(s\) distortion:",
+    "cx outside the image": r"camera.json: cx 5000 is outside the image \(0..40\)",
+    "cy outside the image": r"camera.json: cy -3.5 is outside the image \(0..32\)",
 }
 
 
@@ -182,6 +217,21 @@ def test_loader_rejects_bad_input_with_one_clear_error(capture_dir, how):
         load_capture(capture_dir)
     assert isinstance(info.value, ValueError)
     assert "\n" not in str(info.value)
+
+
+def test_loader_accepts_poses_rigid_to_float32_and_zero_unsupported_distortion(capture_dir):
+    """What other tools write still loads: poses rounded to float32 (rotations rigid to
+    ~1e-7), unused distortion keys set to zero, a principal point on the image's edge."""
+    poses = json.loads((capture_dir / "poses.json").read_text())
+    angle = 0.3
+    turn = np.eye(4)
+    turn[:2, :2] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
+    rounded = (turn @ np.asarray(poses["f1"])).astype(np.float32).astype(np.float64)
+    _edit(capture_dir / "poses.json", f1=rounded.tolist())
+    _edit(capture_dir / "camera.json", cx=40.0, cy=0.0, k4=0.0, distortion=[0, 0, 0, 0, 0])
+    capture = load_capture(capture_dir)
+    np.testing.assert_array_equal(capture.frames[1].pose, rounded)
+    assert capture.camera.distortion is None and float(capture.camera.cx) == 40.0
 
 
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600)])

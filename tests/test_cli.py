@@ -151,3 +151,59 @@ def test_demo_refuses_an_unknown_falloff_before_any_work(tmp_path):
     with pytest.raises(CtjaxError, match=r"falloff must be one of auto, none, .*got 'spots'"):
         run_demo(tmp_path / "demo", falloff="spots")
     assert not (tmp_path / "demo").exists()
+
+
+# Every command's outputs: a file argument that is a folder, a folder argument that is a
+# file, and a path under a file; `{file}` and `{dir}` exist, `{cap}` need not (the paths
+# are checked when the command line is parsed, before the capture is read).
+OUTPUT_CASES = [
+    (["fit", "{cap}", "--json", "{dir}"], "--json: {dir}: is a directory"),
+    (["fit", "{cap}", "--json", "{file}/f.json"], "--json: {file}/f.json: {file} is not a folder"),
+    (["fit", "{cap}", "--json", "f.json", "--albedo-maps", "{file}"], "exists and is not a folder"),
+    (["masks", "{cap}", "--out", "{file}"], "--out: {file}: exists and is not a folder"),
+    (["diagnose", "{cap}", "--json", "d.json", "--plots", "{file}"], "--plots: {file}: exists"),
+    (["evaluate", "{cap}", "--json", "e.json", "--plots", "{file}"], "--plots: {file}: exists"),
+    (["evaluate", "{cap}", "--json", "{dir}"], "--json: {dir}: is a directory"),
+    (["calibrate-light", "{cap}", "--json", "c.json", "--npz", "{dir}"], "--npz: {dir}: is a"),
+    (["reconstruct", "{cap}", "--json", "{dir}"], "--json: {dir}: is a directory"),
+    (["reconstruct", "{cap}", "--out", "{file}"], "--out: {file}: exists and is not a folder"),
+    (["import", "v.mp4", "--camera", "c.json", "--out", "{file}"], "--out: {file}: exists"),
+    (["import", "v.mp4", "--camera", "c.json", "--out", "o", "--json", "{dir}"], "is a directory"),
+    (["synth", "{file}"], "argument out: {file}: exists and is not a folder"),
+    (["demo", "--out", "{file}/demo"], "--out: {file}/demo: {file} is not a folder"),
+    (["batch", "{cap}", "--out", "{file}"], "--out: {file}: exists and is not a folder"),
+]
+
+
+@pytest.mark.parametrize("argv, message", OUTPUT_CASES, ids=[" ".join(c[0]) for c in OUTPUT_CASES])
+def test_output_paths_of_the_wrong_kind_are_refused_before_any_work(
+    tmp_path, capsys, argv, message
+):
+    paths = {"{file}": tmp_path / "afile", "{dir}": tmp_path / "adir", "{cap}": tmp_path / "cap"}
+    paths["{file}"].write_text("kept")
+    paths["{dir}"].mkdir()
+
+    def filled(text):
+        for key, path in paths.items():
+            text = text.replace(key, str(path))
+        return text
+
+    capsys.readouterr()
+    assert main([filled(a) for a in argv]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"ctjax {argv[0]}: error: "), lines
+    assert filled(message) in lines[0]
+    assert paths["{file}"].read_text() == "kept" and not any(paths["{dir}"].iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile"]
+
+
+def test_atomic_writes_name_a_folder_in_the_way(tmp_path):
+    """The Python API's writers: one `CtjaxError` naming the path, not an OSError."""
+    from ctjax.io._atomic import atomic_write_json, atomic_write_npy
+
+    (tmp_path / "afile").write_text("kept")
+    with pytest.raises(CtjaxError, match="is a directory"):
+        atomic_write_json(tmp_path, {})
+    with pytest.raises(CtjaxError, match=r"afile is not a folder"):
+        atomic_write_npy(tmp_path / "afile" / "a.npy", np.zeros(2))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]

@@ -200,6 +200,23 @@ def test_untextured_images_fail_with_one_clear_line(tmp_path, capsys):
     assert len(error) == 1 and error[0].startswith("ctjax reconstruct: error: too few features")
 
 
+def test_colmaps_own_error_lines_are_quiet_without_verbose(capfd):
+    """COLMAP's glog errors ("Failed to create any sparse model") come back as one
+    `ReconstructionError`: without --verbose they are not printed beside it."""
+    import pycolmap
+
+    from ctjax.sfm._colmap import _quiet_colmap
+
+    before = pycolmap.logging.minloglevel
+    with _quiet_colmap(verbose=False):
+        pycolmap.logging.error("MESSAGE-A")
+    with _quiet_colmap(verbose=True):
+        pycolmap.logging.error("MESSAGE-B")
+    assert pycolmap.logging.minloglevel == before
+    printed = capfd.readouterr().err
+    assert "MESSAGE-A" not in printed and ("MESSAGE-B" in printed) == (before <= 2)
+
+
 def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
     capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
     capture = _images_only(capture, tmp_path / "images-only")

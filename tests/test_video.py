@@ -105,6 +105,8 @@ def test_a_still_camera_gives_one_frame_and_a_warning(tmp_path, capsys):
         ("not a video", [], "cannot open the video"),
         (None, ["--every", "0"], "--every must be a positive integer"),
         (None, ["--start", "5", "--end", "2"], "--end must be a time after --start"),
+        # --width only shrinks: no silent upsampling of a 64-px video.
+        (None, ["--width", "100"], "--width 100 cannot exceed the video's width (64 px)"),
     ],
 )
 def test_bad_imports_fail_with_one_line(tmp_path, capsys, content, extra, expected):
@@ -118,6 +120,7 @@ def test_bad_imports_fail_with_one_line(tmp_path, capsys, content, extra, expect
     assert main([*argv, str(tmp_path / "c"), *extra]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and expected in lines[0]
+    assert not (tmp_path / "c").exists()
 
 
 def test_options_are_checked():

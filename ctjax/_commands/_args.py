@@ -1,10 +1,12 @@
 """What several commands share: argument types and groups (`--max-tracks`'s positive
-integer, the specular set's options, `--falloff`), the capture loaded with its notes, and the
-command line's words for objects (`--engine`, `--light`), in one place.
+integer, the files and folders a command writes, the specular set's options, `--falloff`),
+the capture loaded with its notes, and the command line's words for objects (`--engine`,
+`--light`), in one place.
 """
 
 import argparse
 import sys
+from pathlib import Path
 
 from .._errors import CtjaxError
 
@@ -17,6 +19,35 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
     return value
+
+
+def output_file(text: str) -> Path:
+    """The type of an argument naming a file a command writes (`--json`, `--npz`): refused
+    when parsed, before any work, where it is a folder or lies under a file."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a directory")
+    _check_parent_folders(path, text)
+    return path
+
+
+def output_folder(text: str) -> Path:
+    """The type of an argument naming a folder a command writes into (`--out`, `--plots`):
+    refused when parsed, before any work, where it is a file or lies under one."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: exists and is not a folder")
+    _check_parent_folders(path, text)
+    return path
+
+
+def _check_parent_folders(path: Path, text: str) -> None:
+    """The nearest existing folder above `path` (the rest is created) must be a folder."""
+    for parent in path.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise argparse.ArgumentTypeError(f"{text}: {parent} is not a folder")
+            return
 
 
 def load_capture(args: argparse.Namespace):

@@ -14,6 +14,7 @@ from ._args import (
     add_workers_argument,
     field_solver,
     load_observations,
+    output_file,
 )
 
 
@@ -27,10 +28,10 @@ def add_calibrate_light_parser(commands) -> None:
         help="near: point light offset from the lens; field: the paper's per-pixel "
         "light directions (eq. 7-8)",
     )
-    light.add_argument("--json", type=Path, required=True, help="output JSON file")
+    light.add_argument("--json", type=output_file, required=True, help="output JSON file")
     light.add_argument(
         "--npz",
-        type=Path,
+        type=output_file,
         help="field: output NPZ with the (H, W, 3) light directions, theta, phi, status",
     )
     add_falloff_argument(light)

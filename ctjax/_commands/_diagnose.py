@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from .._units import in_length_unit
-from ._args import add_workers_argument, load_capture, positive_int
+from ._args import add_workers_argument, load_capture, output_file, output_folder, positive_int
 
 
 def add_diagnose_parser(commands) -> None:
@@ -14,8 +14,10 @@ def add_diagnose_parser(commands) -> None:
         "diagnose", help="where the model fails, and which physical effect is missing"
     )
     diag.add_argument("capture", type=Path, help="capture folder (with depth)")
-    diag.add_argument("--json", type=Path, required=True, help="output JSON file")
-    diag.add_argument("--plots", type=Path, help="folder for residual maps and binned residuals")
+    diag.add_argument("--json", type=output_file, required=True, help="output JSON file")
+    diag.add_argument(
+        "--plots", type=output_folder, help="folder for residual maps and binned residuals"
+    )
     diag.add_argument(
         "--add",
         nargs="+",

@@ -13,6 +13,8 @@ from ._args import (
     add_workers_argument,
     cook_torrance_estimator,
     load_observations,
+    output_file,
+    output_folder,
 )
 
 
@@ -21,8 +23,10 @@ def add_evaluate_parser(commands) -> None:
         "evaluate", help="Lambertian vs Cook-Torrance: RGB error and shape from shading"
     )
     evaluate.add_argument("capture", type=Path, help="capture folder (with depth)")
-    evaluate.add_argument("--json", type=Path, required=True, help="output JSON file")
-    evaluate.add_argument("--plots", type=Path, help="folder for the paper's Fig. 4-7 plots")
+    evaluate.add_argument("--json", type=output_file, required=True, help="output JSON file")
+    evaluate.add_argument(
+        "--plots", type=output_folder, help="folder for the paper's Fig. 4-7 plots"
+    )
     evaluate.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     evaluate.add_argument(
         "--light",
@@ -61,6 +65,7 @@ def add_evaluate_parser(commands) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
+    from ..estimation import why_no_albedo_map
     from ..evaluation import evaluate, evaluation_plots
     from ..io._atomic import atomic_write_json
     from ..lobes import diffuse_lobe_named
@@ -162,8 +167,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"{flagged['reason']}",
             file=sys.stderr,
         )
+    # Why the uniform albedo was fitted where the map was meant: a warning, not a note.
+    unmapped = why_no_albedo_map(observations) if args.albedo is None else None
     for note in summary["notes"]:
-        print(f"ctjax evaluate: note: {note}", file=sys.stderr)
+        kind = "warning" if note == unmapped else "note"
+        print(f"ctjax evaluate: {kind}: {note}", file=sys.stderr)
     if summary["lambertian_sfs_error_mm"] is not None:
         models = [("Lambertian", "lambertian"), ("Cook-Torrance", "cook_torrance")]
         if args.per_pixel_sfs:

@@ -13,6 +13,8 @@ from ._args import (
     add_mask_arguments,
     load_capture,
     mask_options,
+    output_file,
+    output_folder,
     positive_int,
 )
 
@@ -24,7 +26,7 @@ def add_fit_parser(commands) -> None:
     fit.add_argument(
         "capture", type=Path, help="capture folder (without depth or normals: reconstructed first)"
     )
-    fit.add_argument("--json", type=Path, required=True, help="output JSON file")
+    fit.add_argument("--json", type=output_file, required=True, help="output JSON file")
     fit.add_argument(
         "--model",
         choices=("paper", "two-scales"),
@@ -40,7 +42,7 @@ def add_fit_parser(commands) -> None:
     )
     fit.add_argument(
         "--albedo-maps",
-        type=Path,
+        type=output_folder,
         metavar="DIR",
         help="write DIR/NAME.npy per frame: float32 (H, W, 3) rho_tilde per pixel, NaN where "
         "not estimated",

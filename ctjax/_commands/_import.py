@@ -4,6 +4,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ._args import output_file, output_folder
+
 # `ctjax import` warns above this many kept frames.
 MANY_FRAMES = 200
 
@@ -29,7 +31,9 @@ def add_import_parser(commands) -> None:
         "(fx = fy = 0.8 width, the principal point at the centre; then `ctjax reconstruct "
         "--focal refine`)",
     )
-    video.add_argument("--out", type=Path, required=True, help="the capture folder to write")
+    video.add_argument(
+        "--out", type=output_folder, required=True, help="the capture folder to write"
+    )
     video.add_argument(
         "--every", type=int, default=default.every, help="consider every N-th frame (default 1)"
     )
@@ -68,7 +72,7 @@ def add_import_parser(commands) -> None:
         action="store_true",
         help="replace OUT/images (and the depth, normals and poses reconstructed from them)",
     )
-    video.add_argument("--json", type=Path, help="write the report to this JSON file")
+    video.add_argument("--json", type=output_file, help="write the report to this JSON file")
     video.set_defaults(run=run_import)
 
 

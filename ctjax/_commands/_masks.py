@@ -3,13 +3,13 @@
 import argparse
 from pathlib import Path
 
-from ._args import add_mask_arguments, load_capture, mask_options
+from ._args import add_mask_arguments, load_capture, mask_options, output_folder
 
 
 def add_masks_parser(commands) -> None:
     masks = commands.add_parser("masks", help="specular set S and ring S~ of every frame")
     masks.add_argument("capture", type=Path, help="capture folder")
-    masks.add_argument("--out", type=Path, required=True, help="folder for the PNG masks")
+    masks.add_argument("--out", type=output_folder, required=True, help="folder for the PNG masks")
     add_mask_arguments(masks)
     masks.set_defaults(run=run_masks)
 

@@ -4,13 +4,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from ._args import output_file, output_folder
+
 
 def add_reconstruct_parser(commands) -> None:
     recon = commands.add_parser(
         "reconstruct", help="depth, normals and poses from the images (structure-from-motion)"
     )
     recon.add_argument("capture", type=Path, help="capture folder (images and camera.json)")
-    recon.add_argument("--out", type=Path, help="output capture folder (default: CAPTURE)")
+    recon.add_argument("--out", type=output_folder, help="output capture folder (default: CAPTURE)")
     scale = recon.add_mutually_exclusive_group()
     scale.add_argument(
         "--scale-mm",
@@ -74,7 +76,7 @@ def add_reconstruct_parser(commands) -> None:
         "larger side): the finest relief their normals resolve; finer is noisier",
     )
     recon.add_argument("--verbose", action="store_true", help="show COLMAP's own log on stderr")
-    recon.add_argument("--json", type=Path, help="write the report to this JSON file")
+    recon.add_argument("--json", type=output_file, help="write the report to this JSON file")
     recon.set_defaults(run=run_reconstruct)
 
 

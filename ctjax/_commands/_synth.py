@@ -5,12 +5,12 @@ synthetic capture's options, which both take.
 import argparse
 from pathlib import Path
 
-from ._args import add_falloff_argument
+from ._args import add_falloff_argument, output_folder
 
 
 def add_synth_parser(commands) -> None:
     synth = commands.add_parser("synth", help="generate a synthetic laparoscope capture")
-    synth.add_argument("out", type=Path, help="output capture folder")
+    synth.add_argument("out", type=output_folder, help="output capture folder")
     _add_synth_arguments(synth, frames=5, texture=True)
     synth.add_argument(
         "--sparkles",
@@ -37,7 +37,12 @@ def add_synth_parser(commands) -> None:
 
 def add_demo_parser(commands) -> None:
     demo = commands.add_parser("demo", help="the main job on a built-in synthetic capture")
-    demo.add_argument("--out", default="ctjax-demo", help="output folder (default: ctjax-demo)")
+    demo.add_argument(
+        "--out",
+        type=output_folder,
+        default="ctjax-demo",
+        help="output folder (default: ctjax-demo)",
+    )
     # texture contrast: ctjax.demo.DEMO_TEXTURE_CONTRAST (not imported here: it loads JAX)
     _add_synth_arguments(demo, frames=5, texture=True, texture_contrast=0.3)
     add_falloff_argument(demo)

@@ -55,7 +55,7 @@ from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
 from .._status import Status
-from ..estimation import ALBEDO_CHOICES, default_albedo
+from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..estimation._dense_maps import albedo_maps
 from ..fitting import (
     TrackSamples,
@@ -296,6 +296,7 @@ def calibrate_light_field(
     capture = Observations.of(capture, masks)
     if any(f.depth is None or f.normals is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the light field needs depth and normals for every frame")
+    unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
@@ -330,6 +331,7 @@ def calibrate_light_field(
     timings["total"] = time.perf_counter() - started
     result.seconds = timings
     result.details["albedo"] = albedo
+    result.warnings.extend([unmapped] if unmapped else [])
     _warn_unless_better(result, albedo)
     result.details["settings"] = _settings(solver, max_steps, prior_deg, knot_px, brdf_rounds)
     result.details["settings"]["falloff"] = "+".join(f.name for f in final.light.falloff) or "none"

@@ -23,7 +23,7 @@ from .._result import Estimate
 from .._right_views import with_right_views
 from .._threads import checked_workers, in_order
 from .._units import length_unit_of
-from ..estimation import ALBEDO_CHOICES, default_albedo
+from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     LEVENBERG_MARQUARDT,
     ShadingModel,
@@ -199,6 +199,7 @@ def calibrate_near_light(
     capture = Observations.of(capture)
     if any(f.depth is None for f in capture.frames):
         raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
+    unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
@@ -253,6 +254,7 @@ def calibrate_near_light(
         "offset_axes": _axes(fit.model),
     }
     fit.details["albedo"] = "uniform"
+    fit.warnings.extend([unmapped] if unmapped else [])
     fit.seconds = {"total": time.perf_counter() - started}
     if not fit.converged:
         fit.warnings.append(f"the solver did not converge: {fit.status.message}")

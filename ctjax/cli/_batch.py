@@ -8,6 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from .._commands._args import output_folder
 from .._errors import CtjaxError
 
 
@@ -24,7 +25,7 @@ def add_batch_parser(commands) -> None:
         "the captures already done (OUT/NAME/done.json).",
     )
     batch.add_argument("captures", type=Path, nargs="+", metavar="CAPTURE")
-    batch.add_argument("--out", type=Path, required=True, help="results folder")
+    batch.add_argument("--out", type=output_folder, required=True, help="results folder")
     batch.add_argument(
         "--steps",
         default=",".join(DEFAULT_STEPS),

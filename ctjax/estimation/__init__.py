@@ -27,6 +27,7 @@ from ._brdf import with_diffuse as with_diffuse
 from ._capture_fit import ALBEDO_CHOICES as ALBEDO_CHOICES
 from ._capture_fit import default_albedo as default_albedo
 from ._capture_fit import fit_capture as fit_capture
+from ._capture_fit import why_no_albedo_map as why_no_albedo_map
 from ._closed_form import nnls as nnls
 from ._closed_form import nnls_columns as nnls_columns
 from ._closed_form import nnls_normal_equations as nnls_normal_equations

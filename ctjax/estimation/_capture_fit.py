@@ -22,6 +22,32 @@ def default_albedo(capture: "Capture | Observations") -> str:
     return "uniform"
 
 
+def why_no_albedo_map(capture: "Capture | Observations") -> str | None:
+    """Where the default is the uniform albedo (`default_albedo`) only because some frames
+    lack a pose or depth while others have theirs (one frame missing from poses.json): a
+    warning naming them (`fit_capture`'s, the light calibrations' and `evaluate`'s, which
+    gives it as a note); None where the map is the default, or where no frame has a pose
+    (the paper's uniform albedo is then what is meant)."""
+    frames = capture.frames
+    if len(frames) < 2 or default_albedo(capture) == "map":
+        return None
+    if not any(f.pose is not None for f in frames):
+        return None
+    lacking = []
+    for frame in frames:
+        missing = [what for what in ("pose", "depth") if getattr(frame, what) is None]
+        if missing:
+            lacking.append(f"{frame.name} (no {' or '.join(missing)})")
+    return (
+        f"{capture.root}: frame(s) {', '.join(lacking[:5])}"
+        + (f" and {len(lacking) - 5} more" if len(lacking) > 5 else "")
+        + ": the albedo map follows surface points across frames by their depth and pose, "
+        "so the uniform albedo (the paper's) is fitted instead; add what is missing (poses.json, "
+        "depth/) or reconstruct the shape (`ctjax reconstruct --force`), or pass --albedo "
+        "uniform to say so"
+    )
+
+
 def fit_capture(
     capture: "Capture | Observations",
     masks: MaskOptions = DEFAULT_MASKS,
@@ -44,6 +70,7 @@ def fit_capture(
     (`ctjax.specular.flag_misoriented`): where one rotation of the normals would put the
     highlights at N = H, the lobe is no measurement (`Status.misoriented`).
     """
+    unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
@@ -61,4 +88,7 @@ def fit_capture(
         )
     else:
         fit = fit_uniform(obs, masks, family, tolerance=tolerance)
-    return flag_misoriented(fit, obs.capture, obs.sets)
+    estimate = flag_misoriented(fit, obs.capture, obs.sets)
+    if unmapped is not None:
+        estimate.warnings.insert(0, unmapped)
+    return estimate

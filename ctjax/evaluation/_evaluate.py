@@ -21,7 +21,7 @@ from .._result import Estimate
 from .._status import Status
 from .._threads import checked_workers, in_order
 from .._units import METRIC, label, length_unit_of
-from ..estimation import ALBEDO_CHOICES, default_albedo
+from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     ShadingModel,
     fit_model,
@@ -422,6 +422,7 @@ def evaluate(
 
         cook_torrance = calibrate_near_light
     capture = Observations.of(capture)
+    unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
@@ -430,7 +431,7 @@ def evaluate(
         for index in test:
             _check_sfs_reference((reference or capture).frames[index], capture.camera)
     tracks = HeldOutTracks.split(capture, len(calib)) if albedo == "map" else None
-    timings, notes = {}, []
+    timings, notes = {}, [unmapped] if unmapped else []
     tic = time.perf_counter()
     progress(f"fitting the Lambertian model on frames {calib} (albedo {albedo})...")
     lambertian = fit_lambertian(capture, calib, tracks=tracks)

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import CtjaxError
+
 
 def _file_mode() -> int:
     """0666 less the process's umask (read without changing it for good)."""
@@ -23,7 +25,14 @@ def _file_mode() -> int:
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    # The command line checks its outputs when it parses them (`output_file`); this is the
+    # Python API's one line, instead of a traceback from `os.replace`.
+    if path.is_dir():
+        raise CtjaxError(f"{path}: is a directory")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise CtjaxError(f"{path}: {path.parent} is not a folder") from None
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(fd, _file_mode())

@@ -6,7 +6,7 @@
       images/NAME.png      8- or 16-bit RGB, decoded to linear intensity in [0, 1]
       depth/NAME.npy       optional, float32 (H, W) camera-frame z in mm, NaN where unknown
       normals/NAME.npy     optional, float32 (H, W, 3) unit normals, camera frame, facing the camera
-      poses.json           optional, {"NAME": 4x4 camera-to-world}
+      poses.json           optional, {"NAME": 4x4 camera-to-world, rigid}
       right/NAME.png       optional, a stereo laparoscope's right image (camera.json's
                            "stereo" block: the right camera, R and T; `ctjax.io._stereo`)
       truth.json           optional, ground truth of synthetic captures
@@ -169,6 +169,14 @@ def camera_from_json(data: dict, path) -> Camera:
     for key in ("fx", "fy"):
         if values[key] <= 0:
             raise CaptureError(f"{path}: {key} must be positive, got {data[key]!r}")
+    for key, size in (("cx", "width"), ("cy", "height")):
+        # The principal point on the image, its edges included (pixel centres run from 0 to
+        # size - 1); off it, the rays and every fit after them would be wrong.
+        if not 0 <= values[key] <= values[size]:
+            raise CaptureError(
+                f"{path}: {key} {values[key]:g} is outside the image (0..{values[size]:g})"
+            )
+    _refuse_unsupported_distortion(data, path)
     distortion = None
     if any(k in values for k in DISTORTION_KEYS):
         distortion = np.array([values.get(k, 0.0) for k in DISTORTION_KEYS])
@@ -183,6 +191,30 @@ def camera_from_json(data: dict, path) -> Camera:
         values["cy"],
         distortion=None if distortion is None else np.asarray(distortion, np.float64),
     )
+
+
+# Distortion coefficients of other models than the five ctjax applies (OpenCV's rational
+# and thin-prism terms, an array of any length): refused unless zero, not silently dropped.
+_UNSUPPORTED_DISTORTION = (
+    "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tauX", "tauY",
+    "distortion", "dist_coeffs", "distortion_coefficients",
+)  # fmt: skip
+
+
+def _refuse_unsupported_distortion(data: dict, path) -> None:
+    def zero(value) -> bool:
+        try:
+            return not np.any(np.asarray(value, np.float64))
+        except (TypeError, ValueError):
+            return False
+
+    unsupported = [k for k in _UNSUPPORTED_DISTORTION if k in data and not zero(data[k])]
+    if unsupported:
+        raise CaptureError(
+            f"{path}: unsupported distortion key(s) {', '.join(unsupported)}: ctjax applies "
+            f"{', '.join(DISTORTION_KEYS)} (OpenCV's first five coefficients, each its own key) "
+            "and no other; undistort the images first, or refit the camera with those alone"
+        )
 
 
 def read_encoding(path: Path) -> str | None:
@@ -235,8 +267,31 @@ def _read_poses(path: Path) -> dict[str, np.ndarray]:
             raise CaptureError(f"{path}: pose of {name!r} is not a 4x4 numeric matrix") from None
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             raise CaptureError(f"{path}: pose of {name!r} must be a finite 4x4 matrix")
+        problem = _not_rigid(pose)
+        if problem:
+            raise CaptureError(f"{path}: the pose of {name!r} is not a rigid transform ({problem})")
         poses[name] = pose
     return poses
+
+
+# A pose written as float32, or by another tool, is rigid to about 1e-6; a scale, a shear or
+# a projective last row is off by far more and would give silently wrong views.
+_ROTATION_TOLERANCE = 1e-3
+_LAST_ROW_TOLERANCE = 1e-6
+
+
+def _not_rigid(pose: np.ndarray) -> str | None:
+    """Why a 4x4 camera-to-world matrix is no rotation and translation; None if it is."""
+    last = pose[3]
+    if np.max(np.abs(last - [0.0, 0.0, 0.0, 1.0])) > _LAST_ROW_TOLERANCE:
+        return f"its last row is {np.round(last, 6).tolist()}, not [0, 0, 0, 1]"
+    rotation = pose[:3, :3]
+    off = float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
+    if off > _ROTATION_TOLERANCE:
+        return f"its 3x3 part is not a rotation, R^T R is off I by {off:.3g}: a scale or a shear"
+    if np.linalg.det(rotation) <= 0:
+        return "its 3x3 part has determinant -1: a reflection, not a rotation"
+    return None
 
 
 def _undistort(camera: Camera, frame: Frame) -> Frame:
@@ -273,8 +328,9 @@ def load_capture(
     """Load a capture folder (see the module docstring for the format).
 
     Rejects bad input with one `CaptureError` naming the file: missing folder, missing or
-    malformed camera.json, unreadable image, sizes that disagree, normals that are not unit
-    or that face away from the camera.
+    malformed camera.json (a principal point off the image, distortion keys other than
+    k1 k2 p1 p2 k3 that are not zero), unreadable image, sizes that disagree, normals that
+    are not unit or that face away from the camera, poses that are not rigid.
     Normals are derived from depth where only depth is given. With distortion coefficients
     in camera.json and `undistort=True`, images (and depth/normals) are undistorted and the
     returned camera has none. With `field_of_view=True`, each frame's `field_of_view` marks

@@ -272,6 +272,12 @@ def import_video(
         )
     if right is not None and options.side_by_side:
         raise ParameterError("give a right video or --side-by-side, not both")
+    if options.width is not None and options.width > intrinsics.width:
+        # Area averaging only shrinks: a wider frame would be interpolated, no new detail.
+        raise ParameterError(
+            f"--width {options.width} cannot exceed the video's width ({intrinsics.width} px): "
+            "it only shrinks the frames"
+        )
     images = out / "images"
     if images.is_dir() and any(images.iterdir()) and not force:
         raise CaptureError(f"{images}: already has images (--force replaces them)")

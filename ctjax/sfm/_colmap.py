@@ -131,7 +131,10 @@ def _quiet_colmap(verbose: bool):
     import pycolmap
 
     previous = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = previous if verbose else 2
+    # Without --verbose, COLMAP's errors too (FATAL only, level 3): the ones it reports on
+    # its own ("Failed to create any sparse model") come back here as a `ReconstructionError`,
+    # and its glog lines would be printed beside that one line.
+    pycolmap.logging.minloglevel = previous if verbose else 3
     try:
         yield
     finally:
