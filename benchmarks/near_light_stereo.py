@@ -14,6 +14,7 @@ depth's median relative error.
     python benchmarks/near_light_stereo.py --size 320x256 --frames 8 --seeds 1 2 3 4
     python benchmarks/near_light_stereo.py --shading none --frames 8 --seeds 1 2 3
     python benchmarks/near_light_stereo.py --shading none --frames 5 --seeds 0 --texture-smoothing 2
+    python benchmarks/near_light_stereo.py --shading none --frames 5 --seeds 0 1 2 3 --offset free
 """
 
 import argparse
@@ -37,7 +38,14 @@ def _images_only(capture: Path, out: Path) -> Path:
 
 
 def run(
-    width: int, height: int, frames: int, seed: int, work: Path, shading: str, smoothing=None
+    width: int,
+    height: int,
+    frames: int,
+    seed: int,
+    work: Path,
+    shading: str,
+    smoothing=None,
+    offset_axes: str = "lens_plane",
 ) -> dict:
     from ctjax.calibration import calibrate_near_light
     from ctjax.io import load_capture
@@ -62,7 +70,8 @@ def run(
         for t, e in zip(load_capture(truth).frames, refined.frames, strict=True)
         for ok in [np.isfinite(t.depth) & np.isfinite(e.depth)]
     ]
-    light = calibrate_near_light(refined, falloff=(InverseSquare(70.0),)).to_json()
+    falloff = (InverseSquare(70.0),)
+    light = calibrate_near_light(refined, falloff=falloff, offset_axes=offset_axes).to_json()
     off = lambda p: float(np.linalg.norm(np.asarray(p) - TRUE_OFFSET_MM))  # noqa: E731
     return {
         "refined": shading["refined"],
@@ -85,6 +94,12 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--shading", choices=("near", "none"), default="near")
     parser.add_argument("--texture-smoothing", type=float, default=None)
+    parser.add_argument(
+        "--offset",
+        choices=("lens-plane", "free"),
+        default="lens-plane",
+        help="calibrate-light's --offset: the light in the lens plane, or along the axis too",
+    )
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     width, height = map(int, args.size.split("x"))
@@ -103,6 +118,7 @@ def main() -> None:
                 Path(folder),
                 args.shading,
                 args.texture_smoothing,
+                args.offset.replace("-", "_"),
             )
         joint = "-" if r["joint_mm"] is None else f"{r['joint_mm']:.2f}"
         print(
