@@ -505,3 +505,18 @@ def test_a_held_out_view_is_judged_only_where_its_other_views_inform_the_albedo(
     assert rmse == pytest.approx(255 * 0.5, rel=1e-3)  # predicted 1.0: the albedo doubled
     dark = TrackSamples.of(_two_view_tracks(89.4), pad=False)  # N.L 0.01: 100x dimmer
     assert np.isnan(heldout_map_rmse(model, dark, judged))  # nothing judged, not ~12600
+
+
+def test_a_parameter_the_data_leave_alone_does_not_hide_the_others_standard_errors():
+    """sigma where every F_tilde is 0 has a zero Jacobian column: its standard error is
+    undetermined (inf), the others' are the rest's block of the information; a block still
+    rank-deficient leaves them all undetermined."""
+    from ctjax.fitting._map_least_squares import _variances
+
+    information = np.array([[0.0, 0.0, 0.0], [0.0, 4.0, 1.0], [0.0, 1.0, 2.0]])
+    variance = _variances(0.5, information)
+    assert variance[0] == np.inf
+    np.testing.assert_allclose(variance[1:], np.diagonal(0.5 * np.linalg.inv(information[1:, 1:])))
+    degenerate = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    assert np.all(_variances(0.5, degenerate) == np.inf)
+    assert _variances(0.5, np.zeros((0, 0))).shape == (0,)

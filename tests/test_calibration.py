@@ -162,6 +162,7 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     from ctjax.calibration._offset_checks import (
         HIGHLIGHT_MARGIN_PX,
         away_from_highlights,
+        edge_margin_px,
         placing_views,
     )
     from ctjax.fitting._map_least_squares import TrackSamples
@@ -209,6 +210,28 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     assert np.sum(train.weight > 0) < np.sum(heldout.train.weight > 0)
     other = HeldOutTracks.split(not_reconstructed, **split)
     assert _placing_train(not_reconstructed, other, 4000, 0, False) is None
+    # With the reconstruction's knot spacing, the views within one of the surface's edge (the
+    # image's, or where a frame's depth ends) are set aside too: the spline is extrapolated.
+    report = {"scale": {"metric": True}, "surface": {"knot_spacing_px": 12.0}}
+    (root / "reconstruction.json").write_text(json.dumps(report))
+    assert edge_margin_px(observations) == 12.0
+    banded = away_from_highlights(observations, tracks)
+    newly = (placing.weight > 0) & (banded.weight == 0)
+    kept = (banded.weight > 0) | (placing.weight == 0)
+    assert newly.any() and np.all(banded.weight[~newly & kept] == placing.weight[~newly & kept])
+    camera = observations.capture.camera
+    for index, frame in enumerate(observations.capture.frames):
+        at = (tracks.frame == index) & tracks.observed
+        pixel = np.einsum("vc,vcd->vd", tracks.corner_weight[at], tracks.corner_pixel[at])
+        u, v = pixel[:, 0], pixel[:, 1]
+        border = np.minimum(u + 1, camera.width - u)
+        border = np.minimum(border, np.minimum(v + 1, camera.height - v))
+        holes = np.argwhere(~np.isfinite(frame.depth))[:, ::-1]
+        if len(holes):
+            border = np.minimum(border, np.min(np.linalg.norm(pixel[:, None] - holes, axis=-1), 1))
+        assert np.all(border[newly[at]] < 12.0 + 1.5)  # rounding, the distance's mask
+        assert np.all(banded.weight[at][(border > 12.0 + 1.5) & (placing.weight[at] > 0)] > 0)
+    (root / "reconstruction.json").write_text(json.dumps({"scale": {"metric": True}}))
 
     result = calibrate_near_light(observations, falloff=(InverseSquare(68.0),), max_samples=4000)
     fit = result.to_json()

@@ -55,6 +55,7 @@ from ..solvers import Solver
 from ..specular import flag_misoriented
 from ._offset_checks import (
     HIGHLIGHT_MARGIN_PX,
+    edge_margin_px,
     far_offset,
     offset_halves,
     offset_normal_tilt,
@@ -323,12 +324,16 @@ def _take_refit(result, every, tracks, detected: bool, reported, placed=None):
 
 def _standard_errors(model, tracks, placed=None) -> dict:
     """`model`'s standard errors on `tracks`; where `placed` (the fit that placed its
-    light, and its tracks) is given, the light's are that fit's and the rest are `model`'s
-    with the light held."""
+    light, and its tracks) is given, the light's are that fit's with the BRDF held, and the
+    rest are `model`'s with the light held."""
     if placed is None:
         return map_standard_errors(model, tracks)
-    light = map_standard_errors(*placed)
     held = _light_parameters(model)
+    # The light's given the BRDF: the placing views may hold no highlight, and a lobe they do
+    # not determine would leave every parameter's standard error undetermined (on the shared
+    # sinus, its surface's edge set aside: the offset's too, though the views place it).
+    others = [p.name for p in free_parameters(placed[0]) if p.name not in held]
+    light = map_standard_errors(*placed, freeze=others)
     return map_standard_errors(model, tracks, held) | {
         name: error for name, error in light.items() if name in held
     }
@@ -438,8 +443,11 @@ def near_light_map(
         if placing_train is None:
             return fit(starts, **fixed), None
         placed = fit(starts, placing_train, **fixed)
-        # Held, not frozen: the same tracks' shapes, so the same compiled program.
-        every_view = fit([placed.model], hold=tuple(_light_parameters(placed.model)))
+        # Held, not frozen: the same tracks' shapes, so the same compiled program. From
+        # several roughnesses: the placing views may hold no highlight, and a lobe lost there
+        # (F_tilde 0, where sigma's gradient is 0) would stay lost.
+        held = tuple(_light_parameters(placed.model))
+        every_view = fit(roughness_variants(placed.model), hold=held)
         return every_view, (placed.model, placing_train)
 
     def fit_choice(choice):
@@ -496,12 +504,15 @@ def near_light_map(
     if placing is not tracks and np.isfinite(every.cost):
         say("the BRDF on every view, the light held where the views away from S put it")
         placed = (every.model, placing)
-        every = fit([every.model], tracks, freeze=_light_parameters(every.model))
+        # From several roughnesses, as in `placed_fit`.
+        every = fit(roughness_variants(every.model), tracks, freeze=_light_parameters(every.model))
         result.details["light_placed_by"] = (
             "views farther than "
-            f"{HIGHLIGHT_MARGIN_PX} px from their frame's S and clipped pixels (the shape is "
-            "reconstructed: its normals near the highlights are bridged, not measured); the "
-            "BRDF then refitted on every view with the light held"
+            f"{HIGHLIGHT_MARGIN_PX} px from their frame's S and clipped pixels and "
+            f"{edge_margin_px(capture):g} px from the surface's edge (the shape is "
+            "reconstructed: its normals near the highlights are bridged, along the edge "
+            "extrapolated, not measured); the BRDF then refitted on every view with the light "
+            "held"
         )
     reported = _take_refit(result, every, tracks, detected, reported, placed)
     result.details |= _details(result, capture, choices, errors, detected, offset, reported)

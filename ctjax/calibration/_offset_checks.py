@@ -1,15 +1,16 @@
 """Where the near light's offset is placed from, and what checks it beyond its standard error.
 
 On a shape `ctjax reconstruct` made, the light is fitted to the views away from the
-highlights, where the surface was measured (`away_from_highlights`); the offset is fitted
-again on the even and on the odd frames apart (`offset_halves`) and, on a reconstructed
-shape, with every normal tilted toward and away from the optical axis (`offset_normal_tilt`);
-and an offset further from the lens than an endoscope's light can be is said to be no light
-position (`far_offset`).
+highlights and from the surface's edge, where the surface was measured
+(`away_from_highlights`); the offset is fitted again on the even and on the odd frames
+apart (`offset_halves`) and, on a reconstructed shape, with every normal tilted toward and
+away from the optical axis (`offset_normal_tilt`); and an offset further from the lens than
+an endoscope's light can be is said to be no light position (`far_offset`).
 Used by `near_light_map` (`_near_light.py`).
 """
 
 import dataclasses
+import json
 from pathlib import Path
 
 import cv2
@@ -27,6 +28,17 @@ def reconstructed(capture: Observations) -> bool:
     """Whether the capture's shape is `ctjax reconstruct`'s (its report is in the folder)."""
     root = capture.capture.root
     return root is not None and (Path(root) / "reconstruction.json").is_file()
+
+
+def edge_margin_px(capture: Observations) -> float:
+    """The band along the edge of a reconstructed surface (the image's, or where its depth
+    ends) in which the surface is extrapolated: one knot spacing of its splines
+    (`reconstruction.json`; 0 where it does not say)."""
+    try:
+        report = json.loads((Path(capture.capture.root) / "reconstruction.json").read_text())
+        return float(report["surface"]["knot_spacing_px"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0.0
 
 
 # The share of the views that must lie away from the highlights for them to place the light
@@ -47,17 +59,20 @@ def placing_views(capture: Observations, tracks, right=None):
         return placing, None
     return tracks, (
         f"the light is placed by every view of the reconstructed shape: only {share:.0%} of "
-        f"them lie farther than {HIGHLIGHT_MARGIN_PX} px from their frame's highlights "
-        f"(at least {MIN_PLACING_SHARE:.0%} wanted), and the surface near the highlights is "
-        "bridged by the reconstruction, not measured: the offset may be biased there"
+        f"them lie farther than {HIGHLIGHT_MARGIN_PX} px from their frame's highlights and "
+        f"{edge_margin_px(capture):g} px from the surface's edge (at least "
+        f"{MIN_PLACING_SHARE:.0%} wanted), and the surface there is bridged or extrapolated "
+        "by the reconstruction, not measured: the offset may be biased"
     )
 
 
 def away_from_highlights(capture: Observations, tracks, right=None):
     """`tracks` with every view within `HIGHLIGHT_MARGIN_PX` of its frame's S or clipped
-    pixels weighted 0. `right`: which observations are a stereo capture's right views; one
-    goes with the same point's left view at the same instant (weighted 0 where that one
-    is, or where the left camera did not see the point there).
+    pixels, or within `edge_margin_px` of its surface's edge (the image's, or where the
+    frame's depth ends), weighted 0. `right`: which
+    observations are a stereo capture's right views; one goes with the same point's left
+    view at the same instant (weighted 0 where that one is, or where the left camera did not
+    see the point there).
 
     There a reconstructed surface is no measurement: the texture that places it is clipped
     or moves with the light, so `ctjax reconstruct` masks it and the spline bridges it, and
@@ -71,20 +86,34 @@ def away_from_highlights(capture: Observations, tracks, right=None):
     The BRDF, refitted on every view with the light held, moves by 1-5% in F_tilde (towards
     the truth on 3 of the 4) and at most 1.5% in sigma. On the true shape the same views are
     good data (0.04 mm off with them, 0.15 without): only a reconstructed shape's are set
-    aside, and only to place the light."""
+    aside, and only to place the light.
+
+    Along its edge a reconstructed surface has points on one side only and the spline's
+    penalty straightens it: within a knot spacing of the edge the steepest quarter
+    of its normals is 1.2-5.4 degrees flatter than the truth (`benchmarks/surface_bias.py`,
+    the spline fitted to exact depths), 0.02-0.62 inside. Set aside there too, the light in
+    the lens plane on `ctjax synth --stereo 5 --light-offset 4 -3 0 --inverse-square`
+    (320x256 x 5, reconstructed, seeds 0-3) went from 0.09 / 0.01 / 1.26 / 0.18 mm off to
+    0.11 / 0.02 / 0.38 / 0.17; at 640x512 from 0.09 / 0.04 / 0.29 / 0.11 mm to 0.09 / 0.04 /
+    0.11 / 0.12. (With the offset free along the axis, 320x256: 0.81 / 0.12 / 1.31 / 0.28
+    mm without the band, 0.86 / 0.11 / 0.36 / 0.32 with the image's edge set aside.)"""
     pixel = np.einsum("pmc,pmcd->pmd", tracks.corner_weight, tracks.corner_pixel)
     near = np.zeros(tracks.observed.shape, bool)
-    for index, sets in enumerate(capture.sets):
+    margin = edge_margin_px(capture)
+    for index, (sets, frame) in enumerate(zip(capture.sets, capture.frames, strict=True)):
         at = tracks.observed & (tracks.frame == index)
         if right is not None:
             at &= ~right
-        bright = sets.specular | sets.saturated
-        if not (at.any() and bright.any()):
+        if not at.any():
             continue
-        distance = cv2.distanceTransform((~bright).astype(np.uint8), cv2.DIST_L2, 5)
-        u = np.clip(np.rint(pixel[at][:, 0]).astype(int), 0, bright.shape[1] - 1)
-        v = np.clip(np.rint(pixel[at][:, 1]).astype(int), 0, bright.shape[0] - 1)
-        near[at] = distance[v, u] <= HIGHLIGHT_MARGIN_PX
+        u = np.clip(np.rint(pixel[at][:, 0]).astype(int), 0, sets.specular.shape[1] - 1)
+        v = np.clip(np.rint(pixel[at][:, 1]).astype(int), 0, sets.specular.shape[0] - 1)
+        bright = sets.specular | sets.saturated
+        if bright.any():
+            distance = cv2.distanceTransform((~bright).astype(np.uint8), cv2.DIST_L2, 5)
+            near[at] = distance[v, u] <= HIGHLIGHT_MARGIN_PX
+        if margin > 0:
+            near[at] |= _to_the_surfaces_edge(frame.depth)[v, u] < margin
     if right is not None:
         left = tracks.observed & ~right
         for index in np.unique(tracks.frame[right]):
@@ -93,6 +122,13 @@ def away_from_highlights(capture: Observations, tracks, right=None):
             at = right & (tracks.frame == index)
             near[at] = np.broadcast_to((close | ~seen)[:, None], at.shape)[at]
     return dataclasses.replace(tracks, weight=np.where(near, 0.0, tracks.weight))
+
+
+def _to_the_surfaces_edge(depth: np.ndarray) -> np.ndarray:
+    """Each pixel's distance (px) to the nearest pixel without depth or off the image: where
+    the reconstructed surface's support ends."""
+    support = np.pad(np.isfinite(depth), 1).astype(np.uint8)
+    return cv2.distanceTransform(support, cv2.DIST_L2, 5)[1:-1, 1:-1]
 
 
 # The frames are split in two (even and odd) to check the offset when there are at least this

@@ -429,7 +429,7 @@ def _covariance(model, samples, names, per_point):
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
     if not parameters:
-        return jnp.zeros((0, 0)), 0.0, 0
+        return 0.0, jnp.zeros((0, 0))
     values = [jnp.asarray(p.get(model)) for p in parameters]
     shapes = [v.shape for v in values]
     flat = jnp.concatenate([v.reshape(-1) for v in values])
@@ -451,20 +451,30 @@ def _covariance(model, samples, names, per_point):
     globals_ = (len(model.brdf.lobes) - 1) * samples.channels
     dof = jnp.maximum(observed - points - globals_ - flat.shape[0], 1)
     information = jacobian.T @ jacobian
-    covariance = jnp.sum(residual * residual) / dof * jnp.linalg.pinv(information, hermitian=True)
-    rank = jnp.linalg.matrix_rank(information)
-    return covariance, rank, flat.shape[0]
+    return jnp.sum(residual * residual) / dof, information
+
+
+def _variances(scale: float, information: np.ndarray) -> np.ndarray:
+    """The parameters' variances from their information matrix (times the residuals'
+    variance `scale`): inf for a parameter the data leave alone (a zero column: sigma where
+    every F_tilde is 0), and for every one where the rest are still rank-deficient."""
+    size = len(information)
+    diagonal = np.diagonal(information)
+    determined = diagonal > 1e-12 * max(float(np.max(diagonal, initial=0.0)), 1e-300)
+    variance = np.full(size, np.inf)
+    block = information[np.ix_(determined, determined)]
+    if determined.any() and np.linalg.matrix_rank(block) == determined.sum():
+        variance[determined] = np.abs(np.diagonal(scale * np.linalg.pinv(block, hermitian=True)))
+    return variance
 
 
 def _standard_errors(model, samples, names, per_point) -> dict[str, list | float]:
     """Standard error of every free nonlinear parameter (see `fit_model_map`); None where
-    the data do not determine it (rank-deficient information)."""
+    the data do not determine it (`_variances`)."""
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
-    covariance, rank, size = _covariance(model, samples, names, per_point)
-    variance = np.abs(np.diagonal(np.asarray(covariance)))
-    if int(rank) < size:
-        variance = np.full(size, np.inf)
+    scale, information = _covariance(model, samples, names, per_point)
+    variance = _variances(float(scale), np.asarray(information, np.float64))
     out, start = {}, 0
     for p in parameters:
         count = int(np.size(p.get(model)))
