@@ -106,6 +106,18 @@ def test_a_bad_stereo_block_is_one_clear_error(stereo_capture, tmp_path, stereo,
         load_capture(copy)
 
 
+def test_a_baseline_in_metres_is_noted(stereo_capture, tmp_path):
+    """T is in mm: 0.005 (metres) loads, with a note that says so; 5 mm says nothing."""
+    copy = tmp_path / "c"
+    shutil.copytree(stereo_capture, copy)
+    assert not any("stereo.T" in note for note in load_capture(copy).notes)
+    described = json.loads((copy / "camera.json").read_text())
+    described["stereo"]["T"] = [-0.005, 0.0, 0.0]
+    (copy / "camera.json").write_text(json.dumps(described))
+    notes = [note for note in load_capture(copy).notes if "stereo.T is 0.005 mm" in note]
+    assert len(notes) == 1 and "in millimetres" in notes[0]
+
+
 def test_a_missing_right_image_is_named(stereo_capture, tmp_path):
     copy = tmp_path / "c"
     shutil.copytree(stereo_capture, copy)

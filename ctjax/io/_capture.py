@@ -425,7 +425,22 @@ def load_capture(
                 f"{root / RIGHT}: camera.json describes a stereo camera but the right image of "
                 f"{', '.join(absent[:3])}{' ...' if len(absent) > 3 else ''} is missing"
             )
+        if not BASELINE_MM[0] <= stereo.baseline_mm <= BASELINE_MM[1]:
+            notes = (*notes, _unlikely_baseline(root, stereo.baseline_mm))
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo)
+
+
+# A stereo endoscope's baseline (mm): a da Vinci's 4-5.5, the smallest 3D scopes' about 2.
+BASELINE_MM = (1.0, 30.0)
+
+
+def _unlikely_baseline(root: Path, baseline: float) -> str:
+    return (
+        f"{root / 'camera.json'}: stereo.T is {baseline:.3g} mm long, outside the "
+        f"{BASELINE_MM[0]:g}-{BASELINE_MM[1]:g} mm of a stereo endoscope's baseline (a da "
+        "Vinci's is 4-5.5 mm): T is in millimetres (X_right = R X_left + T; metres give depths "
+        "a thousand times too small)"
+    )
 
 
 # Frames whose images differ by at most this much (recorded units) everywhere are the same
