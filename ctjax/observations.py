@@ -334,7 +334,10 @@ class Observations:
 
     def _follow(self, radius_px, max_points, neighbours, tolerance, seed, frames, anchor_frames):
         from . import _tracks
+        from .io._capture import black_frames
 
+        if black_frames(self.capture):  # not "no anchor pixel with depth and a normal"
+            raise CtjaxError(black_frames(self.capture))
         rng = np.random.default_rng(seed)
         anchors = []
         chosen_frames = range(len(self)) if frames is None else frames

@@ -112,6 +112,13 @@ def _one_frame(root):
         path.unlink()
 
 
+def _black_images(root):
+    """Every frame black but for a level or two of noise (different frames)."""
+    rng = np.random.default_rng(0)
+    for path in _images(root):
+        cv2.imwrite(str(path), rng.integers(0, 3, (48, 64, 3)).astype(np.uint8))
+
+
 def _truncate(root):
     path = _images(root)[0]
     path.write_bytes(path.read_bytes()[:200])
@@ -248,6 +255,13 @@ CAPTURE_CASES = [
         ("fit",),
         "no specular pixels",
         id="no-specular-pixels",
+    ),
+    pytest.param(
+        _black_images,
+        _fit,
+        ("fit",),  # calibrate-light and evaluate: the same (tracks), with 3 frames or more
+        "no frame has a pixel in its field of view: the images are black",
+        id="black-images",
     ),
     pytest.param(
         lambda r: _rewrite_image(r, np.full((48, 64, 3), 255, np.uint8)),

@@ -11,6 +11,7 @@ from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
 from ..io import Capture
+from ..io._capture import black_frames
 from ..lights import ColocatedLight
 from ..lobes import Lambertian
 from ..observations import Observations, usable_mask
@@ -79,7 +80,9 @@ def _require_geometry(capture: Capture) -> None:
         )
     empty = [f.name for f in capture.frames if not f.geometry_mask.any()]
     if len(empty) == len(capture.frames):
-        raise CtjaxError(f"{capture.root}: no pixel of any frame has a valid normal")
+        raise CtjaxError(
+            black_frames(capture) or f"{capture.root}: no pixel of any frame has a valid normal"
+        )
 
 
 def _fit_to_json(fit: BRDFFit) -> dict:

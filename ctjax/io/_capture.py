@@ -430,6 +430,19 @@ def load_capture(
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo)
 
 
+def black_frames(capture: "Capture") -> str | None:
+    """Why no frame has a pixel of the scene, where none has one in its field of view (black
+    images, or all border); None otherwise."""
+    frames = [f for f in capture.frames if f.field_of_view is not None]
+    if not frames or any(f.field_of_view.any() for f in frames):
+        return None
+    brightest = max(float(np.max(frame.image)) for frame in capture.frames)
+    return (
+        f"{capture.root}: no frame has a pixel in its field of view: the images are black "
+        f"(their brightest level {brightest:.3g} of 1), or all border"
+    )
+
+
 # A stereo endoscope's baseline (mm): a da Vinci's 4-5.5, the smallest 3D scopes' about 2.
 BASELINE_MM = (1.0, 30.0)
 
