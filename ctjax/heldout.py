@@ -454,7 +454,10 @@ def simplest_within(
     RMSE is within `tolerance` of the lowest."""
     lowest = min(heldout_rmse)
     if not math.isfinite(lowest):
-        raise CtjaxError("no model produced a finite held-out error")
+        raise CtjaxError(
+            "no model produced a finite held-out error (no held-out view the models could "
+            "predict: too few unclipped views of points the calibration frames also see?)"
+        )
     within = [i for i, value in enumerate(heldout_rmse) if value <= (1 + tolerance) * lowest]
     return min(within, key=lambda i: len(choices[i]))
 

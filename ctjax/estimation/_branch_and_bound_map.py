@@ -409,7 +409,7 @@ def fit_brdf_map(
         raise CtjaxError(
             f"{len(views)} tracked points with {int(observed.sum())} observations: too few "
             "points seen in two frames or more to separate the albedo from the BRDF (poses "
-            "or depth wrong, or frames that do not overlap?)"
+            "or depth wrong, frames that do not overlap, or most views clipped?)"
         )
     values = np.asarray(shading.values)[:, observed]
     if not np.all(np.isfinite(values)):
