@@ -228,7 +228,7 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
 
 def test_a_frame_without_a_pose_falls_back_to_the_uniform_albedo_with_a_warning(tmp_path, capsys):
     """One frame missing from poses.json: the default is still the uniform albedo, but the
-    fit says which frames lack what (a warning on stderr and in the JSON); not when the
+    fit (and diagnose) says which frames lack what (a warning on stderr and in the JSON); not when the
     user asked for the uniform albedo, nor when no frame has a pose."""
     from ctjax.estimation import why_no_albedo_map
 
@@ -247,6 +247,12 @@ def test_a_frame_without_a_pose_falls_back_to_the_uniform_albedo_with_a_warning(
     assert result["albedo"] == "uniform" and result["warnings"][0] == why
     assert main(["fit", str(root), "--json", str(out), "--albedo", "uniform"]) == 0
     assert "frame_001" not in capsys.readouterr().err
+    # diagnose says it too (the paper's base and no candidate here: the warning's wiring).
+    from ctjax.diagnostics import diagnose
+
+    diagnosis = diagnose(load_capture(root), candidates=(), max_samples=500)
+    assert diagnosis.warnings == [why] and diagnosis.to_json()["warnings"] == [why]
+    assert diagnose(load_capture(root), candidates=(), albedo="uniform").warnings == []
     (root / "poses.json").unlink()
     assert why_no_albedo_map(load_capture(root)) is None
 

@@ -3,6 +3,7 @@ in a loop that adds each verdict.
 """
 
 import argparse
+import sys
 from pathlib import Path
 
 from .._units import in_length_unit
@@ -119,6 +120,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
                 f"({step.seconds:.0f} s)"
             )
         print(f"loop stopped: {loop.stopped}; {loop.seconds:.0f} s in all")
+    for warning in diagnosis.warnings:
+        print(f"ctjax diagnose: warning: {warning}", file=sys.stderr)
     if budget is not None:
         print(f"what is left: {budget.summary()}")
     print(highlight_alignment_line(summary["highlight_alignment"]))

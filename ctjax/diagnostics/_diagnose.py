@@ -19,7 +19,7 @@ from .._errors import CtjaxError, ParameterError
 from .._result import Estimate
 from .._threads import checked_workers, in_order
 from .._units import length_unit_of
-from ..estimation import ALBEDO_CHOICES, default_albedo
+from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     ShadingModel,
     fit_model,
@@ -151,6 +151,9 @@ class Diagnosis:
     seconds: float
     # The held-out split every model was judged on (`HeldOut` or `HeldOutTracks`).
     heldout: "HeldOut | HeldOutTracks | None" = None
+    # What the user should know about the diagnosis as a whole (why the albedo map was not
+    # possible where some frames lack a pose or depth, `why_no_albedo_map`).
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def base_rmse(self) -> float:
@@ -180,6 +183,7 @@ class Diagnosis:
                 for c in self.candidates
             ],
             "verdict": self.verdict,
+            "warnings": list(self.warnings),
         }
 
     @property
@@ -464,7 +468,10 @@ def diagnose(
     )
     if albedo is None:
         # The paper's model first; the map when texture is what it misses most.
+        unmapped = why_no_albedo_map(prepared.observations)
         uniform = diagnose(prepared, albedo="uniform", **options)
+        if unmapped is not None:
+            uniform.warnings.insert(0, unmapped)
         if uniform.verdict != "albedo_texture":
             return uniform
         say("the albedo texture is what the paper's model misses most: diagnosing with the map")
