@@ -291,9 +291,15 @@ class HeldOutTracks:
         obs = Observations.of(capture)
         calib, heldout = split_frames(len(obs), calibration, source=obs.root)
         if len(calib) < 2:
+            remedy = (
+                f"--calib between 2 and {len(obs) - 1}"
+                if len(obs) >= 3
+                else f"3 frames or more (the capture has {len(obs)}: 1 to calibrate, 1 held out)"
+            )
             raise CtjaxError(
                 f"{obs.root}: a fit with an albedo map needs at least 2 calibration frames (a "
-                f"point's albedo is one unknown for its views); got {len(calib)}"
+                f"point's albedo is one unknown for its views); got {len(calib)}: give "
+                f"{remedy}, or --albedo uniform (the paper's one albedo)"
             )
         train = obs.tracks(frames=calib, max_points=max_points, seed=seed)
         if right_views:
@@ -448,15 +454,20 @@ def split_for(
 
 
 def simplest_within(
-    choices: Sequence[Sequence], heldout_rmse: Sequence[float], tolerance: float = SIMPLEST_WITHIN
+    choices: Sequence[Sequence],
+    heldout_rmse: Sequence[float],
+    tolerance: float = SIMPLEST_WITHIN,
+    observations: "Observations | None" = None,
 ) -> int:
     """The index of the simplest choice (fewest components, first on ties) whose held-out
-    RMSE is within `tolerance` of the lowest."""
+    RMSE is within `tolerance` of the lowest. `observations`: the capture's, whose clipped
+    share the error gives where no error is finite."""
     lowest = min(heldout_rmse)
     if not math.isfinite(lowest):
         raise CtjaxError(
             "no model produced a finite held-out error (no held-out view the models could "
             "predict: too few unclipped views of points the calibration frames also see?)"
+            + ("" if observations is None else observations.clipped_note())
         )
     within = [i for i, value in enumerate(heldout_rmse) if value <= (1 + tolerance) * lowest]
     return min(within, key=lambda i: len(choices[i]))

@@ -74,6 +74,10 @@ class ShadingSamples(eqx.Module):
 # capture sigma +3.6% against +3.9%, F_tilde 0..+1.9% against -1.2..+0.7%).
 DEFAULT_TRACK_RADIUS_PX = 12.0
 DEFAULT_MAX_TRACKS = 16_000
+# The fewest surface points the albedo map is asked to follow: each point's albedo is told
+# from the BRDF by its views in several frames, and a frame's share of a handful of points
+# rounds to none (`--max-tracks 1` ended in "no anchor pixel").
+MIN_TRACKS = 100
 DEFAULT_NEIGHBOURS = 12  # = ctjax._tracks.DEFAULT_NEIGHBOURS
 
 
@@ -232,6 +236,23 @@ class Observations:
 
         return capture_sets(self.capture, self.masks or MaskOptions())
 
+    def clipped_note(self) -> str:
+        """How much of the frames is clipped, for an error that too few views were left: a
+        saturated capture's cause in numbers (empty where under a tenth of every frame)."""
+        shares = [
+            float(np.mean((s.saturated | s.specular)[f.geometry_mask]))
+            for f, s in zip(self.capture.frames, self.sets, strict=True)
+            if f.geometry_mask.any()
+        ]
+        if not shares or max(shares) < 0.1:
+            return ""
+        low, high = min(shares), max(shares)
+        spread = f" ({low:.0%}-{high:.0%} per frame)" if high - low >= 0.01 else ""
+        return (
+            f"; {np.mean(shares):.0%} of the pixels with geometry are clipped or in S{spread}: "
+            "the exposure may be too high for these views"
+        )
+
     def specular_distance(self, index: int) -> np.ndarray:
         """(H, W): each pixel's distance (px) to the nearest pixel of S in frame `index` (inf
         in a frame without S)."""
@@ -320,6 +341,12 @@ class Observations:
         from . import _tracks
 
         _tracks.require_poses(self.capture)
+        if max_points is not None and not max_points >= MIN_TRACKS:
+            raise ParameterError(
+                f"{self.root}: {max_points} surface points to follow is too few for the albedo "
+                f"map (at least {MIN_TRACKS}: each point's albedo is told from the BRDF by its "
+                "views in several frames); ask for more (--max-tracks, --max-samples)"
+            )
         # Built once per request: the held-out split, the noise floor and the fits of one
         # command ask for the same tracks of the same observations.
         key = (radius_px, max_points, neighbours, tolerance, seed)

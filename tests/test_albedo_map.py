@@ -228,8 +228,8 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
 
 def test_a_frame_without_a_pose_falls_back_to_the_uniform_albedo_with_a_warning(tmp_path, capsys):
     """One frame missing from poses.json: the default is still the uniform albedo, but the
-    fit (and diagnose) says which frames lack what (a warning on stderr and in the JSON); not when the
-    user asked for the uniform albedo, nor when no frame has a pose."""
+    fit (and diagnose) says which frames lack what (a warning on stderr and in the JSON);
+    not when the user asked for the uniform albedo, nor when no frame has a pose."""
     from ctjax.estimation import why_no_albedo_map
 
     root = synthesize(tmp_path / "c", SynthOptions(width=64, height=48, frames=2, seed=3))

@@ -22,7 +22,7 @@ from ctjax import Camera
 from ctjax._errors import CtjaxError
 from ctjax.cli import main
 from ctjax.estimation import capture_sets, fit_capture
-from ctjax.io import load_alta, load_capture
+from ctjax.io import ImportOptions, load_alta, load_capture
 from ctjax.specular import specular_sets
 from ctjax.synth import SynthOptions, synthesize
 
@@ -423,8 +423,19 @@ OPTION_CASES = [
     pytest.param(["reconstruct", "{cap}"], "poses.json: exists", id="reconstruct-would-overwrite"),
     pytest.param(
         ["reconstruct", "{cap}", "--out", "{out}/r", "--knot-px", "nan"],
-        "knot_spacing_px must be a positive finite number",
+        "knot_spacing_px (--knot-px) must be a positive finite number",
         id="reconstruct-nan-knots",
+    ),
+    pytest.param(
+        ["fit", "{cap}", "--json", "{out}/f.json", "--max-tracks", "1"],
+        "1 surface points to follow is too few for the albedo map (at least 100",
+        id="fit-max-tracks-1",
+    ),
+    pytest.param(  # two frames: one to calibrate, where the map needs two
+        ["calibrate-light", "{cap}", "--json", "{out}/c.json"],
+        "give 3 frames or more (the capture has 2: 1 to calibrate, 1 held out), or --albedo "
+        "uniform",
+        id="calibrate-light-map-on-two-frames",
     ),
     pytest.param(
         ["diagnose", "{cap}", "--json", "{out}/d.json", "--loop", "--max-rounds", "0"],
@@ -489,6 +500,12 @@ PARAMETER_CASES = [
         lambda: specular_sets(BLANK, np.ones((8, 8), bool), ring_px=-1.0),
         "ring_px",
         id="specular-sets-negative-ring",
+    ),
+    pytest.param(
+        lambda: ImportOptions(distinct=2.0), "--distinct must be in (0, 1)", id="import-distinct-2"
+    ),
+    pytest.param(
+        lambda: ImportOptions(blur_ratio=1.0), "blur_ratio must be in [0, 1)", id="import-blur-1"
     ),
     pytest.param(
         lambda: specular_sets(BLANK * np.nan, np.ones((8, 8), bool)),

@@ -127,3 +127,27 @@ def test_a_surface_point_has_one_normal_in_every_frame(tmp_path):
     again = one_normal_per_point(tracks, exact)
     seen = tracks.observed
     np.testing.assert_allclose(again.corner_normal[seen], tracks.corner_normal[seen], atol=2e-3)
+
+
+def test_the_clipped_share_is_given_where_a_tenth_or_more_is_clipped(capture):
+    """`clipped_note`, which the errors for too few usable views end with: the share of the
+    pixels with geometry that are clipped or in S, mean and per frame, from a tenth up."""
+    import dataclasses
+
+    obs = Observations.of(capture)
+    assert obs.clipped_note() == ""  # the synthetic highlights: under a tenth
+    clipped = Observations(capture, obs.masks)
+    sets = []
+    for k, (frame, s) in enumerate(zip(capture.frames, obs.sets, strict=True)):
+        rows = np.nonzero(frame.geometry_mask.any(1))[0]
+        band = np.zeros_like(s.clipped)
+        band[rows[: int(len(rows) * (0.2 + 0.3 * k))]] = True  # 20%, 50%, 80% of the rows
+        sets.append(dataclasses.replace(s, clipped=band & frame.geometry_mask[..., None]))
+    clipped.__dict__["sets"] = sets  # the cached sets, as a clipped exposure leaves them
+    shares = [
+        float(np.mean((s.saturated | s.specular)[f.geometry_mask]))
+        for f, s in zip(capture.frames, sets, strict=True)
+    ]
+    note = clipped.clipped_note()
+    assert note.startswith(f"; {np.mean(shares):.0%} of the pixels with geometry are clipped")
+    assert f"({min(shares):.0%}-{max(shares):.0%} per frame)" in note

@@ -154,7 +154,8 @@ def test_the_texture_refinements_smoothing_is_the_users(reconstructed, points_on
     with pytest.raises(ParameterError, match="no-photometric"):
         reconstruct_capture(refined, texture_smoothing=2.0, photometric=False)
     assert main(["reconstruct", str(refined.root), "--texture-smoothing", "-2"]) == 2
-    assert "texture_smoothing must be a positive finite number" in capsys.readouterr().err
+    message = "texture_smoothing (--texture-smoothing) must be a positive finite number"
+    assert message in capsys.readouterr().err
 
 
 def test_metric_depth_and_poses_with_a_known_distance(reconstructed):

@@ -91,6 +91,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     summary = diagnosis.to_json()
     if loop is not None:
         summary["loop"] = loop.to_json()
+        # The first step's (it chose the albedo): the later ones keep its choice.
+        summary["warnings"] = list(loop.steps[0].warnings)
     # What is left of the last model's held-out residual, where no candidate took it.
     final = diagnosis.best_model if diagnosis.verdict != "none" else diagnosis.base.model
     budget = None
@@ -120,7 +122,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                 f"({step.seconds:.0f} s)"
             )
         print(f"loop stopped: {loop.stopped}; {loop.seconds:.0f} s in all")
-    for warning in diagnosis.warnings:
+    for warning in summary["warnings"]:
         print(f"ctjax diagnose: warning: {warning}", file=sys.stderr)
     if budget is not None:
         print(f"what is left: {budget.summary()}")

@@ -136,7 +136,8 @@ def _first_brdf(heldout: HeldOut, falloff, brdf: BRDF | None) -> Estimate:
         )
         for choice in falloff
     ]
-    return fits[simplest_within(falloff, [heldout.heldout_rmse(f.model) for f in fits])]
+    errors = [heldout.heldout_rmse(f.model) for f in fits]
+    return fits[simplest_within(falloff, errors, observations=heldout.capture)]
 
 
 def _field_round(obs, boundary, todo, brdf, solve, knot_px, field):

@@ -243,7 +243,7 @@ def calibrate_near_light(
 
     fits = list(in_order(fit_choice, choices, workers))
     errors = [heldout.heldout_rmse(fit.model) for fit in fits]
-    fit = heldout.judge(fits[simplest_within(choices, errors)])
+    fit = heldout.judge(fits[simplest_within(choices, errors, observations=heldout.capture)])
     if not np.isfinite(fit.heldout_rmse):
         raise CtjaxError("the near-light fit did not produce finite estimates")
     fit.details |= {
@@ -462,7 +462,7 @@ def near_light_map(
         errors.append(error)
         placements.append(placed)
         say(f"  falloff {_name(choice)}: held-out RMSE {error:.3f} levels")
-    chosen = simplest_within(choices, errors)
+    chosen = simplest_within(choices, errors, observations=heldout.capture)
     offset_fit = heldout.judge(fits[chosen], noise_floor=False)
     if not np.isfinite(offset_fit.heldout_rmse):
         raise CtjaxError("the near-light fit did not produce finite estimates")

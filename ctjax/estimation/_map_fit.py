@@ -292,7 +292,10 @@ def fit_albedo_map(
     # The search on every track, not only those anchored near the highlights: with exact
     # geometry the others change nothing (same sigma and F_tilde on 6 captures), but with
     # SfM's (the demo's capture) sigma went from +4.1% to +5.8% without them.
-    fit = fit_brdf_map(shading, family, tolerance=tolerance)
+    try:
+        fit = fit_brdf_map(shading, family, tolerance=tolerance)
+    except CtjaxError as error:
+        raise CtjaxError(f"{obs.root}: {error}{obs.clipped_note()}") from None
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
     # The lobes' gain counts against the same diffuse term without them.
     plain = (

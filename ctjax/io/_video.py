@@ -69,8 +69,10 @@ class ImportOptions:
             int(self.max_frames) != self.max_frames or self.max_frames < 2
         ):
             raise ParameterError(f"--max-frames must be an integer >= 2, got {self.max_frames}")
-        if not 0 < self.distinct < 1 or not 0 <= self.blur_ratio < 1:
-            raise ParameterError("distinct must be in (0, 1) and blur_ratio in [0, 1)")
+        if not 0 < self.distinct < 1:
+            raise ParameterError(f"--distinct must be in (0, 1), got {self.distinct}")
+        if not 0 <= self.blur_ratio < 1:
+            raise ParameterError(f"blur_ratio must be in [0, 1), got {self.blur_ratio}")
         if self.width is not None and (int(self.width) != self.width or self.width < 16):
             raise ParameterError(f"--width must be an integer >= 16, got {self.width}")
 

@@ -69,12 +69,13 @@ class Reconstruction:
 
 def _check_scale(scale_mm, volume_mm3, knot_spacing_px=None, texture_smoothing=None) -> None:
     if scale_mm is not None and volume_mm3 is not None:
-        raise ParameterError("give scale_mm or volume_mm3, not both")
+        raise ParameterError("give scale_mm (--scale-mm) or volume_mm3 (--volume-mm3), not both")
+    # Each named as the Python API and the command line call it.
     given = (
-        ("scale_mm", scale_mm),
-        ("volume_mm3", volume_mm3),
-        ("knot_spacing_px", knot_spacing_px),
-        ("texture_smoothing", texture_smoothing),
+        ("scale_mm (--scale-mm)", scale_mm),
+        ("volume_mm3 (--volume-mm3)", volume_mm3),
+        ("knot_spacing_px (--knot-px)", knot_spacing_px),
+        ("texture_smoothing (--texture-smoothing)", texture_smoothing),
     )
     for name, value in given:
         if value is not None and not (math.isfinite(value) and value > 0):
