@@ -138,10 +138,11 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
         "noise_floor",
         "candidates",
         "verdict",
+        "warnings",
         "residual_budget",
         "highlight_alignment",
     ]
-    assert result["length_unit"] == "mm"
+    assert result["length_unit"] == "mm" and result["warnings"] == []
     assert result["verdict"] == "light_offset"
     # A few solid highlights a frame, about the true normals: never said to be misoriented.
     alignment = result["highlight_alignment"]
@@ -165,8 +166,9 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
         assert entry["seconds"] > 0 and entry["steps"] >= 0
     rmses = [c["heldout_rmse"] for c in result["candidates"]]
     assert rmses == sorted(rmses)
-    offset = result["candidates"][0]["params"]["light.position_mm"]
-    np.testing.assert_allclose(offset, [0.0, -6.0, 0.0], atol=0.5)
+    # In the lens plane (`LensPlaneLight`), as calibrate-light fits it.
+    offset = result["candidates"][0]["params"]["light.offset_mm"]
+    np.testing.assert_allclose(offset, [0.0, -6.0], atol=0.5)
     for name in ("residual_maps.png", "binned_residuals.png"):
         assert (tmp_path / "plots" / name).stat().st_size > 10_000
 

@@ -5,12 +5,13 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._candidate import AbstractCandidate
 from .._convert import FIXED, as_float, check_finite, check_positive, check_shape, named
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
 from .._vector import Vec3
 from ._light import AbstractFalloff, AbstractLight
-from ._point import _irradiance
+from ._point import ColocatedLight, PointLight, _irradiance, offset_starts
 
 
 class LensPlaneLight(AbstractLight):
@@ -60,3 +61,43 @@ class LensPlaneLight(AbstractLight):
         light_to_point = point - Vec3.from_array(self.position_mm)
         direction = safe_normalize(-light_to_point)
         return direction, _irradiance(self.intensity, self.falloff, light_to_point)
+
+
+class LightOffsetCandidate(AbstractCandidate):
+    """The light guide beside the lens: a point light at an offset in the lens plane
+    (`LensPlaneLight`, where a scope's fibres end; `calibrate-light`'s default too), from
+    four starts (the cost is not convex in the position). Free along the optical axis, a
+    point light stood in for a falloff the model lacks: on the shared sinus video it went
+    1.08 working distances behind the lens. (`synthesize` places it anywhere.)"""
+
+    name = "light_offset"
+
+    def __call__(self, model, context):
+        light = model.light
+        if not isinstance(light, ColocatedLight):
+            return []
+        offsets = offset_starts(context.get("length_unit", "mm"), context["median_depth_mm"])
+        return [
+            eqx.tree_at(
+                lambda m: m.light,
+                model,
+                LensPlaneLight(jnp.asarray(o[:2], float), falloff=light.falloff),
+            )
+            for o in offsets
+        ]
+
+    def add_synth_arguments(self, group):
+        group.add_argument(
+            "--light-offset",
+            type=float,
+            nargs=3,
+            metavar=("X", "Y", "Z"),
+            help="point light at this camera-frame offset from the lens, mm",
+        )
+
+    def synth_value(self, args):
+        return tuple(args.light_offset) if args.light_offset else None
+
+    def synthesize(self, model, value, context):
+        light = PointLight(jnp.asarray(value, float), falloff=model.light.falloff)
+        return eqx.tree_at(lambda m: m.light, model, light)

@@ -1,9 +1,7 @@
 from typing import ClassVar
 
 import equinox as eqx
-import jax.numpy as jnp
 
-from .._candidate import AbstractCandidate
 from .._convert import FIXED, as_float, check_finite, check_positive, check_shape, named
 from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
@@ -86,38 +84,3 @@ def offset_starts(length_unit: str = "mm", median_depth: float = 1.0) -> list[tu
     in the capture's length unit."""
     step = OFFSET_START_MM if length_unit == "mm" else OFFSET_START_RELATIVE * median_depth
     return [(step, 0.0, 0.0), (-step, 0.0, 0.0), (0.0, step, 0.0), (0.0, -step, 0.0)]
-
-
-class LightOffsetCandidate(AbstractCandidate):
-    """The light guide beside the lens: a point light at an offset, from four starts (the
-    cost is not convex in the position)."""
-
-    name = "light_offset"
-
-    def __call__(self, model, context):
-        light = model.light
-        if not isinstance(light, ColocatedLight):
-            return []
-        offsets = offset_starts(context.get("length_unit", "mm"), context["median_depth_mm"])
-        return [
-            eqx.tree_at(
-                lambda m: m.light, model, PointLight(jnp.asarray(o, float), falloff=light.falloff)
-            )
-            for o in offsets
-        ]
-
-    def add_synth_arguments(self, group):
-        group.add_argument(
-            "--light-offset",
-            type=float,
-            nargs=3,
-            metavar=("X", "Y", "Z"),
-            help="point light at this camera-frame offset from the lens, mm",
-        )
-
-    def synth_value(self, args):
-        return tuple(args.light_offset) if args.light_offset else None
-
-    def synthesize(self, model, value, context):
-        light = PointLight(jnp.asarray(value, float), falloff=model.light.falloff)
-        return eqx.tree_at(lambda m: m.light, model, light)
