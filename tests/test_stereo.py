@@ -196,10 +196,12 @@ def test_the_near_light_fitted_with_the_shape(tmp_path, monkeypatch):
     light = _shading_light("near", capture)
     refined, report = _shading.refine_shape_by_shading(capture, light=light)
     assert report["cost_after"] < report["cost_before"]
-    assert "PointLight fitted jointly (position_mm)" in report["model"]
+    # In the lens plane (`LensPlaneLight`), as calibrate-light fits it.
+    assert "LensPlaneLight fitted jointly (offset_mm)" in report["model"]
     assert report["light"]["length_unit"] == "mm"
     position = np.asarray(report["light"]["position_mm"])
-    assert np.linalg.norm(position - offset) < 1.0  # measured: 0.52 mm
+    assert position[2] == 0 and report["light"]["offset_mm"] == list(position[:2])
+    assert np.linalg.norm(position - offset) < 0.5  # measured: 0.31 mm (0.52 with the axis free)
     assert report["sigma_after"] == pytest.approx(0.2, rel=0.05)  # measured: 0.2004
     assert report["median_normal_change_deg"] < 1.0  # measured: 0.56
     for frame, before in zip(refined.frames, capture.frames, strict=True):
@@ -265,7 +267,7 @@ def test_reconstruct_from_the_pairs_alone(stereo_capture, tmp_path):
         assert np.median(np.degrees(np.arccos(np.clip(cosine, -1, 1)))) < 6
     with pytest.raises(ParameterError, match="no scale"):
         reconstruct(stereo_capture, tmp_path / "x", stereo="pairs", scale_mm=60.0)
-    with pytest.raises(ParameterError, match="knot_spacing_px must be a positive"):
+    with pytest.raises(ParameterError, match=r"knot_spacing_px \(--knot-px\) must be a positive"):
         reconstruct(stereo_capture, tmp_path / "x", stereo="pairs", knot_spacing_px=0.0)
 
 

@@ -318,9 +318,10 @@ def reconstruct(
     pixel, so that `load_capture` (which undistorts them) reads them back on its grid.
     `shading`: then refine the shape by the shading of every frame, one world surface fitted
     with the BRDF (`_shading.py`): True or "camera" with the paper's light, at the camera;
-    "near" jointly with a point light's position (inverse-square falloff, from the lens:
-    `SHADING_LIGHTS`); the report's `surface.shading` says what it did (with "near", the
-    light's fitted `position_mm` in the capture's length unit), or why it was skipped. `stereo`: see
+    "near" jointly with a point light's offset in the lens plane (inverse-square falloff,
+    from the lens: `SHADING_LIGHTS`); the report's `surface.shading` says what it did (with
+    "near", the light's fitted `position_mm` in the capture's length unit), or why it was
+    skipped. `stereo`: see
     `reconstruct_capture` (a stereo capture is in mm without a size given). `focal`: see
     `reconstruct_capture`; a refined focal length is written into `out`'s camera.json (in
     place only with `force`), the given one kept in the report. `knot_spacing_px`: the dense
@@ -404,10 +405,11 @@ SHADING_LIGHTS = ("camera", "near")
 
 def _shading_light(name: str, capture: Capture):
     """The light the shading refinement starts from: the paper's (held), or a point light at
-    the lens with inverse-square falloff at the working distance (its position fitted)."""
+    the lens with inverse-square falloff at the working distance, its offset fitted in the
+    lens plane (`LensPlaneLight`, as calibrate-light fits it by default)."""
     import jax.numpy as jnp
 
-    from ..lights import InverseSquare, PointLight
+    from ..lights import InverseSquare, LensPlaneLight
 
     if name not in SHADING_LIGHTS:
         raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {name!r}")
@@ -415,7 +417,7 @@ def _shading_light(name: str, capture: Capture):
         return None
     depth = np.concatenate([f.depth[np.isfinite(f.depth)] for f in capture.frames])
     reference = float(np.median(depth))
-    return PointLight(jnp.zeros(3), falloff=(InverseSquare(reference),))
+    return LensPlaneLight(jnp.zeros(2), falloff=(InverseSquare(reference),))
 
 
 def _refine_by_shading(out: Path, distorted: bool, progress, light: str = "camera") -> dict:

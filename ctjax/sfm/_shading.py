@@ -370,16 +370,20 @@ SIGMA_STARTS = (0.05, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7)
 
 
 def _light_starts(light, length_unit: str, median_depth: float) -> list:
-    """The light itself and, for a point light, its position moved by each of
-    `offset_starts` (the cost is not convex in the position)."""
-    from ..lights import PointLight
+    """The light itself and, for a light with a position (`position_field`: a
+    `PointLight`'s, a `LensPlaneLight`'s offset in the lens plane), that position moved by
+    each of `offset_starts` (the cost is not convex in the position)."""
     from ..lights._point import offset_starts
 
-    if not isinstance(light, PointLight):
+    field = getattr(type(light), "position_field", None)
+    if field is None:
         return [light]
-    moved = lambda offset: eqx.tree_at(  # noqa: E731
-        lambda l: l.position_mm, light, light.position_mm + jnp.asarray(offset, float)
-    )
+    position = getattr(light, field)
+
+    def moved(offset):
+        step = jnp.asarray(offset[: position.shape[0]], float)
+        return eqx.tree_at(lambda l: getattr(l, field), light, position + step)
+
     return [light] + [moved(o) for o in offset_starts(length_unit, median_depth)]
 
 
@@ -476,11 +480,11 @@ def refine_shape_by_shading(
     The capture needs depth, normals and poses (world = a camera looking at the surface,
     as `reconstruct` writes them). `light`: the laparoscope's light (`ctjax.lights`; the
     paper's, at the camera, by default); with `fit_light` its free parameters (a
-    `PointLight`'s position, a spot's exponent) are fitted jointly with the surface, from
-    their given values (the report's `light`). `smoothing`, `iterations`, `max_points`:
-    `SMOOTHING`, `ITERATIONS`, `MAX_POINTS` by default. A refinement that turns the normals
-    by more than `MAX_NORMAL_CHANGE_DEG` (median) is not kept: the capture comes back as it
-    was and the report's `rejected` says why."""
+    `LensPlaneLight`'s offset, a `PointLight`'s position, a spot's exponent) are fitted
+    jointly with the surface, from their given values (the report's `light`). `smoothing`,
+    `iterations`, `max_points`: `SMOOTHING`, `ITERATIONS`, `MAX_POINTS` by default. A
+    refinement that turns the normals by more than `MAX_NORMAL_CHANGE_DEG` (median) is not
+    kept: the capture comes back as it was and the report's `rejected` says why."""
     smoothing = SMOOTHING if smoothing is None else smoothing
     iterations = ITERATIONS if iterations is None else iterations
     max_points = MAX_POINTS if max_points is None else max_points
@@ -532,6 +536,8 @@ def refine_shape_by_shading(
         report["light"] = {
             p.name: np.asarray(p.get(fitted)).tolist() for p in problem.free.parameters
         }
+        if hasattr(fitted, "position_mm"):  # (x, y, z) whatever the light fits of it
+            report["light"]["position_mm"] = np.asarray(fitted.position_mm).tolist()
         # Positions are in the capture's length unit, whatever the field is called.
         report["light"]["length_unit"] = unit[0]
     if report["median_normal_change_deg"] > MAX_NORMAL_CHANGE_DEG:
