@@ -119,6 +119,15 @@ def _black_images(root):
         cv2.imwrite(str(path), rng.integers(0, 3, (48, 64, 3)).astype(np.uint8))
 
 
+def _white_images(root):
+    """Every frame white (every channel at full scale) but for a few darker pixels (different
+    frames): a saturated exposure, not a black one."""
+    for k, path in enumerate(_images(root)):
+        image = np.full((48, 64, 3), 255, np.uint8)
+        image[10 + k, 10:14] = 100
+        cv2.imwrite(str(path), image)
+
+
 def _truncate(root):
     path = _images(root)[0]
     path.write_bytes(path.read_bytes()[:200])
@@ -262,6 +271,14 @@ CAPTURE_CASES = [
         ("fit",),  # calibrate-light and evaluate: the same (tracks), with 3 frames or more
         "no frame has a pixel in its field of view: the images are black",
         id="black-images",
+    ),
+    pytest.param(
+        _white_images,
+        _fit,
+        ("fit",),
+        "no frame has a pixel in its field of view: the images are saturated (100% of the "
+        "pixels white",
+        id="white-images",
     ),
     pytest.param(
         lambda r: _rewrite_image(r, np.full((48, 64, 3), 255, np.uint8)),

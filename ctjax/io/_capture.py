@@ -437,6 +437,13 @@ def black_frames(capture: "Capture") -> str | None:
     if not frames or any(f.field_of_view.any() for f in frames):
         return None
     brightest = max(float(np.max(frame.image)) for frame in capture.frames)
+    white = np.mean([np.mean(np.all(f.image >= 254.5 / 255, axis=-1)) for f in capture.frames])
+    if white > 0.5:  # a flat field at full scale is no scene either (and not black)
+        return (
+            f"{capture.root}: no frame has a pixel in its field of view: the images are "
+            f"saturated ({white:.0%} of the pixels white, every channel at full scale): lower "
+            "the exposure or the light"
+        )
     return (
         f"{capture.root}: no frame has a pixel in its field of view: the images are black "
         f"(their brightest level {brightest:.3g} of 1), or all border"
