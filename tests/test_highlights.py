@@ -104,6 +104,21 @@ def test_a_white_icon_with_sharp_edges_is_an_overlay_in_one_frame():
     assert not (overlay & frame.inside & (frame.specular > 0.3)).any()
 
 
+def test_an_over_exposed_region_is_clipped_scene_not_an_overlay():
+    """White over most of a frame, even with a sharp edge, is the scene at full scale: its
+    pixels stay in view, in S or clipped (an icon is small)."""
+    frame = real_like_frame("colon", 480, 270, seed=1)
+    image = frame.image.copy()
+    image[:, :300] = 1.0
+    assert not white_overlays([image])[:, :300].any()
+    visible = visible_masks([image])[0]
+    white = frame.inside & ~frame.icon
+    white[:, 300:] = False
+    assert visible[white].mean() > 0.95  # less the field of view's margin by its border
+    sets = specular_sets(image, visible=visible)
+    assert (sets.specular | sets.saturated)[white & visible].all()
+
+
 def test_the_paper_rule_and_its_thresholds_are_options(tmp_path, capsys):
     frame = real_like_frame("liver", 160, 90, seed=0)
     _capture(tmp_path / "c", frame)

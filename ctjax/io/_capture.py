@@ -430,20 +430,32 @@ def load_capture(
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo)
 
 
+# A capture whose frames are white (every channel at full scale) over at least this share
+# of their view on average is saturated: nothing to measure.
+SATURATED_SHARE = 0.95
+
+
 def black_frames(capture: "Capture") -> str | None:
     """Why no frame has a pixel of the scene, where none has one in its field of view (black
-    images, or all border); None otherwise."""
+    images, or all border), or where the frames are white over `SATURATED_SHARE` of their
+    view (saturated); None otherwise."""
+    if not capture.frames:
+        return None
+
+    def white(frame) -> float:
+        where = frame.visible if frame.visible.any() else slice(None)
+        return float(np.mean(np.all(frame.image[where] >= 254.5 / 255, axis=-1)))
+
+    share = float(np.mean([white(f) for f in capture.frames]))
+    if share >= SATURATED_SHARE:  # a flat field at full scale is no scene (and not black)
+        return (
+            f"{capture.root}: the images are saturated ({share:.0%} of the pixels white, "
+            "every channel at full scale): lower the exposure or the light"
+        )
     frames = [f for f in capture.frames if f.field_of_view is not None]
     if not frames or any(f.field_of_view.any() for f in frames):
         return None
     brightest = max(float(np.max(frame.image)) for frame in capture.frames)
-    white = np.mean([np.mean(np.all(f.image >= 254.5 / 255, axis=-1)) for f in capture.frames])
-    if white > 0.5:  # a flat field at full scale is no scene either (and not black)
-        return (
-            f"{capture.root}: no frame has a pixel in its field of view: the images are "
-            f"saturated ({white:.0%} of the pixels white, every channel at full scale): lower "
-            "the exposure or the light"
-        )
     return (
         f"{capture.root}: no frame has a pixel in its field of view: the images are black "
         f"(their brightest level {brightest:.3g} of 1), or all border"

@@ -25,7 +25,8 @@ structure-from-motion features.
   tolerance by chance), and not a clipped highlight's core, which can stay put while the
   camera moves (its surroundings stay whitish in every frame; a UI element's are tissue).
   In a few frames, or one (`white_overlays`): blobs of at least `MIN_OVERLAY_PX` pixels
-  (at 1080p, scaled to the image's area; at least `MIN_OVERLAY_PX_ANY`) whose every
+  (at 1080p, scaled to the image's area; at least `MIN_OVERLAY_PX_ANY`) and at most
+  `MAX_OVERLAY_SHARE` of the image (a larger white region is over-exposed scene) whose every
   channel is at the top (`OVERLAY_WHITE`) in every frame, and whose surroundings 2 px out
   have the local tissue's colour in every frame: a drawn icon or text has a sharp edge
   onto the tissue, a clipped highlight's core fades into a halo whiter than the tissue
@@ -70,6 +71,9 @@ OVERLAY_WHITE = 252 / 255
 # at least MIN_OVERLAY_PX_ANY: an icon or a glyph is drawn to be read) ...
 MIN_OVERLAY_PX = 40
 MIN_OVERLAY_PX_ANY = 30
+# ... and of at most this share of the image: drawn to be read beside the scene, not over
+# it (a white region larger than that is the scene, over-exposed: clipped, not overlaid) ...
+MAX_OVERLAY_SHARE = 0.05
 # ... whose surroundings 2 px out are tissue: on average at most this far from the local
 # tissue's colour towards white (a highlight's halo is whiter than the tissue) ...
 OVERLAY_EDGE_WHITENING = 0.25
@@ -196,7 +200,8 @@ def white_overlays(images: list[np.ndarray]) -> np.ndarray:
     count, labels, stats, _ = cv2.connectedComponentsWithStats(white.astype(np.uint8), 8)
     width = white.shape[1]
     smallest = max(MIN_OVERLAY_PX_ANY, MIN_OVERLAY_PX * (width / 1920) ** 2)
-    sharp = stats[:, cv2.CC_STAT_AREA] >= smallest
+    area = stats[:, cv2.CC_STAT_AREA]
+    sharp = (area >= smallest) & (area <= MAX_OVERLAY_SHARE * white.size)
     sharp[0] = False
     if not sharp.any():
         return np.zeros(white.shape, bool)
