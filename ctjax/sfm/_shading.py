@@ -409,6 +409,27 @@ def _starts(points: _Points, sigma: float, residual, length_unit: str, median_de
 # sigma 0.83 where the truth is 0.2, the position 0.5-0.8 mm off).
 LIGHT_STARTS = 2
 GLOBAL_ITERATIONS = 8
+# ... starts whose roughnesses differ by this factor at least: a broad lobe with the light
+# misplaced and a sharp one are two basins, and the best starts can all lie in one. Seed 1
+# of `ctjax synth --stereo 5 --light-offset 4 -3 0 --inverse-square` 320x256 x 8: the two best
+# starts were sigma 0.7 and 0.83 (the BnB's) with one light; both ran to sigma 1.15 (cost
+# 0.508) and the joint fit to 1.13 with the light 1.03 mm off, where the best start of
+# sigma 0.2 ran to 0.17 (cost 0.504), the joint fit to 0.167 and 0.62 mm.
+DISTINCT_SIGMA = 2.0
+
+
+def _distinct_starts(starts: list, size: int, count: int) -> list:
+    """The `count` best of `starts` (cost, theta; lowest cost first) whose roughnesses
+    (theta[size]) are each at least `DISTINCT_SIGMA` times apart from the better ones'."""
+    chosen, sigmas = [], []
+    for cost, theta in starts:
+        sigma = float(theta[size])
+        if all(max(sigma / s, s / sigma) >= DISTINCT_SIGMA for s in sigmas):
+            chosen.append((cost, theta))
+            sigmas.append(sigma)
+        if len(chosen) == count:
+            break
+    return chosen
 
 
 def _levenberg_marquardt(
@@ -459,7 +480,8 @@ def _levenberg_marquardt(
     cost, steps = first, 0
     if points.problem.free.size:
         held = slice(size, None)
-        found = [descend(t, c, held, GLOBAL_ITERATIONS, "light") for c, t in starts[:LIGHT_STARTS]]
+        distinct = _distinct_starts(starts, size, LIGHT_STARTS)
+        found = [descend(t, c, held, GLOBAL_ITERATIONS, "light") for c, t in distinct]
         theta, cost, steps = min(found, key=lambda f: f[1])
     theta, cost, more = descend(theta, cost, slice(None), iterations, "iteration")
     return theta, first, cost, steps + more
