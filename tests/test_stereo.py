@@ -213,7 +213,7 @@ def test_the_light_is_fitted_from_a_sharp_and_a_broad_lobe():
     """The light-only descents start from roughnesses apart (a broad lobe with the light
     misplaced and a sharp one are two basins), not from the best starts alone: those were
     sigma 0.7 and 0.83 on a capture whose lobe is 0.2 (docs/user-guide/reconstruct.md)."""
-    from ctjax.sfm._shading import _distinct_starts
+    from ctjax.sfm._shading_starts import distinct_starts
 
     size = 3  # theta: 3 spline coefficients, then sigma
     starts = [
@@ -221,9 +221,9 @@ def test_the_light_is_fitted_from_a_sharp_and_a_broad_lobe():
         for cost, sigma in ((0.547, 0.7), (0.552, 0.83), (0.569, 0.2), (0.571, 0.15), (0.6, 0.05))
     ]
     sigmas = lambda chosen: [float(theta[size]) for _, theta in chosen]  # noqa: E731
-    assert sigmas(_distinct_starts(starts, size, 2)) == [0.7, 0.2]
-    assert sigmas(_distinct_starts(starts, size, 3)) == [0.7, 0.2, 0.05]
-    assert [c for c, _ in _distinct_starts(starts, size, 1)] == [0.547]
+    assert sigmas(distinct_starts(starts, size, 2)) == [0.7, 0.2]
+    assert sigmas(distinct_starts(starts, size, 3)) == [0.7, 0.2, 0.05]
+    assert [c for c, _ in distinct_starts(starts, size, 1)] == [0.547]
 
 
 def test_an_unknown_shading_light_is_named(stereo_capture, tmp_path):
