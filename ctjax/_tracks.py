@@ -32,6 +32,7 @@ import numpy as np
 
 from ._camera import Camera
 from ._errors import CtjaxError
+from ._geometry import cross
 
 # Frames a point is looked for in besides its own: the nearest in camera position. Bounds
 # memory and time on long videos; a short capture uses all of its frames.
@@ -545,10 +546,10 @@ def one_normal_per_point(tracks: Tracks, capture) -> Tracks:
     own, turn, seen, mean = _views_and_mean(tracks, capture)
     target = np.einsum("pmji,pj->pmi", turn, mean)  # in each frame: the transpose
     # The least rotation taking u to v: x + w x x + w x (w x x) / (1 + u.v), w = u x v.
-    w = np.cross(own, target)[:, :, None, :]
+    w = cross(own, target)[:, :, None, :]
     c = np.sum(own * target, axis=-1)[:, :, None, None]
     x = tracks.corner_normal
-    turned = x + np.cross(w, x) + np.cross(w, np.cross(w, x)) / np.maximum(1 + c, 1e-6)
+    turned = x + cross(w, x) + cross(w, cross(w, x)) / np.maximum(1 + c, 1e-6)
     keep = (seen[..., None, None] & (c > 0)) & np.all(np.isfinite(turned), -1, keepdims=True)
     normals = np.where(keep, turned, x).astype(x.dtype)
     return dataclasses.replace(tracks, corner_normal=normals)
