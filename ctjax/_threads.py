@@ -8,6 +8,7 @@ program on the same data, only when it runs changes.
 
 import concurrent.futures
 import os
+import threading
 from collections.abc import Callable, Iterable, Iterator
 
 from ._errors import ParameterError
@@ -42,3 +43,21 @@ def in_order(fn: Callable, items: Iterable, workers: int) -> Iterator:
         return
     with concurrent.futures.ThreadPoolExecutor(min(workers, len(items))) as pool:
         yield from pool.map(fn, items)
+
+
+def started(fn: Callable, *args) -> concurrent.futures.Future:
+    """`fn(*args)` running on a thread of its own, beside what the caller does next; the
+    future's `result()` waits for it and raises what it raised. A daemon thread: a command
+    that fails before it asks for the result ends without waiting for it."""
+    future = concurrent.futures.Future()
+
+    def run():
+        if future.set_running_or_notify_cancel():
+            try:
+                future.set_result(fn(*args))
+            except BaseException as error:  # handed to whoever asks for the result
+                future.set_exception(error)
+
+    name = f"ctjax {getattr(fn, '__name__', 'task')}"
+    threading.Thread(target=run, name=name, daemon=True).start()
+    return future

@@ -1,5 +1,6 @@
 """Fits on threads (`ctjax._threads`): results in the items' order, errors where they come."""
 
+import threading
 import time
 
 import pytest
@@ -35,3 +36,23 @@ def test_workers_are_checked_and_default_to_the_cores():
     for bad in (0, -1, 1.5, True, "2"):
         with pytest.raises(ParameterError, match="workers must be a positive integer"):
             checked_workers(bad)
+
+
+def test_a_started_call_runs_beside_the_caller_and_hands_back_its_result_or_error():
+    from ctjax._threads import started
+
+    gate = threading.Event()
+
+    def waits_for_the_caller(k):
+        assert gate.wait(5), "the caller was blocked: started() did not return at once"
+        return k + 1
+
+    future = started(waits_for_the_caller, 41)
+    gate.set()  # reached only if started() returned before its function finished
+    assert future.result(timeout=5) == 42
+
+    def fails():
+        raise ValueError("in the thread")
+
+    with pytest.raises(ValueError, match="in the thread"):
+        started(fails).result(timeout=5)

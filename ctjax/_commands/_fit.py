@@ -108,6 +108,7 @@ def run_fit(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from .._threads import started
     from ..estimation import PAPER, TWO_SCALES, with_diffuse
     from ..estimation._capture_fit import fit_capture
     from ..io._atomic import atomic_write_json, atomic_write_npy
@@ -145,6 +146,8 @@ def run_fit(args: argparse.Namespace) -> int:
         from ..estimation._patches import patch_observations
 
         observations = patch_observations(capture, masks, args.patch, kernel=args.patch_kernel)
+    # The sparkle density beside the fit, on a thread (it reads the images and S alone).
+    sparkles = started(sparkle_density_summary, capture, observations.sets)
     estimate = fit_capture(
         observations,
         masks,
@@ -164,7 +167,7 @@ def run_fit(args: argparse.Namespace) -> int:
                 name = key.removeprefix("albedo/")
                 atomic_write_npy(args.albedo_maps / f"{name}.npy", albedo.astype(np.float32))
     result = estimate.to_json()
-    result["sparkle_density"] = sparkle_density_summary(capture, observations.sets)
+    result["sparkle_density"] = sparkles.result()
     if args.patch > 1:
         from ..estimation._patches import patch_summary
 

@@ -24,6 +24,7 @@ from .._model import ShadingModel
 from .._result import Estimate
 from .._right_views import with_right_views
 from .._status import Status
+from .._threads import started
 from .._tracks import DEFAULT_NEIGHBOURS, frames_disagree_deg, require_poses
 from ..lights import ColocatedLight, SpotFalloff
 from ..lobes import Lambertian
@@ -281,7 +282,7 @@ def fit_albedo_map(
     per_point = family.weight_names.index("rho_tilde")
     options = {} if max_points is None else {"max_points": max_points}
     tracks = obs.tracks(neighbours=neighbours, **options)
-    disagree = frames_disagree_deg(tracks, capture)
+    disagree = started(frames_disagree_deg, tracks, capture)  # beside the fits below
     right = None
     if right_views:
         tracks, right = with_right_views(capture, tracks)
@@ -296,6 +297,9 @@ def fit_albedo_map(
         fit = fit_brdf_map(shading, family, tolerance=tolerance)
     except CtjaxError as error:
         raise CtjaxError(f"{obs.root}: {error}{obs.clipped_note()}") from None
+    # The halves' fits beside everything below, on a thread (their program is the fit's,
+    # loaded by now, and XLA runs it without the GIL).
+    halves_of = started(_halves, tracks, shading, family, tolerance, len(capture))
     lambertian = fit_brdf_map(shading, LAMBERTIAN)
     # The lobes' gain counts against the same diffuse term without them.
     plain = (
@@ -303,7 +307,6 @@ def fit_albedo_map(
         if family.diffuse is Lambertian
         else fit_brdf_map(shading, diffuse_alone(family), tolerance=tolerance)
     )
-    halves = _halves(tracks, shading, family, tolerance, len(capture))
     for result in (fit, lambertian, plain):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
@@ -353,7 +356,7 @@ def fit_albedo_map(
         ),
         "normals": {
             **_normal_sensitivity(capture, fit, shading, per_point),
-            "frames_disagree_deg": _number(disagree),
+            "frames_disagree_deg": _number(disagree.result()),
             "frames_disagree_note": "RMS angle between each view's normal in its own frame "
             "and the point's one normal (the mean of its views', which the fit uses)",
         },
@@ -369,6 +372,7 @@ def fit_albedo_map(
         arrays=arrays,
         cost=float(fit.cost),
     )
+    halves = halves_of.result()
     if halves:
         estimate.details["halves"] = {
             part: _map_fit_json(half, per_point) for part, half in halves.items()

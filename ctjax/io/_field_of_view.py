@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from .._errors import ParameterError
+from .._threads import default_workers, in_order
 from .._tissue import channel_max, channel_min, local_tissue
 
 # The border's brightest channel is at most this (recorded values in [0, 1]): 15 of 255.
@@ -210,10 +211,10 @@ def white_overlays(images: list[np.ndarray]) -> np.ndarray:
     band = (labels == 0) & (grown > 0) & ~cv2.dilate(white.astype(np.uint8), _disk(1)).astype(bool)
     owner = grown[band].astype(np.int64)
     pixels = np.maximum(np.bincount(owner, minlength=count), 1)
-    for image in images:
-        sharp &= np.bincount(owner, _whitening(image, white, band), count) / pixels <= (
-            OVERLAY_EDGE_WHITENING
-        )
+    # The frames on threads (OpenCV and NumPy release the GIL).
+    whitened = in_order(lambda image: _whitening(image, white, band), images, default_workers())
+    for whitening in whitened:
+        sharp &= np.bincount(owner, whitening, count) / pixels <= OVERLAY_EDGE_WHITENING
     return cv2.dilate(sharp[labels].astype(np.uint8), _disk(2)).astype(bool)
 
 

@@ -5,6 +5,8 @@ import dataclasses
 import numpy as np
 
 from .._errors import CtjaxError
+from .._threads import default_workers, in_order
+from .._tissue import channel_max
 from ..io import Capture
 from ._highlights import HighlightRule
 from ._specular_set import (
@@ -33,13 +35,14 @@ def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list
     Raises `CtjaxError` for a frame whose every pixel is saturated (nothing to fit).
     """
     for frame in capture.frames:
-        if np.all(np.max(frame.image, axis=-1) >= 1.0):
+        if np.all(channel_max(frame.image) >= 1.0):
             raise CtjaxError(
                 f"{capture.root}: frame {frame.name}: every pixel is saturated (at full scale); "
                 "an over-exposed image carries no shading"
             )
-    return [
-        specular_sets(
+
+    def sets_of(frame):
+        return specular_sets(
             frame.image,
             # Without a shape (images only), the ring is where the fit will look once the
             # shape is reconstructed.
@@ -49,5 +52,6 @@ def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list
             min_speck_px=options.min_speck_px,
             visible=frame.visible,
         )
-        for frame in capture.frames
-    ]
+
+    # The frames on threads (OpenCV and NumPy release the GIL): the same sets, sooner.
+    return list(in_order(sets_of, capture.frames, default_workers()))
