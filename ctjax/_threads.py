@@ -1,9 +1,12 @@
-"""Independent fits on threads: one compiles while another runs.
+"""Independent work on threads: one fit compiles while another runs, or runs while the
+host analyses what the others gave.
 
 JAX releases the GIL while it traces little and while XLA compiles and runs a program, so
 fits of different models (diagnose's candidates, calibrate-light's falloff sets) overlap on
-a machine's cores. Results do not depend on the number of threads: each fit is the same
-program on the same data, only when it runs changes.
+a machine's cores (`in_order`), and so does a fit with NumPy and OpenCV work that does not
+need it (`started`: `fit`'s half-frame fits and sparkle density). Results do not depend on
+the number of threads: each fit is the same program on the same data, only when it runs
+changes.
 """
 
 import concurrent.futures
