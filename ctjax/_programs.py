@@ -56,6 +56,7 @@ import os
 import stat
 import sys
 import tempfile
+import threading
 import types
 import warnings
 from pathlib import Path
@@ -75,12 +76,10 @@ def keep_programs(folder: Path | None) -> None:
     _FOLDER[0] = folder
 
 
-# XLA:CPU's loop emitters for the fitters instead of its newer fusion emitters: a fitter is
-# a program compiled once per model and run for milliseconds, and the loop emitters compile
-# it faster and run it no slower. A cold `diagnose` (128x96 x 5, 108 programs, XLA's other
-# defaults): 52-62 s -> 38-44 s, compiling 41-49 s -> 27-30 s (alternating, two each);
-# the renderer, whose programs run for long, keeps the fusion emitters (4-7x faster there).
-# The test suite compiles everything with the loop emitters (tests/conftest.py).
+# XLA:CPU's loop emitters for the fitters (compiled once per model, run for milliseconds):
+# they compile faster and run no slower. A cold `diagnose` (128x96 x 5, 108 programs):
+# 52-62 s -> 38-44 s, compiling 41-49 s -> 27-30 s (alternating, two each); the renderer
+# keeps the fusion emitters (4-7x faster there); the tests use loop emitters everywhere.
 FITTER_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
@@ -257,6 +256,7 @@ def persistent_jit(fun):
     module doc). For module-level functions of their arguments only. Compiled with
     `compiler_options()` (XLA:CPU's loop emitters)."""
     loaded: dict[Path, _Program | None] = {}
+    locks: dict[Path, threading.Lock] = {}  # threads asking for one program load it once
     name = _qualified(fun)
 
     jitted = fitter_jit(fun)
@@ -285,9 +285,11 @@ def persistent_jit(fun):
         key = hashlib.sha256(text.encode()).hexdigest()
         path = folder / f"{key}.program"
         if path not in loaded:
-            loaded[path] = _load(path, key, leaves, options_for(name)) or _save(
-                path, key, fun, treedef, static, leaves
-            )
+            with locks.setdefault(path, threading.Lock()):
+                if path not in loaded:
+                    loaded[path] = _load(path, key, leaves, options_for(name)) or _save(
+                        path, key, fun, treedef, static, leaves
+                    )
         program = loaded[path]
         return jitted(*args, **kwargs) if program is None else program(leaves)
 
@@ -497,8 +499,7 @@ def _program(blob: bytes, key: str, leaves, options: dict) -> _Program:
     return program
 
 
-# One warning per process for a cache that another user can write (see the module doc).
-_WARNED = [False]
+_WARNED = [False]  # one warning per process for a cache others can write (module doc)
 
 
 def _private(status: os.stat_result) -> bool:

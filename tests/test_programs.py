@@ -472,3 +472,35 @@ def test_lapack_is_set_up_only_for_programs_that_call_it(tmp_path):
         assert not report["before"] and not report["after_columns"] and report["after_solve"]
         np.testing.assert_allclose(report["x"], np.linalg.solve(a, np.arange(3.0)), rtol=1e-12)
     assert reports[1]["columns"] == reports[0]["columns"] != 0
+
+
+def test_threads_asking_for_one_program_at_once_export_it_once(kept, monkeypatch):
+    """Two threads calling a kept function with the same shapes before either has loaded
+    it: one exports it, the other waits for it (not each its own trace and compilation)."""
+    import threading
+
+    camera, normals, depth = _frame()
+    brdf = PAPER.build(jnp.array([0.25]))
+    exports, both_in = [], threading.Barrier(2)
+    original = _programs._export
+
+    def counted(*args):
+        exports.append(threading.current_thread().name)
+        return original(*args)
+
+    monkeypatch.setattr(_programs, "_export", counted)
+    fresh = _programs.persistent_jit(_frame_columns.__wrapped__)
+    results = [None, None]
+
+    def call(index):
+        both_in.wait(5)
+        results[index] = fresh(brdf, ColocatedLight(), camera, normals, depth)
+
+    threads = [threading.Thread(target=call, args=(i,)) for i in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert len(exports) == 1 and len(list(kept.glob("*.program"))) == 1
+    for a, b in zip(*results, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
