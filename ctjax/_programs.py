@@ -64,7 +64,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 
-from ctjax._lapack import calls_lapack, no_lapack_setup
+from ctjax._lapack import exported_calls_lapack, no_lapack_setup
 
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "interpax", "numpy")
 # Where programs are kept; None: off (see `keep_programs`).
@@ -240,7 +240,7 @@ def _export(fun, treedef, static, leaves):
     ]
     flat.__name__ = flat.__qualname__ = _plain_name(getattr(fun, "__name__", "program"))
     exported = jax.export.export(jax.jit(flat))(*shapes)
-    lapack = calls_lapack(exported.mlir_module())
+    lapack = exported_calls_lapack(exported)
     return _Program(exported, skeleton[0], options_for(_qualified(fun)), lapack)
 
 

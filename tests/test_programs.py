@@ -504,3 +504,34 @@ def test_threads_asking_for_one_program_at_once_export_it_once(kept, monkeypatch
     assert len(exports) == 1 and len(list(kept.glob("*.program"))) == 1
     for a, b in zip(*results, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_whether_a_program_calls_the_linear_algebra_kernels_is_read_from_its_bytes_first():
+    """`exported_calls_lapack`: a module without the kernels' prefix is not printed; one
+    whose source locations hold it (a file or function named so) is printed and does not
+    count; a Cholesky solve does."""
+    from ctjax._lapack import exported_calls_lapack
+
+    x = jax.ShapeDtypeStruct((3, 3), jnp.float64)
+
+    def lapack_named(a):  # the prefix in its own name: the module's locations hold it
+        return jnp.sin(a) @ a
+
+    def plain(a):
+        return jnp.cos(a) * 2
+
+    def cholesky(a):
+        return jnp.linalg.cholesky(a @ a.T + jnp.eye(3))
+
+    exported = {f: jax.export.export(jax.jit(f))(x) for f in (lapack_named, plain, cholesky)}
+    assert b"lapack_" in exported[lapack_named].mlir_module_serialized
+    assert not exported_calls_lapack(exported[lapack_named])
+    assert exported_calls_lapack(exported[cholesky])
+
+    class Unprinted:  # the plain module's bytes alone: printing it would fail
+        mlir_module_serialized = exported[plain].mlir_module_serialized
+
+        def mlir_module(self):
+            raise AssertionError("printed a module whose bytes hold no LAPACK prefix")
+
+    assert not exported_calls_lapack(Unprinted())
