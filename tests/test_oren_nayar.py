@@ -102,6 +102,26 @@ def test_the_diffuse_terms_are_found_with_their_shape_parameters():
         diffuse_lobe_named("lommel")
 
 
+def test_calibrate_lights_brdf_line_shows_whichever_diffuse_terms_shape():
+    """The command's BRDF line reads the diffuse term's parameters from its class: a new
+    diffuse lobe's shape is printed with no edit to the command."""
+    import equinox as eqx
+
+    from ctjax._commands._calibrate_light import _brdf_line
+    from ctjax._convert import as_float, domain, named
+
+    class Wrapped(Lambertian):
+        wrap: jax.Array = eqx.field(converter=as_float, metadata=named("wrap", domain(0, 1)))
+
+    summary = {"F_tilde": [0.1, 0.2, 0.3], "sigma": 0.25, "wrap": 0.4, "lobe_gain": 0.05}
+    line = _brdf_line(summary | {"oren_nayar_roughness": 0.8}, Wrapped)
+    shown = "F_tilde [0.1, 0.2, 0.3]; sigma 0.25; wrap 0.4; lobe gain where it shows 5.0%"
+    assert line == f"BRDF: {shown}"
+    line = _brdf_line(summary | {"oren_nayar_roughness": 0.8}, OrenNayar)
+    assert "oren_nayar_roughness 0.8" in line and "wrap" not in line
+    assert "roughness" not in _brdf_line(summary, Lambertian)
+
+
 def test_a_family_with_a_diffuse_term_searches_its_shape_after_its_own():
     from ctjax import CtjaxError
     from ctjax.estimation import LAMBERTIAN, PAPER, TWO_SCALES, diffuse_alone, with_diffuse

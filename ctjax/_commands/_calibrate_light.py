@@ -150,7 +150,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         f"RGB RMSE {result.calibration_rmse:.2f} (calibration), {result.heldout_rmse:.2f} "
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
-    print(_brdf_line(summary))
+    print(_brdf_line(summary, diffuse_lobe_named(args.diffuse)))
     if "highlight_alignment" in summary:
         print(highlight_alignment_line(summary["highlight_alignment"]))
     if "facets" in summary:
@@ -166,10 +166,13 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     return 0
 
 
-def _brdf_line(summary: dict) -> str:
-    """The fitted BRDF's parameters (and the lobes' gain where they show) in one line."""
+def _brdf_line(summary: dict, diffuse) -> str:
+    """The fitted BRDF's parameters (and the lobes' gain where they show) in one line: the
+    lobe's, then the diffuse term's shape (`diffuse`'s parameters, whichever lobe it is)."""
+    from ..lobes._diffuse import diffuse_parameters
+
     shown = []
-    for name in ("F_tilde", "sigma", "oren_nayar_roughness"):
+    for name in ("F_tilde", "sigma", *(name for name, _, _ in diffuse_parameters(diffuse))):
         value = summary.get(name)
         if isinstance(value, list):
             shown.append(f"{name} [{', '.join(f'{v:.4g}' for v in value)}]")
