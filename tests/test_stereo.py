@@ -315,3 +315,47 @@ def test_a_stereo_capture_falls_back_to_its_pairs_where_sfm_fails(stereo_capture
     monkeypatch.setattr(_reconstruct, "pairs_reconstruction", lambda *a: no_pair())
     with pytest.raises(ReconstructionError, match="from the stereo pairs alone: structure"):
         reconstruct_capture(capture)
+
+
+@pytest.mark.parametrize("registered, points", [(1, 500), (3, 5)])
+def test_a_stereo_capture_falls_back_to_its_pairs_where_sfm_registers_too_little(
+    stereo_capture, monkeypatch, registered, points
+):
+    """SfM that registers a few frames on a scope held nearly still (the real SurgT da Vinci
+    clip: 3 of 10, on a baseline too short for any frame's surface) is not a reconstruction
+    of a stereo capture: its pairs are, in mm. So are all frames registered whose points give
+    the first frame no surface."""
+    from ctjax.sfm import _reconstruct
+    from ctjax.sfm._colmap import SparseModel
+
+    capture = load_capture(stereo_capture)
+    names = tuple(frame.name for frame in capture.frames)
+    rng = np.random.default_rng(0)
+    sparse = SparseModel(
+        names=names,
+        registered=names[:registered],
+        cam_from_world={name: np.eye(4) for name in names[:registered]},
+        points=rng.normal([0, 0, 60], [10, 10, 1], (points, 3)),
+        point_errors=np.full(points, 0.5),
+        track_lengths=np.full(points, 2),
+        keypoints=dict.fromkeys(names, 1000),
+        matching="exhaustive",
+        mean_reprojection_error=0.5,
+    )
+    monkeypatch.setattr(
+        _reconstruct, "sparse_with_focal", lambda *a: (sparse, capture.camera, {"focal": "fixed"})
+    )
+    reasons = []
+
+    def pairs_instead(capture, error, *args):
+        reasons.append(str(error))
+        return "pairs"
+
+    monkeypatch.setattr(_reconstruct, "_pairs_instead", pairs_instead)
+    assert reconstruct_capture(capture) == "pairs"
+    expected = "registered 1 of 3 frames" if registered == 1 else "first frame (frame_000) no"
+    assert len(reasons) == 1 and expected in reasons[0]
+    # A size given by the user keeps SfM's (the pairs are in mm with the given camera alone).
+    if registered == 1:
+        reconstruct_capture(capture, scale_mm=60.0)  # SfM's one frame, scaled as asked
+        assert len(reasons) == 1

@@ -26,7 +26,7 @@ from .._errors import CaptureError, CtjaxError, ParameterError, ReconstructionEr
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
-from ._colmap import SparseModel
+from ._colmap import MAPPING_ENOUGH, SparseModel
 from ._focal import sparse_with_focal, with_focal
 from ._pairs import pairs_reconstruction
 from ._photometric import SMOOTHING, photometric_report, refine_views
@@ -159,15 +159,28 @@ def reconstruct_capture(
         found, report = pairs_reconstruction(capture, knot_spacing_px or knot, say)
         views = {name: ViewSurface(name, *parts) for name, parts in found.items()}
         return Reconstruction(capture.camera, views, None, report)
+    # A stereo capture still has its pairs: metric depth at every instant, whatever the
+    # scope's motion. Held (nearly) still, SfM finds no pair of frames with parallax, or
+    # registers a few frames on a baseline too short for their surfaces (the SurgT da Vinci
+    # clip: 3 of 10 frames, no surface, 65 s): the pairs then reconstruct it instead.
+    pairs_possible = (
+        capture.stereo is not None
+        and stereo in ("scale", "surface")
+        and focal == "fixed"
+        and scale_mm is None
+        and volume_mm3 is None
+    )
     try:
         sparse, camera, focal_report = sparse_with_focal(capture, focal, progress, verbose)
     except ReconstructionError as error:
-        # A stereo capture still has its pairs: metric depth at every instant, whatever the
-        # scope's motion (held still, SfM finds no pair of frames with parallax).
-        if capture.stereo is None or stereo not in ("scale", "surface") or focal != "fixed":
+        if not pairs_possible:
             raise
-        if scale_mm is not None or volume_mm3 is not None:
-            raise
+        return _pairs_instead(capture, error, knot_spacing_px, texture_smoothing, progress)
+    if pairs_possible and len(sparse.registered) < MAPPING_ENOUGH * len(capture.frames):
+        error = ReconstructionError(
+            f"structure-from-motion registered {len(sparse.registered)} of "
+            f"{len(capture.frames)} frames (too little parallax: a scope held nearly still?)"
+        )
         return _pairs_instead(capture, error, knot_spacing_px, texture_smoothing, progress)
     reference = sparse.registered[0]
     ref_from_world = sparse.cam_from_world[reference]
@@ -183,6 +196,12 @@ def reconstruct_capture(
     surfaces, hulls, counts, cams = _view_surfaces(
         camera, sparse, points, world_from_ref, unit, knot_spacing_px, say
     )
+    if pairs_possible and reference not in surfaces:
+        error = ReconstructionError(
+            f"structure-from-motion's points give its first frame ({reference}) no surface "
+            f"({len(sparse.points)} points from {len(sparse.registered)} frames)"
+        )
+        return _pairs_instead(capture, error, knot_spacing_px, texture_smoothing, progress)
     scale, scale_info = _scale(camera, surfaces.get(reference), hulls.get(reference), points)
     pairs = {}
     if stereo not in STEREO_USES:
