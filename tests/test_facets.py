@@ -9,7 +9,7 @@ import pytest
 from ctjax import ColocatedLight, named_parameters
 from ctjax._errors import ParameterError
 from ctjax.effects import CameraGamma
-from ctjax.fitting import facet_heldout, facet_lobe, facet_marginal
+from ctjax.fitting import facet_heldout, facet_lobe, facet_marginal, facets_suggestion
 from ctjax.fitting._facet_lobe import (
     FACET_CANDIDATES,
     FACET_F_TILDES,
@@ -259,3 +259,18 @@ def test_the_grids_choice_is_refined_between_its_points():
 
     assert _chosen(grid(0.12, 0.015)) == pytest.approx((0.12, 0.015))
     assert _chosen(grid(0.01, 0.015)) == pytest.approx((FACET_SIGMAS[0], 0.015))
+
+
+def test_a_lobe_not_found_where_the_highlights_carry_the_residual_suggests_the_facets():
+    """`fit` and `evaluate` name `--facets` where their lobe about the reconstruction's
+    normals is not found and the frames point at finer relief (the real SCARED and SurgT da
+    Vinci sequences, docs): not where the lobe was found, nor where nothing points there."""
+    said = facets_suggestion("no_lobe", highlight_share=0.82)
+    assert said.startswith("82% of the held-out residual") and "--facets" in said
+    assert "no_lobe" in said
+    said = facets_suggestion("at_bound", alignment="scattered")
+    assert "scatter about N = H" in said and "at_bound" in said
+    assert facets_suggestion("successful", highlight_share=0.9, alignment="scattered") is None
+    assert facets_suggestion("no_lobe", highlight_share=0.3) is None
+    assert facets_suggestion("no_lobe", alignment="misoriented") is None
+    assert facets_suggestion("no_lobe") is None

@@ -143,6 +143,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
         from ..fitting import facet_lobe_line
 
         print(facet_lobe_line(summary["facets"]))
+    else:
+        from ..fitting import facets_suggestion
+
+        left = (summary.get("residual_budget") or {}).get("cook_torrance", {})
+        status = summary["models"]["cook_torrance"]["status"]
+        suggestion = facets_suggestion(status, left.get("highlight_share"))
+        if suggestion is not None and summary["albedo"] == "map":
+            print(f"ctjax evaluate: note: {suggestion}", file=sys.stderr)
     right = summary.get("right_views")
     if right is not None:
         figures = ", ".join(

@@ -220,6 +220,13 @@ def run_fit(args: argparse.Namespace) -> int:
         from ..fitting import facet_lobe_line
 
         print(facet_lobe_line(result["facets"]))
+    elif result["albedo"] == "map":
+        from ..fitting import facets_suggestion
+
+        alignment = result["highlight_alignment"].get("status")
+        suggestion = facets_suggestion(result["status"], alignment=alignment)
+        if suggestion is not None:
+            print(f"ctjax fit: note: {suggestion}", file=sys.stderr)
     if "facet_marginal" in result:
         from ..fitting import facet_marginal_line
 

@@ -9,6 +9,7 @@ from ._facet_lobe import FACET_CANDIDATES as FACET_CANDIDATES
 from ._facet_lobe import FacetLobe as FacetLobe
 from ._facet_lobe import facet_lobe as facet_lobe
 from ._facet_lobe import facet_lobe_line as facet_lobe_line
+from ._facet_lobe import facets_suggestion as facets_suggestion
 from ._facet_marginal import FacetMarginal as FacetMarginal
 from ._facet_marginal import facet_marginal as facet_marginal
 from ._facet_marginal import facet_marginal_line as facet_marginal_line

@@ -393,3 +393,27 @@ def facet_lobe_line(summary: dict) -> str:
         f"{summary['candidates']}); status "
         f"{summary['status']}" + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
     )
+
+
+def facets_suggestion(
+    status: str, highlight_share: float | None = None, alignment: str | None = None
+) -> str | None:
+    """What a command says when its lobe about the reconstruction's normals is not found
+    but the frames point at finer relief: most of the held-out residual within 7 px of the
+    highlights (`highlight_share`, at least half), or highlights' peaks `scattered` about
+    N = H (`alignment`). None otherwise, and where the lobe was found (`status`)."""
+    if status == "successful":
+        return None
+    near = highlight_share is not None and highlight_share >= 0.5
+    if not near and alignment != "scattered":
+        return None
+    why = (
+        f"{100 * highlight_share:.0f}% of the held-out residual lies within 7 px of the highlights"
+        if near
+        else "the highlights' peaks scatter about N = H (relief finer than the shape)"
+    )
+    return (
+        f"{why} and the lobe about these normals is {status}: a lobe about each tracked "
+        "point's own facet, its normal read from the views where it shone, may be what the "
+        "frames show: --facets (docs: real endoscopic video, facets)"
+    )
