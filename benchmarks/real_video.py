@@ -21,7 +21,8 @@ is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate`
   (and, on a stereo capture, with the right camera's views: `fit --right-views`);
 - the near light: falloff, offset (with its unit), status;
 - evaluate: Cook-Torrance against Lambertian on the held-out frames, the gain split into
-  the light's and the lobe's (and on a stereo capture both on the right camera's views);
+  the light's and the lobe's (and on a stereo capture both on the right camera's views),
+  and the lobe about every point's own facet where `evaluate` judges it (`--facets auto`);
 - diagnose --loop: the held-out RMSE step by step against the noise floor, and what is left
   of the last model's residual (`residual_budget`).
 
@@ -256,6 +257,7 @@ def _table(source, out, capture, seconds, failed) -> dict:
                 "cook_torrance_rgb_rmse_test",
                 "gain",
                 "right_views",
+                "facets",
             )
         },
         "diagnose": [
@@ -320,6 +322,13 @@ def _print(row: dict) -> None:
         f"{_fmt(e['cook_torrance_rgb_rmse_test'])} levels (light {_fmt(gain.get('light_levels'))}"
         f", lobe {_fmt(gain.get('lobe_levels'))})"
     )
+    facets = e.get("facets")
+    if facets:  # judged by `evaluate --facets auto` where the lobe about the normals is not
+        print(
+            f"facets     sigma {_fmt(facets['sigma'])}, F_tilde {_fmt(facets['F_tilde'])}, "
+            f"status {facets['status']}; test RMSE {_fmt(facets['heldout_rgb_rmse'])}, "
+            f"{_fmt(facets['ratio'])}x Lambertian under the same light"
+        )
     right = e.get("right_views")
     if right:
         figures = ", ".join(

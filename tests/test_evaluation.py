@@ -251,6 +251,7 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coar
     assert np.isfinite(facets["heldout_rgb_rmse"]) and np.isfinite(facets["ratio"])
     # Two calibration frames: no halves to check its stability on, so never "successful".
     assert facets["halves"] is None and facets["status"] in ("unstable", "at_bound", "no_lobe")
+    assert facets["judged"] == "asked (facets=True)"
     printed = capsys.readouterr().out
     assert "a lobe about every point's own facet" in printed
     assert f"status {facets['status']}" in printed
@@ -329,7 +330,7 @@ def test_evaluation_on_a_capture_from_an_independent_renderer(tmp_path):
     )
 
 
-def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path):
+def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path, monkeypatch):
     """Textured tissue from tests/independent.py: with the albedo map (the default with
     poses) Lambertian and Cook-Torrance both get one albedo per surface point, each view
     predicted from the point's other views; Cook-Torrance then explains the test frames
@@ -340,7 +341,24 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path):
     capture = load_capture(tmp_path / "c")
     # SfS with the map (one albedo per model, and a note that says so): the demo's test;
     # here it took 9 s of the test's 23.
-    mapped = evaluate(capture, cook_torrance=fit_colocated, sfs=False).to_json()
+    # facets="auto" (the command's default) asks `facets_suggestion` with Cook-Torrance's
+    # status and its residual's share near the highlights, and judges the facets where it
+    # answers (stubbed here: the facet lobe is tests/test_facets.py's, the decision too).
+    from ctjax.evaluation import _evaluate as module
+
+    asked = []
+    monkeypatch.setattr(module, "facets_suggestion", lambda *a: asked.append(a) or "a reason")
+    monkeypatch.setattr(module, "_facet_lobe", lambda tracks, model: ({"sigma": 0.1}, None))
+    mapped = evaluate(capture, cook_torrance=fit_colocated, sfs=False, facets="auto").to_json()
+    assert asked == [
+        (
+            mapped["models"]["cook_torrance"]["status"],
+            mapped["residual_budget"]["cook_torrance"]["highlight_share"],
+        )
+    ]
+    assert mapped["facets"] == {"sigma": 0.1, "judged": "by itself: a reason"}
+    with pytest.raises(CtjaxError, match="facets must be True, False or 'auto'"):
+        evaluate(capture, facets="yes")
     assert mapped["albedo"] == "map" and "surface points" in mapped["units"]
     assert not any("one albedo per model" in note for note in mapped["notes"])
     # measured: Cook-Torrance 1.21 / Lambertian 19.7 levels on the test frames (one albedo:

@@ -266,7 +266,7 @@ def test_a_lobe_not_found_where_the_highlights_carry_the_residual_suggests_the_f
     normals is not found and the frames point at finer relief (the real SCARED and SurgT da
     Vinci sequences, docs): not where the lobe was found, nor where nothing points there."""
     said = facets_suggestion("no_lobe", highlight_share=0.82)
-    assert said.startswith("82% of the held-out residual") and "--facets" in said
+    assert said.startswith("82% of the held-out residual") and "own facet" in said
     assert "no_lobe" in said
     said = facets_suggestion("at_bound", alignment="scattered")
     assert "scatter about N = H" in said and "at_bound" in said

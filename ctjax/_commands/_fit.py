@@ -226,7 +226,10 @@ def run_fit(args: argparse.Namespace) -> int:
         alignment = result["highlight_alignment"].get("status")
         suggestion = facets_suggestion(result["status"], alignment=alignment)
         if suggestion is not None:
-            print(f"ctjax fit: note: {suggestion}", file=sys.stderr)
+            print(
+                f"ctjax fit: note: {suggestion}: --facets (docs: real endoscopic video)",
+                file=sys.stderr,
+            )
     if "facet_marginal" in result:
         from ..fitting import facet_marginal_line
 

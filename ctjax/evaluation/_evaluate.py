@@ -24,6 +24,7 @@ from .._units import METRIC, label, length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     ShadingModel,
+    facets_suggestion,
     fit_model,
     fit_model_map,
     pixel_columns,
@@ -383,7 +384,7 @@ def evaluate(
     progress: Callable[[str], None] = lambda message: None,
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
-    facets: bool = False,
+    facets: bool | str = False,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
     test frames (RGB error and SfS).
@@ -409,8 +410,13 @@ def evaluate(
     lobe about every tracked point's own facet under Cook-Torrance's light
     (`ctjax.fitting.facet_lobe`, with the map only): sigma and F_tilde chosen on the
     calibration frames, the test frames' views predicted with each point's facet and albedo
-    chosen from its other views, beside Lambert's under the same light."""
+    chosen from its other views, beside Lambert's under the same light; `"auto"` (the
+    command's default): only where `ctjax.fitting.facets_suggestion` points there, the lobe
+    about the reconstruction's normals not found and at least half of its held-out residual
+    within 7 px of the highlights."""
     workers = checked_workers(workers)
+    if facets not in (True, False, "auto"):
+        raise CtjaxError(f"facets must be True, False or 'auto', got {facets!r}")
     missing = [f.name for f in capture.frames if f.depth is None or f.normals is None]
     if missing:
         raise CtjaxError(
@@ -463,12 +469,17 @@ def evaluate(
         models = {"lambertian": lambertian.model, "cook_torrance": fitted.model}
         frames_rmse = frame_consistency(tracks, models)
     timings["rgb_error"] = time.perf_counter() - tic
-    facet = None
-    if facets:
+    facet, why = None, None
+    if facets == "auto" and budgets is not None:
+        left = budgets["cook_torrance"].get("highlight_share")
+        why = facets_suggestion(Status(fitted.status).name, left)
+    if facets is True or why is not None:
         tic = time.perf_counter()
         progress("the lobe about every point's own facet (a grid of sigma and F_tilde)...")
         facet, note = _facet_lobe(tracks, fitted.model)
         notes += [note] if note else []
+        if facet is not None:
+            facet["judged"] = "asked (facets=True)" if why is None else f"by itself: {why}"
         timings["facets"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:

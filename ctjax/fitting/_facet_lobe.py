@@ -415,5 +415,5 @@ def facets_suggestion(
     return (
         f"{why} and the lobe about these normals is {status}: a lobe about each tracked "
         "point's own facet, its normal read from the views where it shone, may be what the "
-        "frames show: --facets (docs: real endoscopic video, facets)"
+        "frames show"
     )
