@@ -151,7 +151,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         judged = summary["facets"].get("judged", "")
         if judged.startswith("by itself"):
             print(
-                f"ctjax evaluate: note: facets judged {judged} (--facets off: not)", file=sys.stderr
+                f"ctjax evaluate: note: the facet lobe judged {judged} (--facets off: not)",
+                file=sys.stderr,
             )
         print(facet_lobe_line(summary["facets"]))
     right = summary.get("right_views")
