@@ -3,6 +3,7 @@ Cook-Torrance normal refinement, volume scaling and `ctjax evaluate`."""
 
 import json
 import re
+import types
 
 import jax.numpy as jnp
 import numpy as np
@@ -32,6 +33,7 @@ from ctjax.evaluation._perspective import (
 from ctjax.evaluation._sfs import ReflectanceResiduals, sfs_cook_torrance
 from ctjax.evaluation._tsai_shah import initial_log_depth, solve_log_depth
 from ctjax.fitting import paper_model
+from ctjax.heldout import HeldOutTracks
 from ctjax.io import Frame, load_capture, write_capture
 from ctjax.synth import SynthOptions, synthesize
 
@@ -348,7 +350,8 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path, monkeypatch
 
     asked = []
     monkeypatch.setattr(module, "facets_suggestion", lambda *a: asked.append(a) or "a reason")
-    monkeypatch.setattr(module, "_facet_lobe", lambda tracks, model: ({"sigma": 0.1}, None))
+    lobe = types.SimpleNamespace(to_json=lambda: {"sigma": 0.1})
+    monkeypatch.setattr(HeldOutTracks, "facet_lobe", lambda self, light: lobe)
     mapped = evaluate(capture, cook_torrance=fit_colocated, sfs=False, facets="auto").to_json()
     assert asked == [
         (

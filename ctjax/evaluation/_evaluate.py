@@ -411,9 +411,7 @@ def evaluate(
     (`ctjax.fitting.facet_lobe`, with the map only): sigma and F_tilde chosen on the
     calibration frames, the test frames' views predicted with each point's facet and albedo
     chosen from its other views, beside Lambert's under the same light; `"auto"` (the
-    command's default): only where `ctjax.fitting.facets_suggestion` points there, the lobe
-    about the reconstruction's normals not found and at least half of its held-out residual
-    within 7 px of the highlights."""
+    command's default): only where `ctjax.fitting.facets_suggestion` points there."""
     workers = checked_workers(workers)
     if facets not in (True, False, "auto"):
         raise CtjaxError(f"facets must be True, False or 'auto', got {facets!r}")
@@ -476,10 +474,8 @@ def evaluate(
     if facets is True or why is not None:
         tic = time.perf_counter()
         progress("the lobe about every point's own facet (a grid of sigma and F_tilde)...")
-        facet, note = _facet_lobe(tracks, fitted.model)
+        facet, note = _facet_lobe(tracks, fitted.model, why)
         notes += [note] if note else []
-        if facet is not None:
-            facet["judged"] = "asked (facets=True)" if why is None else f"by itself: {why}"
         timings["facets"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:
@@ -528,13 +524,15 @@ def evaluate(
     )  # fmt: skip
 
 
-def _facet_lobe(tracks, model) -> tuple[dict | None, str | None]:
-    """`facet_lobe`'s JSON under `model`'s light on the split's tracks; or None and why not."""
+def _facet_lobe(tracks, model, why=None) -> tuple[dict | None, str | None]:
+    """`facet_lobe`'s JSON under `model`'s light on the split's tracks, with why it was
+    judged (`why`: `facets_suggestion`'s reason, None: asked); or None and why not."""
     if tracks is None:
         return None, "facets not judged: they need the albedo map (--albedo map)"
     if tuple(getattr(model, "effects", ())):
         return None, "facets not judged: Cook-Torrance's model has image effects"
-    return tracks.facet_lobe(model.light).to_json(), None
+    judged = "asked (facets=True)" if why is None else f"by itself: {why}"
+    return tracks.facet_lobe(model.light).to_json() | {"judged": judged}, None
 
 
 def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:
