@@ -364,3 +364,14 @@ def test_the_loops_next_base_is_the_verdicts_candidate(tmp_path):
     verdict = next(c for c in first.candidates if c.details["effect"] == "camera_gamma")
     verdict.details["frozen"] = ["effects.0.exposure"]
     assert _diagnose.next_base(first) is None
+
+
+def test_a_loop_that_ends_near_the_highlights_points_at_the_facets():
+    """`diagnose` ends with `none` on real frames whose residual lies near the highlights
+    (SCARED's da Vinci clip: 85%, docs); it names the facet lobe and where it is judged."""
+    from ctjax._commands._diagnose import facets_note
+
+    note = facets_note("none", 0.85)
+    assert note.startswith("85% of what is left") and "--facets" in note
+    assert facets_note("vignetting", 0.85) is None
+    assert facets_note("none", 0.3) is None

@@ -126,6 +126,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
         print(f"ctjax diagnose: warning: {warning}", file=sys.stderr)
     if budget is not None:
         print(f"what is left: {budget.summary()}")
+        if (note := facets_note(diagnosis.verdict, budget.highlight_share)) is not None:
+            print(f"ctjax diagnose: note: {note}", file=sys.stderr)
     print(highlight_alignment_line(summary["highlight_alignment"]))
     print(
         f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
@@ -133,3 +135,17 @@ def run_diagnose(args: argparse.Namespace) -> int:
         f"in {diagnosis.seconds:.0f} s"
     )
     return 0
+
+
+def facets_note(verdict: str, highlight_share: float) -> str | None:
+    """Where the loop ends with no candidate and most of what is left lies near the
+    highlights: the effect none of the candidates is, a lobe about finer facets (on real
+    da Vinci and sinus frames, docs: real endoscopic video), and where ctjax judges it."""
+    if verdict != "none" or highlight_share < 0.5:
+        return None
+    return (
+        f"{100 * highlight_share:.0f}% of what is left lies within 7 px of the highlights "
+        "and no candidate takes it: a lobe about each tracked point's own facet, its normal "
+        "read from the views where it shone, may (`ctjax evaluate CAPTURE --facets` judges "
+        "it on held-out frames)"
+    )
