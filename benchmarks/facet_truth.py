@@ -21,9 +21,11 @@ against 3.33), the halves apart; `--seed 2`: sigma 0.049, F_tilde 0.0039, ratio 
 30-80% low (a lower bound). Before (H of the other views only, at 597a589, the
 correlation length patched in a scratch script and the facets then turning with the
 camera's roll): sigma at the grid's bottom (0.05 then) with F_tilde 0.0025, ratio 0.739.
-`--sparkle-px 1.5`: across the arc, sigma 0.091, F_tilde 0.0165, `successful` (halves
-0.127 / 0.114), ratio 0.666 (before: sigma 0.103, `unstable`, 0.851). See
-docs/real-video.md, "Facets".
+`--sparkle-px 1.5`: across the arc, sigma 0.091, F_tilde 0.0165, halves 0.127 / 0.114,
+ratio 0.666 (before: sigma 0.103, `unstable`, 0.851); `successful` then, `unstable` since
+2026-12-01 (run again that day, 144 s for both captures, the same figures): the halves
+agree with each other but sit 32% above the width of all the frames, which itself reads
+the micro-lobe's 0.06 42% wide. See docs/real-video.md, "Facets".
 
 `--marginal`: also `facet_marginal` (the facets integrated out, on the calibration tracks;
 sigma's grid 0.035-0.15).

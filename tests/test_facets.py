@@ -244,6 +244,18 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     assert status == "unstable" and "standard error of 30%" in reasons[0]["reason"]
     status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
+    # Halves that agree with each other on a width away from the whole's (SCARED's frames
+    # 61-84: 0.139 / 0.141 against 0.086): the width follows the views' spacing; within 20%
+    # of it, nothing is said.
+    status, reasons = _facet_status(0.086, 0.013, *grid, 0.06, ((0.139, 0.032), (0.141, 0.036)))
+    assert status == "unstable" and reasons[0]["parameter"] == "sigma"
+    assert "63% above its 0.086" in reasons[0]["reason"]
+    assert "peak F_tilde/sigma^2: 1.76 on all of them, 1.66 / 1.81" in reasons[0]["reason"]
+    status, reasons = _facet_status(0.2, 0.01, *grid, 0.06, ((0.15, 0.01), (0.15, 0.01)))
+    assert status == "unstable" and "25% below its 0.2" in reasons[0]["reason"]
+    assert _facet_status(0.049, 0.0107, *grid, 0.06, ((0.057, 0.01), (0.056, 0.01)))[0] == (
+        "successful"
+    )
 
 
 def test_the_grids_choice_is_refined_between_its_points():

@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 import equinox as eqx
 import numpy as np
 
-from .._determined import MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
+from .._determined import HALVES_AGREE, MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
 from .._errors import ParameterError
 from .._status import Status
 from ._facets import (
@@ -218,12 +218,41 @@ def _chosen(grid: dict, squared: bool = True) -> tuple[float, float]:
     return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
 
 
+def _shifted_by_the_halves(sigma, f, halves) -> Undetermined | None:
+    """Where the even and the odd calibration frames alone agree with each other but both
+    put sigma more than `HALVES_AGREE` off its value on all of them (geometric mean): each
+    half sees every point from views twice as far apart, and a width that moves with that
+    follows the views' sampling of the lobe, not only the tissue. On SCARED's frames 61-84
+    the facet lobe read 0.086 on all 15 calibration frames and 0.139 / 0.141 on the halves
+    (0.059 on frames 61-72's 8); on synthetic sparkles the facets integrated out read 0.0631
+    and 0.0657 / 0.0653 (docs/real-video.md, "Facets")."""
+    if halves is None or not sigma > 0:
+        return None
+    (a, fa), (b, fb) = halves
+    if not (a > 0 and b > 0):
+        return None
+    shift = math.sqrt(a * b) / sigma - 1
+    if abs(shift) <= HALVES_AGREE:
+        return None
+    peaks = f"{f / sigma**2:.3g} on all of them, {fa / a**2:.3g} / {fb / b**2:.3g} on the halves"
+    return Undetermined(
+        "sigma",
+        Status.unstable,
+        f"the even and the odd calibration frames alone (each point's views twice as far "
+        f"apart) put sigma at {a:.3g} and {b:.3g}, {abs(shift):.0%} "
+        f"{'above' if shift > 0 else 'below'} its {sigma:.3g} on all of them (over "
+        f"{HALVES_AGREE:.0%}): the width follows how densely the views sample the lobe, not "
+        f"the tissue alone (the peak F_tilde/sigma^2: {peaks})",
+    )
+
+
 def _facet_status(
     sigma, f, sigmas, F_tildes, gain, halves, sigma_stderr=math.nan, unchecked=None
 ) -> tuple[str, tuple]:
     """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
     grid, a gain under `MIN_LOBE_GAIN`, halves apart or a half without the lobe (its
-    F_tilde at the grid's bottom), too few calibration frames for halves (`unchecked`:
+    F_tilde at the grid's bottom), halves that agree on a sigma away from the whole's
+    (`_shifted_by_the_halves`), too few calibration frames for halves (`unchecked`:
     their number), a bootstrap standard error over `MAX_RELATIVE_STDERR` of it; F_tilde at
     an end of its grid."""
     if gain < MIN_LOBE_GAIN:  # NaN (nothing to compare with) passes
@@ -258,6 +287,9 @@ def _facet_status(
                 f"{'either half' if len(lacking) == 2 else 'one half'} of the frames",
             )
         )
+    shifted = _shifted_by_the_halves(sigma, f, halves)
+    if shifted is not None and not any(u.parameter == "sigma" for u in found):
+        found.append(shifted)
     if unchecked is not None and not any(u.parameter == "sigma" for u in found):
         found.append(
             Undetermined(
