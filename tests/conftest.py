@@ -115,6 +115,16 @@ def _long_running_programs_optimised():
 # --xla_cpu_enable_concurrency_optimized_scheduler=false or --xla_cpu_use_xnnpack=false (a
 # cold near-light calibration and fit: 29-31 CPU-s either way); keeping synthesised captures
 # (68 syntheses, 56 distinct, 46 CPU-s: 6 s repeated), the demo at 3 frames (65 -> 64 CPU-s).
+#
+# Again at 674c7fc (788 tests, cold, fresh clone, 2 cores: 419-443 s; 7c21db8, the last of
+# 2026-11-28, 731 tests: 360 s the same day). Per test (jax.monitoring): 812 worker-s, XLA
+# compiling 267, tracing 93, lowering 84. XLA by program: the two LM fitters'
+# `_least_squares` 132 s in 106 compilations, the branch and bound's `_fit` 42 s in 61,
+# `_started` 16 s in 58. The kept programs are 481 keys, nearly all a distinct (function,
+# model, static options): `_fit._least_squares` 38 keys in 34 of them, the map's 47 in 30,
+# so the same shapes everywhere would merge few. Running the kept programs (every call
+# after their first) takes 86 s in all. The JAX compilation cache on or off: the same
+# (test_calibration.py 68.9 / 68.3 s). What is left to cut is the number of distinct models.
 
 
 # The traced programs too (`ctjax._programs`), in the same folder: the two workers, and the
