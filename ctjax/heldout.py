@@ -18,7 +18,7 @@ from ._errors import CtjaxError
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
 from .fitting._facet_lobe import facet_lobe
-from .fitting._facet_marginal import facet_marginal
+from .fitting._facet_marginal import at_the_marginal_width, facet_marginal
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
 from .fitting._map_least_squares import (
     TrackSamples,
@@ -330,6 +330,13 @@ class HeldOutTracks:
         frames = self.capture.capture.frames
         rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
         return facet_marginal(self.train, rotations, light, **options)
+
+    def facet_lobe_at_the_marginal_width(self, light, marginal: dict) -> dict:
+        """The facet lobe under `light` with sigma held at the marginal's
+        (`FacetMarginal.to_json()`), its F_tilde chosen and judged as `facet_lobe`'s
+        (`ctjax.fitting.at_the_marginal_width`), as JSON."""
+        lobe = self.facet_lobe(light, sigmas=(float(marginal["sigma"]),))
+        return at_the_marginal_width(lobe, marginal)
 
     def heldout_rmse(self, model) -> float:
         """RMSE (8-bit levels) of `model` on the held-out views (see the class doc; its

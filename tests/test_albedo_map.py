@@ -207,9 +207,17 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
     assert min(grid["sigmas"]) <= found["sigma"] <= max(grid["sigmas"])
     assert min(grid["F_tildes"]) <= found["F_tilde"] <= max(grid["F_tildes"])
     assert found["status"] in {"successful", "at_bound", "unstable"}
+    # Both: the facet lobe at the marginal's width, its F_tilde chosen by the facet protocol.
+    both = fitted["facets_at_the_marginal_width"]
+    assert both["sigma"] == pytest.approx(found["sigma"]) and both["sigma_from"] == "facet_marginal"
+    assert min(grid["F_tildes"]) <= both["F_tilde"] <= max(grid["F_tildes"])
+    assert np.isfinite(both["ratio"]) and both["status"] in {"successful", "at_bound", "unstable"}
+    halves = found["halves"]  # None on this capture's few calibration frames
+    assert both["sigma_halves"] == (halves and [halves[h]["sigma"] for h in halves])
     printed = capsys.readouterr().out
     assert "a lobe about every point's own facet" in printed
     assert "the facets integrated out" in printed
+    assert "the facet lobe at the marginal's width" in printed
     (root.parent / "nopose").mkdir()
     for item in root.iterdir():
         if item.name != "poses.json":

@@ -9,7 +9,15 @@ import pytest
 from ctjax import ColocatedLight, named_parameters
 from ctjax._errors import ParameterError
 from ctjax.effects import CameraGamma
-from ctjax.fitting import facet_heldout, facet_lobe, facet_marginal, facets_suggestion
+from ctjax.fitting import (
+    FacetLobe,
+    at_the_marginal_width,
+    at_the_marginal_width_line,
+    facet_heldout,
+    facet_lobe,
+    facet_marginal,
+    facets_suggestion,
+)
 from ctjax.fitting._facet_lobe import (
     FACET_CANDIDATES,
     FACET_F_TILDES,
@@ -17,7 +25,7 @@ from ctjax.fitting._facet_lobe import (
     _chosen,
     _facet_status,
 )
-from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _observed_points
+from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _F_tilde_reasons, _observed_points
 from ctjax.fitting._facets import FACET_REFINE_STEPS, _candidates, facet_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -255,6 +263,53 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     assert status == "unstable" and "25% below its 0.2" in reasons[0]["reason"]
     assert _facet_status(0.049, 0.0107, *grid, 0.06, ((0.057, 0.01), (0.056, 0.01)))[0] == (
         "successful"
+    )
+
+
+def test_the_marginals_F_tilde_is_checked_on_the_halves_against_the_whole():
+    """The facets integrated out measure F_tilde, so its halves are checked: apart from
+    each other, at an end of the grid (SCARED's frames 61-84: 0.0727 on all 15 calibration
+    frames, the grid's top 0.2 on each half, once reported `successful`), or agreeing on a
+    weight more than 20% from the whole's; nothing said where they agree with it."""
+    grid = FACET_F_TILDES
+    (reason,) = _F_tilde_reasons(0.0727, ((0.175, 0.2), (0.176, 0.2)), grid)
+    assert reason["parameter"] == "F_tilde" and reason["status"] == "unstable"
+    assert (
+        "the even and the odd calibration frames alone put F_tilde at the top" in (reason["reason"])
+    )
+    (reason,) = _F_tilde_reasons(0.0727, ((0.175, 0.0727), (0.176, 0.002)), grid)
+    assert "apart" in reason["reason"]
+    (reason,) = _F_tilde_reasons(0.02, ((0.1, 0.03), (0.1, 0.031)), grid)
+    assert "52% above its 0.02" in reason["reason"]
+    assert _F_tilde_reasons(0.02, ((0.1, 0.021), (0.1, 0.019)), grid) == []
+    assert _F_tilde_reasons(0.02, None, grid) == []
+
+
+def test_the_facet_lobe_at_the_marginals_width_takes_each_estimators_reasons():
+    """`at_the_marginal_width`: the marginal's reasons about the width (not its F_tilde's,
+    an upper bound), the fixed-width lobe's own, and its F_tilde's halves (SCARED's frames
+    61-72 at the marginal's 0.119: F_tilde 0.021, halves 0.010 / 0.016, 44% apart)."""
+    grid = {(0.119, f): 10.0 for f in FACET_F_TILDES}
+
+    def lobe(f, halves):
+        return FacetLobe(0.119, f, grid, False, 10.1, 15.6, 15.2, 0.34, halves=halves)
+
+    def marginal(*reasons):
+        halves = {"even_frames": {"sigma": 0.14}, "odd_frames": {"sigma": 0.13}}
+        return {"sigma": 0.119, "halves": halves, "undetermined": list(reasons)}
+
+    top = {"parameter": "F_tilde", "status": "unstable", "reason": "the grid's top"}
+    found = at_the_marginal_width(lobe(0.021, ((0.119, 0.0205), (0.119, 0.021))), marginal(top))
+    assert found["status"] == "successful" and found["undetermined"] == []
+    assert found["ratio"] == pytest.approx(10.1 / 15.6) and found["sigma_halves"] == [0.14, 0.13]
+    assert found["F_tilde_halves"] == [0.0205, 0.021] and "sigma_stderr" not in found
+    found = at_the_marginal_width(lobe(0.021, ((0.119, 0.0099), (0.119, 0.0156))), marginal())
+    assert found["status"] == "unstable" and found["undetermined"][0]["parameter"] == "F_tilde"
+    noise = {"parameter": "noise_levels", "status": "at_bound", "reason": "the noise's grid"}
+    found = at_the_marginal_width(lobe(0.021, ((0.119, 0.0205), (0.119, 0.021))), marginal(noise))
+    assert found["status"] == "at_bound" and found["undetermined"] == [noise]
+    assert "at the marginal's width: sigma 0.119 (halves 0.14 / 0.13)" in (
+        at_the_marginal_width_line(found)
     )
 
 

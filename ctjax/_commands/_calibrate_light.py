@@ -77,7 +77,8 @@ def add_calibrate_light_parser(commands) -> None:
         action="store_true",
         help="near: also the lobe with every tracked point's facet integrated out (a marginal "
         "likelihood; the facets' spread and the noise profiled) under the fitted light, on "
-        "the calibration frames, with its halves; minutes on a 640 px capture (with the map)",
+        "the calibration frames, with its halves; minutes on a 640 px capture (with the map); "
+        "with --facets also the facet lobe at the marginal's width",
     )
     light.set_defaults(run=run_calibrate_light)
 
@@ -132,6 +133,10 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
             summary["facets"] = split.facet_lobe(result.model.light).to_json()
         if args.facet_marginal:
             summary["facet_marginal"] = split.facet_marginal(result.model.light).to_json()
+        if args.facets and args.facet_marginal:
+            summary["facets_at_the_marginal_width"] = split.facet_lobe_at_the_marginal_width(
+                result.model.light, summary["facet_marginal"]
+            )
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):
@@ -161,6 +166,10 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         from ..fitting import facet_marginal_line
 
         print(facet_marginal_line(summary["facet_marginal"]))
+    if "facets_at_the_marginal_width" in summary:
+        from ..fitting import at_the_marginal_width_line
+
+        print(at_the_marginal_width_line(summary["facets_at_the_marginal_width"]))
     for warning in result.warnings:
         print(f"ctjax calibrate-light: warning: {warning}", file=sys.stderr)
     return 0

@@ -97,7 +97,9 @@ def add_fit_parser(commands) -> None:
         help="also the lobe with every tracked point's facet integrated out (a marginal "
         "likelihood; the facets' spread and the noise profiled) under this fit's light, on "
         "the first 60%% of the frames, with its halves: sigma within 6%% on synthetic truth, "
-        "F_tilde an upper bound; minutes on a 640 px capture (with the map)",
+        "F_tilde an upper bound; minutes on a 640 px capture (with the map); with --facets "
+        "also the facet lobe at the marginal's width, its F_tilde chosen and judged as "
+        "--facets' (each estimator for what it reads consistently)",
     )
     add_mask_arguments(fit)
     fit.set_defaults(run=run_fit)
@@ -186,6 +188,10 @@ def run_fit(args: argparse.Namespace) -> int:
             result["facets"] = split.facet_lobe(estimate.model.light).to_json()
         if args.facet_marginal:
             result["facet_marginal"] = split.facet_marginal(estimate.model.light).to_json()
+        if args.facets and args.facet_marginal:
+            result["facets_at_the_marginal_width"] = split.facet_lobe_at_the_marginal_width(
+                estimate.model.light, result["facet_marginal"]
+            )
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
     keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status", *family.names)
     print(json.dumps({k: result[k] for k in result if k in keys}))
@@ -234,6 +240,10 @@ def run_fit(args: argparse.Namespace) -> int:
         from ..fitting import facet_marginal_line
 
         print(facet_marginal_line(result["facet_marginal"]))
+    if "facets_at_the_marginal_width" in result:
+        from ..fitting import at_the_marginal_width_line
+
+        print(at_the_marginal_width_line(result["facets_at_the_marginal_width"]))
     for warning in result["warnings"]:
         print(f"ctjax fit: warning: {warning}", file=sys.stderr)
     return 0

@@ -11,6 +11,8 @@ from ._facet_lobe import facet_lobe as facet_lobe
 from ._facet_lobe import facet_lobe_line as facet_lobe_line
 from ._facet_lobe import facets_suggestion as facets_suggestion
 from ._facet_marginal import FacetMarginal as FacetMarginal
+from ._facet_marginal import at_the_marginal_width as at_the_marginal_width
+from ._facet_marginal import at_the_marginal_width_line as at_the_marginal_width_line
 from ._facet_marginal import facet_marginal as facet_marginal
 from ._facet_marginal import facet_marginal_line as facet_marginal_line
 from ._facets import FacetJudgement as FacetJudgement

@@ -34,7 +34,7 @@ import numpy as np
 
 from .._buckets import bucket
 from .._convert import on_device
-from .._determined import PRIORITY, Undetermined, _unstable
+from .._determined import HALVES_AGREE, PRIORITY, Undetermined, _unstable
 from .._errors import ParameterError
 from .._programs import persistent_jit
 from .._status import Status
@@ -42,6 +42,7 @@ from ._facet_lobe import (
     _MIN_FRAMES_FOR_HALVES,
     FACET_F_TILDES,
     FACET_SIGMAS,
+    FacetLobe,
     _chosen,
     _facet_status,
     halves_json,
@@ -60,9 +61,12 @@ FACET_PRIOR_SIGMAS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.4, 2.0)
 # 32 x 9 nodes, not refined) Student-t with 4 degrees of freedom takes the least scale, 0.75
 # levels, and reads F_tilde 0.019 (at 1 level: 0.0117): heavy tails let a strong lobe
 # mispredict cheaply.
+# Down to 0.3 for the Gaussian: SCARED's frames 61-72 put the scale at 0.7, the grid's bottom
+# then (3.18 levels; `at_bound`), and the lobe-free residuals' median is the highlights'
+# misfit as much as the camera's noise.
 NOISE_MULTIPLES = {
     False: (1.0, 1.4, 2.0),
-    True: (0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.4, 1.6, 1.8, 2.0, 2.5, 3.0, 4.0),
+    True: (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25, 1.4, 1.6, 1.8, 2.0, 2.5, 3.0, 4.0),
 }
 # Student-t's degrees of freedom for heavy-tailed noise (`nu`; the default noise is Gaussian).
 STUDENT_NU = 4.0
@@ -342,6 +346,54 @@ def _nuisance_reasons(parameter: str, name: str, value: float, grid: Sequence[fl
     ]
 
 
+def _F_tilde_reasons(f: float, split, F_tildes: Sequence[float]) -> list[dict]:
+    """F_tilde's halves checked, as `Undetermined.to_json()` (empty where they agree): it
+    is measured here (`facet_lobe`'s is a lower bound). Halves apart from each other, a
+    half at an end of the grid (its weight not measured there), or halves that agree on a
+    weight more than `HALVES_AGREE` from the whole's (geometric mean; as sigma's,
+    `_shifted_by_the_halves`). SCARED's frames 61-84: F_tilde 0.0727 on all 15 calibration
+    frames, 0.2 (the grid's top) on each half."""
+    if not split:
+        return []
+    a, b = split[0][1], split[1][1]
+    apart = _unstable({"F_tilde": f}, {"F_tilde": (a, b)}, set())
+    if apart:
+        return [u.to_json() for u in apart]
+    ends = [
+        (part, "top" if half >= max(F_tildes) else "bottom")
+        for part, half in (("even", a), ("odd", b))
+        if len(F_tildes) > 1 and not min(F_tildes) < half < max(F_tildes)
+    ]
+    if ends:
+        parts = " and the ".join(part for part, _ in ends)
+        end = ends[0][1]
+        return [
+            Undetermined(
+                "F_tilde",
+                Status.unstable,
+                f"the {parts} calibration frames alone put F_tilde at the {end} of its grid "
+                f"({min(F_tildes):g}, {max(F_tildes):g}) against {f:.3g} on all of them: the "
+                "lobe's weight is not measured on "
+                f"{'either half' if len(ends) == 2 else 'one half'} of the frames",
+            ).to_json()
+        ]
+    if not (f > 0 and a > 0 and b > 0):
+        return []
+    shift = math.sqrt(a * b) / f - 1
+    if abs(shift) <= HALVES_AGREE:
+        return []
+    return [
+        Undetermined(
+            "F_tilde",
+            Status.unstable,
+            f"the even and the odd calibration frames alone put F_tilde at {a:.3g} and "
+            f"{b:.3g}, {abs(shift):.0%} {'above' if shift > 0 else 'below'} its {f:.3g} on "
+            f"all of them (over {HALVES_AGREE:.0%}): the lobe's weight follows how densely "
+            "the views sample it",
+        ).to_json()
+    ]
+
+
 def facet_marginal(
     train: TrackSamples,
     rotations,
@@ -416,13 +468,9 @@ def facet_marginal(
     split = (choice(1), choice(2)) if checked else None
     unchecked = frames if halves and not checked else None
     _, reasons = _facet_status(sigma, f, sigmas, F_tildes, math.nan, split, math.nan, unchecked)
-    # F_tilde is measured here (`facet_lobe`'s is a lower bound): its halves are checked too.
-    apart = (
-        _unstable({"F_tilde": f}, {"F_tilde": (split[0][1], split[1][1])}, set()) if split else []
-    )
     found = [
         *reasons,
-        *(u.to_json() for u in apart),
+        *_F_tilde_reasons(f, split, F_tildes),
         *_nuisance_reasons("sigma_M", "facets' prior width sigma_M", prior_sigma, prior_sigmas),
         *_nuisance_reasons("noise_levels", "noise's scale", noise_at, noise_levels),
     ]
@@ -467,3 +515,54 @@ def _first_of_status(summary: dict) -> list[dict]:
     """The reasons behind the status first (the line shows one)."""
     reasons = summary["undetermined"]
     return sorted(reasons, key=lambda u: u.get("status") != summary["status"])
+
+
+# The marginal's reasons that concern the width (its F_tilde is an upper bound, and the
+# lobe at its width chooses its own).
+_WIDTH_REASONS = ("sigma", "sigma_M", "noise_levels")
+
+
+def at_the_marginal_width(lobe: FacetLobe, marginal: dict) -> dict:
+    """The facet lobe with sigma held at the marginal likelihood's, as JSON: `lobe` is
+    `facet_lobe` on a grid of that one width (its F_tilde and every point's facet chosen by
+    the facet protocol, judged on the held-out views), `marginal` `FacetMarginal.to_json()`.
+    Each estimator for what it reads consistently: the width from the marginal (within 6%
+    of synthetic truth, where the facet protocol's follows the views' spacing), the weight
+    and the facets from the protocol at that width. The status is the worst of the
+    marginal's reasons about the width (sigma, the facets' spread, the noise), the
+    fixed-width lobe's own (its grid, its gain against Lambert) and its F_tilde's halves,
+    checked as the marginal's (`_F_tilde_reasons`: F_tilde is what is measured here). On
+    SCARED's frames 61-84 (docs/real-video.md): sigma 0.150 (halves 0.175 / 0.176), F_tilde
+    0.036 (halves 0.032 / 0.028), 0.751x Lambert's test error under the same light; on
+    61-72 sigma 0.119, F_tilde 0.021, halves 0.010 / 0.016: `unstable`."""
+    F_tildes = sorted({f for _, f in lobe.calibration_rmse})
+    width = [u for u in marginal["undetermined"] if u["parameter"] in _WIDTH_REASONS]
+    reasons = [*width, *lobe.undetermined, *_F_tilde_reasons(lobe.F_tilde, lobe.halves, F_tildes)]
+    statuses = [Status[u["status"]] for u in reasons]
+    status = min(statuses, key=PRIORITY.index).name if statuses else Status.successful.name
+    dropped = ("sigma_stderr", "at_bound", "calibration_rmse_by_candidates", "calibration_rgb_rmse")
+    summary = {key: value for key, value in lobe.to_json().items() if key not in dropped}
+    del summary["halves"]
+    summary["F_tilde_halves"] = [f for _, f in lobe.halves] if lobe.halves else None
+    summary["sigma_halves"] = (
+        [part["sigma"] for part in marginal["halves"].values()] if marginal["halves"] else None
+    )
+    summary.update(status=status, undetermined=reasons, sigma_from="facet_marginal")
+    return summary
+
+
+def at_the_marginal_width_line(summary: dict) -> str:
+    """One line for a command's output from `at_the_marginal_width`."""
+
+    def halves(name):
+        parts = summary[f"{name}_halves"]
+        return f" (halves {parts[0]:.3g} / {parts[1]:.3g})" if parts else ""
+
+    return (
+        f"the facet lobe at the marginal's width: sigma {summary['sigma']:.3g}"
+        f"{halves('sigma')}, F_tilde {summary['F_tilde']:.3g}{halves('F_tilde')} chosen on the "
+        f"calibration frames: held-out RMSE {summary['heldout_rgb_rmse']:.2f} levels, "
+        f"{summary['ratio']:.3f}x Lambert's under the same light "
+        f"({summary['lambertian_same_light_rgb_rmse']:.2f}); status {summary['status']}"
+        + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
+    )
