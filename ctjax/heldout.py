@@ -331,6 +331,21 @@ class HeldOutTracks:
         rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
         return facet_marginal(self.train, rotations, light, **options)
 
+    def facet_blocks(self, light, *, lobe: bool = True, marginal: bool = False) -> dict:
+        """The facet estimators' JSON under `light`, by the name a command writes each
+        under: `facets` (`facet_lobe`), `facet_marginal`, and with both
+        `facets_at_the_marginal_width` (`facet_lobe_at_the_marginal_width`)."""
+        blocks = {}
+        if lobe:
+            blocks["facets"] = self.facet_lobe(light).to_json()
+        if marginal:
+            blocks["facet_marginal"] = self.facet_marginal(light).to_json()
+        if lobe and marginal:
+            blocks["facets_at_the_marginal_width"] = self.facet_lobe_at_the_marginal_width(
+                light, blocks["facet_marginal"]
+            )
+        return blocks
+
     def facet_lobe_at_the_marginal_width(self, light, marginal: dict) -> dict:
         """The facet lobe under `light` with sigma held at the marginal's
         (`FacetMarginal.to_json()`), its F_tilde chosen and judged as `facet_lobe`'s

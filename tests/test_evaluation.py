@@ -245,7 +245,9 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coar
         "colocated",
         "--facets",
     ]
-    assert main(argv) == 0
+    assert main([*argv[:-1], "--facets", "off", "--facet-marginal"]) == 2
+    assert "--facet-marginal is for the facets judged" in capsys.readouterr().err
+    assert main([*argv, "--facet-marginal"]) == 0
     summary = json.loads(out.read_text())
     # The lobe about every point's own facet, under the same light (tests/test_facets.py).
     facets = summary["facets"]
@@ -254,9 +256,13 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coar
     # Two calibration frames: no halves to check its stability on, so never "successful".
     assert facets["halves"] is None and facets["status"] in ("unstable", "at_bound", "no_lobe")
     assert facets["judged"] == "asked (facets=True)"
+    # With the facets integrated out, and the facet lobe at their width (tests/test_facets.py).
+    marginal, both = facets["facet_marginal"], facets["facets_at_the_marginal_width"]
+    assert both["sigma"] == pytest.approx(marginal["sigma"]) and np.isfinite(both["ratio"])
     printed = capsys.readouterr().out
     assert "a lobe about every point's own facet" in printed
     assert f"status {facets['status']}" in printed
+    assert "the facets integrated out" in printed and "at the marginal's width" in printed
     for model in ("lambertian", "cook_torrance"):
         for key in ("rgb_rmse_calibration", "rgb_rmse_test", "sfs_error_mm"):
             assert np.isfinite(summary[f"{model}_{key}"]), (model, key)

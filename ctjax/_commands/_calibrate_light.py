@@ -129,14 +129,9 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         from ..heldout import HeldOutTracks
 
         split = HeldOutTracks.split(observations, args.calib)
-        if args.facets:
-            summary["facets"] = split.facet_lobe(result.model.light).to_json()
-        if args.facet_marginal:
-            summary["facet_marginal"] = split.facet_marginal(result.model.light).to_json()
-        if args.facets and args.facet_marginal:
-            summary["facets_at_the_marginal_width"] = split.facet_lobe_at_the_marginal_width(
-                result.model.light, summary["facet_marginal"]
-            )
+        summary.update(
+            split.facet_blocks(result.model.light, lobe=args.facets, marginal=args.facet_marginal)
+        )
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])
     if "offset_stderr_mm" in summary and summary.get("offset_detected", True):

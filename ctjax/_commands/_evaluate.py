@@ -65,6 +65,14 @@ def add_evaluate_parser(commands) -> None:
         "reconstruction's normals is not found and at least half of its test-frame residual "
         "lies within 7 px of the highlights (about a minute at 640x512 x 12)",
     )
+    evaluate.add_argument(
+        "--facet-marginal",
+        action="store_true",
+        help="with the facets judged: also the lobe with every tracked point's facet integrated "
+        "out (a marginal likelihood on the calibration frames, as fit's) and the facet lobe at "
+        "its width, its F_tilde chosen on the calibration frames and judged on the test frames "
+        "(minutes more on a 640 px capture)",
+    )
     add_diffuse_argument(evaluate, "Cook-Torrance's (near light): ")
     add_workers_argument(evaluate, "test frames' shapes from shading")
     evaluate.set_defaults(run=run_evaluate)
@@ -81,6 +89,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"--diffuse is for the near light's Cook-Torrance (--light near), not --light "
             f"{args.light} (the paper's fits are Lambertian + Cook-Torrance)"
         )
+    if args.facet_marginal and args.facets == "off":
+        raise CtjaxError("--facet-marginal is for the facets judged: not with --facets off")
     observations = load_observations(args)
     capture = observations.capture
     evaluation = evaluate(
@@ -94,6 +104,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         progress=lambda m: print(f"[ctjax evaluate] {m}", flush=True),
         diffuse=diffuse_lobe_named(args.diffuse),
         facets={"on": True, "off": False}.get(args.facets, "auto"),
+        facet_marginal=args.facet_marginal,
     )
     summary = evaluation.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
@@ -155,6 +166,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         print(facet_lobe_line(summary["facets"]))
+        if "facet_marginal" in summary["facets"]:
+            from ..fitting import at_the_marginal_width_line, facet_marginal_line
+
+            print(facet_marginal_line(summary["facets"]["facet_marginal"]))
+            print(at_the_marginal_width_line(summary["facets"]["facets_at_the_marginal_width"]))
     right = summary.get("right_views")
     if right is not None:
         figures = ", ".join(

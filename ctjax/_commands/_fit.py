@@ -184,14 +184,9 @@ def run_fit(args: argparse.Namespace) -> int:
         from ..heldout import HeldOutTracks
 
         split = HeldOutTracks.split(observations)
-        if args.facets:
-            result["facets"] = split.facet_lobe(estimate.model.light).to_json()
-        if args.facet_marginal:
-            result["facet_marginal"] = split.facet_marginal(estimate.model.light).to_json()
-        if args.facets and args.facet_marginal:
-            result["facets_at_the_marginal_width"] = split.facet_lobe_at_the_marginal_width(
-                estimate.model.light, result["facet_marginal"]
-            )
+        result.update(
+            split.facet_blocks(estimate.model.light, lobe=args.facets, marginal=args.facet_marginal)
+        )
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
     keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status", *family.names)
     print(json.dumps({k: result[k] for k in result if k in keys}))

@@ -195,7 +195,7 @@ class Evaluation:
             near = self.sfs_errors(model, "near_highlight")
             key = "cook_torrance_per_pixel" if model == "per_pixel" else model
             out[f"{key}_sfs_error_mm"] = _mean(errors)
-            out[f"{key}_sfs_error_median_mm"] = _median(errors)
+            out[f"{key}_sfs_error_median_mm"] = _mean(errors, np.median)
             out[f"{key}_sfs_error_near_highlights_mm"] = _mean(near)
         rgb = (
             "8-bit levels over the views of surface points tracked across frames, each "
@@ -239,12 +239,8 @@ class Evaluation:
         return out
 
 
-def _mean(values) -> float | None:
-    return float(np.mean(values)) if len(values) else None
-
-
-def _median(values) -> float | None:
-    return float(np.median(values)) if len(values) else None
+def _mean(values, statistic=np.mean) -> float | None:
+    return float(statistic(values)) if len(values) else None
 
 
 def fit_lambertian(
@@ -385,6 +381,7 @@ def evaluate(
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
     facets: bool | str = False,
+    facet_marginal: bool = False,
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
     test frames (RGB error and SfS).
@@ -411,7 +408,9 @@ def evaluate(
     (`ctjax.fitting.facet_lobe`, with the map only): sigma and F_tilde chosen on the
     calibration frames, the test frames' views predicted with each point's facet and albedo
     chosen from its other views, beside Lambert's under the same light; `"auto"` (the
-    command's default): only where `ctjax.fitting.facets_suggestion` points there."""
+    command's default): only where `ctjax.fitting.facets_suggestion` points there;
+    `facet_marginal`: with them, the facets integrated out and the facet lobe at that width
+    (`HeldOutTracks.facet_blocks`), nested in their JSON."""
     workers = checked_workers(workers)
     if facets not in (True, False, "auto"):
         raise CtjaxError(f"facets must be True, False or 'auto', got {facets!r}")
@@ -474,7 +473,7 @@ def evaluate(
     if facets is True or why is not None:
         tic = time.perf_counter()
         progress("the lobe about every point's own facet (a grid of sigma and F_tilde)...")
-        facet, note = _facet_lobe(tracks, fitted.model, why)
+        facet, note = _facet_lobe(tracks, fitted.model, why, facet_marginal)
         notes += [note] if note else []
         timings["facets"] = time.perf_counter() - tic
     right_views = None
@@ -524,15 +523,16 @@ def evaluate(
     )  # fmt: skip
 
 
-def _facet_lobe(tracks, model, why=None) -> tuple[dict | None, str | None]:
-    """`facet_lobe`'s JSON under `model`'s light on the split's tracks, with why it was
-    judged (`why`: `facets_suggestion`'s reason, None: asked); or None and why not."""
+def _facet_lobe(tracks, model, why=None, marginal=False) -> tuple[dict | None, str | None]:
+    """`facet_lobe`'s JSON under `model`'s light, why it was judged (`why`, None: asked) and
+    with `marginal` the other `HeldOutTracks.facet_blocks` in it; or None and why not."""
     if tracks is None:
         return None, "facets not judged: they need the albedo map (--albedo map)"
     if tuple(getattr(model, "effects", ())):
         return None, "facets not judged: Cook-Torrance's model has image effects"
     judged = "asked (facets=True)" if why is None else f"by itself: {why}"
-    return tracks.facet_lobe(model.light).to_json() | {"judged": judged}, None
+    blocks = tracks.facet_blocks(model.light, marginal=marginal)
+    return blocks.pop("facets") | {"judged": judged} | blocks, None
 
 
 def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:
