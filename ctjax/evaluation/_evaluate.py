@@ -41,9 +41,8 @@ from ._pyramid import block_reduce, reduced
 from ._scale import bounding_box_volume
 from ._sfs import ShapeFromShading, sfs_cook_torrance, sfs_refined, sfs_tsai_shah
 
-# The models an evaluation fits, in the order the gain is split: the paper's Lambertian,
-# the same under Cook-Torrance's light, Cook-Torrance's diffuse term alone under it, and
-# Cook-Torrance.
+# The models an evaluation fits, in the order the gain is split: the paper's Lambertian, the
+# same under Cook-Torrance's light, Cook-Torrance's diffuse term alone under it, and itself.
 MODELS = ("lambertian", "lambertian_same_light", "diffuse_same_light", "cook_torrance")
 # An estimator of Cook-Torrance with its light: fits on the first `calibration` frames.
 Estimator = Callable[..., Estimate]
@@ -472,7 +471,8 @@ def evaluate(
         why = facets_suggestion(Status(fitted.status).name, left)
     if facets is True or why is not None:
         tic = time.perf_counter()
-        progress("the lobe about every point's own facet (a grid of sigma and F_tilde)...")
+        marginal = ", and integrated out: minutes" if facet_marginal else ""
+        progress(f"the lobe about every point's own facet (a grid of sigma, F_tilde{marginal})...")
         facet, note = _facet_lobe(tracks, fitted.model, why, facet_marginal)
         notes += [note] if note else []
         timings["facets"] = time.perf_counter() - tic

@@ -533,7 +533,7 @@ def at_the_marginal_width(lobe: FacetLobe, marginal: dict) -> dict:
     fixed-width lobe's own (its grid, its gain against Lambert) and its F_tilde's halves,
     checked as the marginal's (`_F_tilde_reasons`: F_tilde is what is measured here). On
     SCARED's frames 61-84 (docs/real-video.md): sigma 0.150 (halves 0.175 / 0.176), F_tilde
-    0.036 (halves 0.032 / 0.028), 0.751x Lambert's test error under the same light; on
+    0.035 (halves 0.032 / 0.028), 0.751x Lambert's test error under the same light; on
     61-72 sigma 0.119, F_tilde 0.021, halves 0.010 / 0.016: `unstable`."""
     F_tildes = sorted({f for _, f in lobe.calibration_rmse})
     width = [u for u in marginal["undetermined"] if u["parameter"] in _WIDTH_REASONS]
