@@ -40,14 +40,21 @@ def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets):
     out = tmp_path / "light.json"
     argv = ["calibrate-light", str(root), "--model", "near", "--json", str(out)]
     # A light 1 mm in front of the lens plane: its offset fitted along the axis too.
-    assert main([*argv, "--falloff", "inverse_square+spot", "--facets", "--offset", "free"]) == 0
+    facets = ["--facets", "--facet-marginal"]
+    assert main([*argv, "--falloff", "inverse_square+spot", *facets, "--offset", "free"]) == 0
     result = json.loads(out.read_text())
     assert result["offset_axes"] == "free" and result["shading_model"]["light"]["class"] == (
         "PointLight"
     )
-    # The lobe about every point's own facet under the fitted light (tests/test_facets.py).
+    # The lobe about every point's own facet under the fitted light, the facets integrated
+    # out, and the facet lobe at their width (the estimators: tests/test_facets.py).
     assert result["facets"]["sigma"] > 0 and np.isfinite(result["facets"]["ratio"])
-    assert "a lobe about every point's own facet" in capsys.readouterr().out
+    marginal, both = result["facet_marginal"], result["facets_at_the_marginal_width"]
+    assert both["sigma"] == pytest.approx(marginal["sigma"]) and np.isfinite(both["ratio"])
+    assert both["sigma_from"] == "facet_marginal"
+    printed = capsys.readouterr().out
+    assert "a lobe about every point's own facet" in printed
+    assert "the facets integrated out" in printed and "at the marginal's width" in printed
     assert main([*argv[:-2], "--model", "field", "--json", str(out), "--facets"]) == 2
     assert "--facets is for the near light" in capsys.readouterr().err
     assert main([*argv[:-2], "--model", "field", "--json", str(out), "--offset", "free"]) == 2

@@ -19,6 +19,8 @@ from ctjax.evaluation import (
     evaluate,
     fit_colocated,
     integrate_gradients,
+    lobes_judged,
+    lobes_judged_lines,
     refine_normals,
     scale_to_volume,
     sfs_tsai_shah,
@@ -263,6 +265,19 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coar
     assert "a lobe about every point's own facet" in printed
     assert f"status {facets['status']}" in printed
     assert "the facets integrated out" in printed and "at the marginal's width" in printed
+    # The three lobes side by side, each against Lambert's under the same (colocated) light.
+    judged = summary["lobes_judged"]
+    assert [row["lobe"] for row in judged["lobes"]] == [
+        "normals",
+        "facets",
+        "facets_at_the_marginal_width",
+    ]
+    reference = summary["lambertian_rgb_rmse_test"]
+    assert judged["lobes"][0]["ratio"] == pytest.approx(
+        summary["cook_torrance_rgb_rmse_test"] / reference
+    )
+    assert judged["lobes"][1]["ratio"] == pytest.approx(facets["ratio"])
+    assert "the lobes judged on the test frames" in printed
     for model in ("lambertian", "cook_torrance"):
         for key in ("rgb_rmse_calibration", "rgb_rmse_test", "sfs_error_mm"):
             assert np.isfinite(summary[f"{model}_{key}"]), (model, key)
@@ -424,3 +439,56 @@ def test_lambertian_gets_cook_torrances_light_and_the_gain_is_split(tmp_path):
     held = evaluation.lambertian_same_light.model.light
     assert np.allclose(np.asarray(held.position_mm), [5.0, 0.0, 0.0])  # held, not refitted
     assert "median depths" not in summary["units"] and ", mm, test frames" in summary["units"]
+
+
+def test_the_lobes_judged_side_by_side_name_the_best_determined_one():
+    """SCARED 31-54's figures (docs: real endoscopic video): the paper's lobe about the
+    normals and the facet lobe, both determined; the facet lobe's lower ratio wins. An
+    undetermined lobe never does, however low its ratio (61-84's facets: unstable)."""
+    summary = {
+        "lambertian_rgb_rmse_test": 12.86,
+        "lambertian_same_light_rgb_rmse_test": 10.69,
+        "cook_torrance_rgb_rmse_test": 10.43,
+        "models": {
+            "cook_torrance": {
+                "sigma": 0.278,
+                "F_tilde": [0.085, 0.069, 0.065],
+                "light": "LensPlaneLight",
+                "status": "successful",
+            }
+        },
+        "facets": {
+            "sigma": 0.146,
+            "F_tilde": 0.052,
+            "heldout_rgb_rmse": 8.47,
+            "lambertian_same_light_rgb_rmse": 10.69,
+            "status": "successful",
+            "facets_at_the_marginal_width": {
+                "sigma": 0.143,
+                "F_tilde": 0.045,
+                "heldout_rgb_rmse": 8.0,
+                "lambertian_same_light_rgb_rmse": 10.69,
+                "status": "unstable",
+            },
+        },
+    }
+    judged = lobes_judged(summary)
+    normals, facets, width = judged["lobes"]
+    assert normals["ratio"] == pytest.approx(10.43 / 10.69) and normals["max_F_tilde"] == 0.085
+    assert facets["ratio"] == pytest.approx(8.47 / 10.69)
+    assert width["ratio"] < facets["ratio"] and width["status"] == "unstable"
+    assert judged["best_determined"] == "facets"
+    lines = lobes_judged_lines(judged)
+    assert "0.976x, successful" in lines[1] and lines[-1].endswith("each point's own facet")
+    # Nothing determined: no best. No Lambert under the same light (a light away from the
+    # camera, Lambert's at the camera only): the lobe about the normals is not compared.
+    summary["models"]["cook_torrance"]["status"] = "at_bound"
+    summary["facets"]["status"] = "unstable"
+    assert lobes_judged(summary)["best_determined"] is None
+    del summary["lambertian_same_light_rgb_rmse_test"]
+    assert [row["lobe"] for row in lobes_judged(summary)["lobes"]] == [
+        "facets",
+        "facets_at_the_marginal_width",
+    ]
+    summary["models"]["cook_torrance"]["light"] = "ColocatedLight"
+    assert lobes_judged(summary)["lobes"][0]["ratio"] == pytest.approx(10.43 / 12.86)

@@ -61,9 +61,9 @@ def add_evaluate_parser(commands) -> None:
         help="also the lobe about every tracked point's own facet (its normal read from the "
         "views where it shone), sigma and F_tilde chosen on the calibration frames, judged "
         "on the test frames beside Lambert's under the same light (with the map): on "
-        "(--facets alone), off, or auto (default): where Cook-Torrance's lobe about the "
-        "reconstruction's normals is not found and at least half of its test-frame residual "
-        "lies within 7 px of the highlights (about a minute at 640x512 x 12)",
+        "(--facets alone), off, or auto (default): where at least half of Cook-Torrance's "
+        "test-frame residual lies within 7 px of the highlights, its lobe about the "
+        "reconstruction's normals found or not (about a minute at 640x512 x 12)",
     )
     evaluate.add_argument(
         "--facet-marginal",
@@ -171,6 +171,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
             print(facet_marginal_line(summary["facets"]["facet_marginal"]))
             print(at_the_marginal_width_line(summary["facets"]["facets_at_the_marginal_width"]))
+    if len(summary["lobes_judged"]["lobes"]) > 1:
+        from ..evaluation import lobes_judged_lines
+
+        print("\n".join(lobes_judged_lines(summary["lobes_judged"])))
     right = summary.get("right_views")
     if right is not None:
         figures = ", ".join(

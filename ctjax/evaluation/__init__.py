@@ -6,6 +6,8 @@ from ._evaluate import evaluate as evaluate
 from ._evaluate import fit_colocated as fit_colocated
 from ._evaluate import fit_lambertian as fit_lambertian
 from ._integrate import integrate_gradients as integrate_gradients
+from ._lobes import lobes_judged as lobes_judged
+from ._lobes import lobes_judged_lines as lobes_judged_lines
 from ._plots import evaluation_plots as evaluation_plots
 from ._refine import NormalRefinement as NormalRefinement
 from ._refine import refine_normals as refine_normals

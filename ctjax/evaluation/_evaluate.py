@@ -37,6 +37,7 @@ from ..io import Capture
 from ..lights import AbstractLight, ColocatedLight, LightField
 from ..lobes import BRDF, Lambertian
 from ..observations import Observations
+from ._lobes import lobes_judged
 from ._pyramid import block_reduce, reduced
 from ._scale import bounding_box_volume
 from ._sfs import ShapeFromShading, sfs_cook_torrance, sfs_refined, sfs_tsai_shah
@@ -142,11 +143,7 @@ class Evaluation:
         light's (Lambertian at the camera -> Lambertian under Cook-Torrance's light), its
         diffuse term's where that is not Lambert's (-> that term alone under the same light)
         and its lobe's (-> Cook-Torrance), in levels."""
-        test = {
-            name: getattr(self, name).rmse["test"]
-            for name in MODELS
-            if getattr(self, name) is not None
-        }
+        test = {n: getattr(self, n).rmse["test"] for n in MODELS if getattr(self, n) is not None}
         out = {"total_levels": test["lambertian"] - test["cook_torrance"]}
         lit = test.get("lambertian_same_light", test["lambertian"])
         if "lambertian_same_light" in test:
@@ -232,6 +229,7 @@ class Evaluation:
                 "undetermined": self.cook_torrance.details.get("undetermined", []),
             },
         }
+        out["lobes_judged"] = lobes_judged(out)
         out["sfs_frames"] = [shape.to_json() for shape in self.shapes]
         out["timings_s"] = {k: round(v, 2) for k, v in self.timings.items()}
         out["notes"] = self.notes

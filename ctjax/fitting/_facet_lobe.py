@@ -430,12 +430,13 @@ def facet_lobe_line(summary: dict) -> str:
 def facets_suggestion(
     status: str, highlight_share: float | None = None, alignment: str | None = None
 ) -> str | None:
-    """What a command says when its lobe about the reconstruction's normals is not found
-    but the frames point at finer relief: most of the held-out residual within 7 px of the
-    highlights (`highlight_share`, at least half), or highlights' peaks `scattered` about
-    N = H (`alignment`). None otherwise, and where the lobe was found (`status`)."""
-    if status == "successful":
-        return None
+    """What a command says when the frames point at relief finer than the reconstruction:
+    most of the held-out residual within 7 px of the highlights (`highlight_share`, at
+    least half), or highlights' peaks `scattered` about N = H (`alignment`). Whether or not
+    the lobe about the reconstruction's normals was found (`status`): on the SCARED da Vinci
+    sequences a found one predicts the test frames at 0.94-1.0x Lambert's RMSE under the
+    same light and leaves about 80% of its residual there; a lobe about each point's facet
+    0.71-0.79x (docs: real endoscopic video). None where nothing points there."""
     near = highlight_share is not None and highlight_share >= 0.5
     if not near and alignment != "scattered":
         return None
@@ -444,8 +445,12 @@ def facets_suggestion(
         if near
         else "the highlights' peaks scatter about N = H (relief finer than the shape)"
     )
+    lobe = (
+        "though the lobe about these normals is found"
+        if status == "successful"
+        else f"and the lobe about these normals is {status}"
+    )
     return (
-        f"{why} and the lobe about these normals is {status}: a lobe about each tracked "
-        "point's own facet, its normal read from the views where it shone, may be what the "
-        "frames show"
+        f"{why} {lobe}: a lobe about each tracked point's own facet, its normal read from "
+        "the views where it shone, may be what the frames show"
     )
