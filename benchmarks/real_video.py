@@ -22,7 +22,8 @@ is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate`
 - the near light: falloff, offset (with its unit), status;
 - evaluate: Cook-Torrance against Lambertian on the held-out frames, the gain split into
   the light's and the lobe's (and on a stereo capture both on the right camera's views),
-  and the lobe about every point's own facet where `evaluate` judges it (`--facets auto`);
+  and the lobe about every point's own facet where `evaluate` judges it (`--facets auto`),
+  with the best determined lobe (`lobes_judged`);
 - diagnose --loop: the held-out RMSE step by step against the noise floor, and what is left
   of the last model's residual (`residual_budget`).
 
@@ -258,6 +259,7 @@ def _table(source, out, capture, seconds, failed) -> dict:
                 "gain",
                 "right_views",
                 "facets",
+                "lobes_judged",
             )
         },
         "diagnose": [
@@ -323,12 +325,15 @@ def _print(row: dict) -> None:
         f", lobe {_fmt(gain.get('lobe_levels'))})"
     )
     facets = e.get("facets")
-    if facets:  # judged by `evaluate --facets auto` where the lobe about the normals is not
+    if facets:  # judged by `evaluate --facets auto` where the highlights hold the residual
         print(
             f"facets     sigma {_fmt(facets['sigma'])}, F_tilde {_fmt(facets['F_tilde'])}, "
             f"status {facets['status']}; test RMSE {_fmt(facets['heldout_rgb_rmse'])}, "
             f"{_fmt(facets['ratio'])}x Lambertian under the same light"
         )
+    judged = e.get("lobes_judged") or {}
+    if len(judged.get("lobes", [])) > 1:
+        print(f"lobes      the best determined: {judged['best_determined'] or 'none'}")
     right = e.get("right_views")
     if right:
         figures = ", ".join(
