@@ -32,6 +32,7 @@ class Status(enum.IntEnum):
     no_standard_error = 9
     unstable = 10
     misoriented = 11
+    imprecise = 12
 
     @property
     def message(self) -> str:
@@ -91,6 +92,7 @@ _UNDETERMINED = (
     Status.no_standard_error,
     Status.unstable,
     Status.misoriented,
+    Status.imprecise,
 )
 
 _MESSAGES = {
@@ -113,6 +115,8 @@ _MESSAGES = {
     Status.misoriented: "converged, but the highlights lie where one rotation of the normals "
     "would put N = H: the lobe is fitted about normals that misplace them, no measurement of "
     "it",
+    Status.imprecise: "converged, but a roughness's standard error is over a quarter of its "
+    "value: the data leave it anywhere from half to one and a half times it, no measurement of it",
 }
 
 _FROM_OPTIMISTIX = (

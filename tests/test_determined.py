@@ -194,6 +194,20 @@ def test_halves_of_the_frames_that_disagree_make_an_unstable_lobe():
     assert undetermined(values, stderrs, halves={"sigma": (0.44, 0.47)}) == []
 
 
+def test_a_roughness_whose_standard_error_is_over_a_quarter_of_it_is_imprecise():
+    """The shared sinus's 24 frames (docs: real endoscopic video): the near light's fit read
+    sigma 0.048 +- 0.016 from a lobe seen on 75 views, and said `successful`."""
+    values = {"rho_tilde": RHO, "F_tilde": [0.0003, 0.0004, 0.0004], "sigma": 0.0479}
+    found = undetermined(values, {"sigma": 0.0157}, lobe_gain=0.023)
+    assert [(u.parameter, u.status) for u in found] == [("sigma", Status.imprecise)]
+    assert "33% of it" in found[0].reason and "0.0165 to 0.0793" in found[0].reason
+    assert Status.imprecise.converged and not Status.imprecise.determined
+    assert _statuses(values, {"sigma": 0.0119}) == {}  # 24.8%: measured
+    # Halves that disagree say more than the standard error: one flag, `unstable`.
+    found = undetermined(values, {"sigma": 0.0157}, halves={"sigma": (0.03, 0.07)})
+    assert [(u.parameter, u.status) for u in found] == [("sigma", Status.unstable)]
+
+
 def test_a_lobe_that_is_not_the_lights_colour_is_no_highlight():
     values = {"rho_tilde": RHO, "F_tilde": [0.0, 0.0333, 0.0355], "sigma": 0.27}
     stderrs = {"F_tilde": [0.0019, 0.0015, 0.0014], "sigma": 0.005}
