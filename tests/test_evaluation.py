@@ -479,7 +479,10 @@ def test_the_lobes_judged_side_by_side_name_the_best_determined_one():
     assert width["ratio"] < facets["ratio"] and width["status"] == "unstable"
     assert judged["best_determined"] == "facets"
     lines = lobes_judged_lines(judged)
-    assert "0.976x, successful" in lines[1] and lines[-1].endswith("each point's own facet")
+    assert "0.976x, successful" in lines[1] and lines[-1].endswith(": each point's own facet")
+    # A determined lobe that predicts no better than Lambert's is never the best.
+    summary["facets"]["heldout_rgb_rmse"] = 11.0
+    assert lobes_judged(summary)["best_determined"] == "normals"
     # Nothing determined: no best. No Lambert under the same light (a light away from the
     # camera, Lambert's at the camera only): the lobe about the normals is not compared.
     summary["models"]["cook_torrance"]["status"] = "at_bound"

@@ -43,7 +43,8 @@ def lobes_judged(summary: dict) -> dict:
     """The lobes judged in an evaluation's JSON (`Evaluation.to_json()`): one row each
     (`lobe`, `about`, `sigma`, `max_F_tilde`, held-out RGB RMSE in levels, Lambert's under
     the same light, their `ratio`, the lobe's `status`), and `best_determined`: the lobe of
-    lowest ratio among those whose status is `successful` (None where none is). Every row
+    lowest ratio among those whose status is `successful` and that predict better than
+    Lambert's (ratio under 1; None where none does). Every row
     is judged on the same test frames; the facet rows' reference is Lambert's on their own
     views (the same tracked points under the map)."""
     fitted = summary.get("models", {}).get("cook_torrance", {})
@@ -78,7 +79,7 @@ def lobes_judged(summary: dict) -> dict:
                 )
             )
     rows = [row for row in rows if row is not None]
-    determined = [row for row in rows if row["status"] == "successful"]
+    determined = [row for row in rows if row["status"] == "successful" and row["ratio"] < 1]
     best = min(determined, key=lambda row: row["ratio"])["lobe"] if determined else None
     return {
         "lobes": rows,
@@ -86,7 +87,8 @@ def lobes_judged(summary: dict) -> dict:
         "note": (
             "held-out RGB RMSE (8-bit levels) of Cook-Torrance with each lobe, and its ratio "
             "to Lambert's model under the same light on the same views; best_determined: the "
-            "lowest ratio among the lobes whose status is successful (the data determine them)"
+            "lowest ratio under 1 among the lobes whose status is successful (the data "
+            "determine them)"
         ),
     }
 
@@ -105,6 +107,6 @@ def lobes_judged_lines(block: dict) -> list[str]:
             f"{row['status']}"
         )
     best = block["best_determined"]
-    best = "none (no lobe's status is successful)" if best is None else f"about {dict(LOBES)[best]}"
+    best = "none beats Lambert's with status successful" if best is None else dict(LOBES)[best]
     lines.append(f"  the lowest ratio among the determined lobes: {best}")
     return lines
