@@ -1,7 +1,9 @@
 """The lobe about every point's own facet (`ctjax.fitting.facet_lobe`) and whether the
 highlights stay on the tissue (`ctjax.specular.highlight_persistence`)."""
 
+import itertools
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from ctjax.fitting import (
     facet_lobe,
     facet_marginal,
     facets_suggestion,
+    views_step,
 )
 from ctjax.fitting._facet_lobe import (
     FACET_CANDIDATES,
@@ -31,6 +34,7 @@ from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
 from ctjax.specular import highlight_persistence
 from ctjax.synth import SynthOptions, synthesize
+from ctjax.synth._trajectory import look_at
 
 SMALL = dict(width=128, height=96, frames=6, seed=1, rho_tilde=(0.8, 0.5, 0.4))
 
@@ -259,6 +263,14 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     assert status == "unstable" and reasons[0]["parameter"] == "sigma"
     assert "63% above its 0.086" in reasons[0]["reason"]
     assert "peak F_tilde/sigma^2: 1.76 on all of them, 1.66 / 1.81" in reasons[0]["reason"]
+    # With the views' spacing (`views_step`) quoted beside it.
+    step = (0.0157, 0.0313, 0.0305)
+    halves = ((0.139, 0.032), (0.141, 0.036))
+    status, reasons = _facet_status(0.086, 0.013, *grid, 0.06, halves, step=step)
+    assert (
+        "consecutive views 0.0157 rad apart on all of them, 0.0313 / 0.0305 on the halves"
+        in (reasons[0]["reason"])
+    )
     status, reasons = _facet_status(0.2, 0.01, *grid, 0.06, ((0.15, 0.01), (0.15, 0.01)))
     assert status == "unstable" and "25% below its 0.2" in reasons[0]["reason"]
     assert _facet_status(0.049, 0.0107, *grid, 0.06, ((0.057, 0.01), (0.056, 0.01)))[0] == (
@@ -361,3 +373,49 @@ def test_a_facet_lobe_that_mispredicts_the_held_out_views_is_no_lobe():
     assert status == "no_lobe" and reasons[0]["status"] == "no_lobe" and reasons[1] == unstable
     assert _judged_status("unstable", (unstable,), 7.0, 7.41) == ("unstable", (unstable,))
     assert _judged_status("successful", (), float("nan"), 7.41) == ("successful", ())
+
+
+def test_the_views_step_is_the_angle_between_a_points_consecutive_views():
+    """`views_step`: the median angle between a tracked point's consecutive views (by frame,
+    whatever the order of the rows; unobserved views skipped), each its direction to the
+    scope in world coordinates, on all the frames and on each half. Planted: five cameras
+    about two points, about 3 degrees apart as seen from them (the last one unobserved)."""
+    step = math.radians(3.0)
+    target = np.array([1.0, -2.0, 60.0])
+    centres = [
+        target + 55.0 * np.array([math.sin(k * step), 0.1 * k, -math.cos(k * step)])
+        for k in range(5)
+    ]
+    poses = [look_at(c, target, np.array([0.0, 1.0, 0.0])) for c in centres]
+    world = [target + np.array([0.5, 0.2, 0.0]), target + np.array([-0.7, 0.4, 0.3])]
+    rows = [2, 0, 3, 1, 4]  # frames as the rows hold them (any order)
+    views, points = len(rows), len(world)
+    corner = np.zeros((4, views, points, 3))
+    for m, k in enumerate(rows):
+        pose = poses[k]
+        for p, x in enumerate(world):
+            corner[:, m, p] = pose[:3, :3].T @ (x - pose[:3, 3])  # its camera frame
+    weight = np.ones((views, points))
+    weight[rows.index(4)] = 0.0  # frame 4 unobserved
+    samples = SimpleNamespace(
+        weight=weight,
+        site=SimpleNamespace(frame=np.tile(np.array(rows)[:, None], (1, points))),
+        corner_weight=np.full((4, views, points), 0.25),
+        point=SimpleNamespace(**{a: corner[..., i].ravel() for i, a in enumerate("xyz")}),
+    )
+    rotations = np.stack([pose[:3, :3] for pose in poses])
+
+    def angle(a, b, x):
+        u, v = a - x, b - x
+        return math.acos(np.dot(u, v) / np.linalg.norm(u) / np.linalg.norm(v))
+
+    def expected(frames):
+        return np.median(
+            [angle(centres[a], centres[b], x) for x in world for a, b in itertools.pairwise(frames)]
+        )
+
+    found = views_step(samples, rotations)
+    assert found == pytest.approx(
+        (expected([0, 1, 2, 3]), expected([0, 2]), expected([1, 3])), rel=1e-9
+    )
+    assert found[1] == pytest.approx(2 * found[0], rel=0.05)  # every other frame: twice as far

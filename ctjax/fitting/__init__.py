@@ -10,6 +10,7 @@ from ._facet_lobe import FacetLobe as FacetLobe
 from ._facet_lobe import facet_lobe as facet_lobe
 from ._facet_lobe import facet_lobe_line as facet_lobe_line
 from ._facet_lobe import facets_suggestion as facets_suggestion
+from ._facet_lobe import views_step as views_step
 from ._facet_marginal import FacetMarginal as FacetMarginal
 from ._facet_marginal import at_the_marginal_width as at_the_marginal_width
 from ._facet_marginal import at_the_marginal_width_line as at_the_marginal_width_line

@@ -54,6 +54,49 @@ def halves_json(halves: tuple | None) -> dict | None:
     }
 
 
+def views_step_json(step: tuple) -> dict:
+    """`views_step`'s three medians, for JSON."""
+    return dict(zip(("all_frames", "even_frames", "odd_frames"), step, strict=True))
+
+
+def views_step(train: TrackSamples, rotations) -> tuple[float, float, float]:
+    """How finely the calibration views sample a lobe: the median angle (rad) between a
+    tracked point's consecutive views (by frame), each its direction to the scope in world
+    coordinates (`rotations` (F, 3, 3): camera-to-world), on all the frames, then on the
+    even and on the odd frames alone (the halves' spacing). With the light at the scope a
+    view's H turns by about as much as its direction does. NaN where no point has two
+    views."""
+    weight = np.asarray(train.weight)  # (M, P)
+    views, points = weight.shape
+    frame = np.asarray(train.site.frame)
+    point = train.point  # (4 M P) corners, views first (read on the host: no eager JAX)
+    corners = np.stack(
+        [np.asarray(c).reshape(4, views, points) for c in (point.x, point.y, point.z)], -1
+    )
+    corner_weight = np.asarray(train.corner_weight)  # (4, M, P)
+    at = np.einsum("cmp,cmpd->mpd", corner_weight, corners)  # each view's point, camera frame
+    direction = -at / np.maximum(np.linalg.norm(at, axis=-1, keepdims=True), 1e-12)
+    rotations = np.asarray(rotations, float)
+    world = np.einsum("mpij,mpj->mpi", rotations[np.maximum(frame, 0)], direction)
+    order = np.argsort(np.where(weight > 0, frame, np.iinfo(np.int32).max), 0, kind="stable")
+    counted = np.take_along_axis(weight > 0, order, 0)
+    frame = np.take_along_axis(frame, order, 0)
+    world = np.take_along_axis(world, order[..., None], 0)
+
+    def median_step(part: int | None) -> float:
+        last, seen, steps = np.zeros((points, 3)), np.zeros(points, bool), []
+        for m in range(views):
+            on = counted[m] if part is None else counted[m] & (frame[m] % 2 == part)
+            both = on & seen
+            cosine = np.sum(last[both] * world[m, both], -1)
+            steps.append(np.arccos(np.clip(cosine, -1.0, 1.0)))
+            last[on], seen = world[m, on], seen | on
+        steps = np.concatenate(steps)
+        return float(np.median(steps)) if steps.size else math.nan
+
+    return median_step(None), median_step(0), median_step(1)
+
+
 class FacetLobe(eqx.Module):
     """The lobe about every point's own facet (`facet_lobe`): `sigma` and `F_tilde` (grey)
     chosen on the calibration tracks, `calibration_rmse` (grid point -> RMSE, levels),
@@ -75,7 +118,9 @@ class FacetLobe(eqx.Module):
     points: the choice again on `BOOTSTRAP_RESAMPLES` resamples of them), `status`
     (`"successful"` or the first of `ctjax._determined`'s statuses that applies) and
     `undetermined` (each reason, as `Estimate.details`); and `no_lobe` where the lobe
-    predicts the held-out views no better than Lambert's model under the same light."""
+    predicts the held-out views no better than Lambert's model under the same light.
+    `views_step`: how finely the calibration views sample the lobe (`views_step`: rad on
+    all the frames, on the even and on the odd ones)."""
 
     sigma: float
     F_tilde: float
@@ -92,6 +137,7 @@ class FacetLobe(eqx.Module):
     stderr: tuple = (math.nan, math.nan)
     candidates: str = "across the arc"
     candidate_rmse: dict = eqx.field(default_factory=dict)
+    views_step: tuple = (math.nan, math.nan, math.nan)
 
     @property
     def ratio(self) -> float:
@@ -125,6 +171,7 @@ class FacetLobe(eqx.Module):
             "views_with_a_facet": self.with_facet,
             "candidates": self.candidates,
             "calibration_rmse_by_candidates": dict(self.candidate_rmse),
+            "views_step_rad": views_step_json(self.views_step),
             "calibration_rgb_rmse": {
                 f"sigma={s:g},F_tilde={f:g}": r for (s, f), r in self.calibration_rmse.items()
             },
@@ -219,14 +266,14 @@ def _chosen(grid: dict, squared: bool = True) -> tuple[float, float]:
     return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
 
 
-def _shifted_by_the_halves(sigma, f, halves) -> Undetermined | None:
+def _shifted_by_the_halves(sigma, f, halves, step=None) -> Undetermined | None:
     """Where the even and the odd calibration frames alone agree with each other but both
     put sigma more than `HALVES_AGREE` off its value on all of them (geometric mean): each
     half sees every point from views twice as far apart, and a width that moves with that
     follows the views' sampling of the lobe, not only the tissue. On SCARED's frames 61-84
     the facet lobe read 0.086 on all 15 calibration frames and 0.139 / 0.141 on the halves
     (0.059 on frames 61-72's 8); on synthetic sparkles the facets integrated out read 0.0631
-    and 0.0657 / 0.0653 (docs/real-video.md, "Facets")."""
+    and 0.0657 / 0.0653 (docs/real-video.md, "Facets"). `step`: `views_step`, quoted."""
     if halves is None or not sigma > 0:
         return None
     (a, fa), (b, fb) = halves
@@ -236,6 +283,12 @@ def _shifted_by_the_halves(sigma, f, halves) -> Undetermined | None:
     if abs(shift) <= HALVES_AGREE:
         return None
     peaks = f"{f / sigma**2:.3g} on all of them, {fa / a**2:.3g} / {fb / b**2:.3g} on the halves"
+    spacing = ""
+    if step is not None and all(math.isfinite(x) for x in step):
+        spacing = (
+            f"; a point's consecutive views {step[0]:.3g} rad apart on all of them, "
+            f"{step[1]:.3g} / {step[2]:.3g} on the halves"
+        )
     return Undetermined(
         "sigma",
         Status.unstable,
@@ -243,12 +296,12 @@ def _shifted_by_the_halves(sigma, f, halves) -> Undetermined | None:
         f"apart) put sigma at {a:.3g} and {b:.3g}, {abs(shift):.0%} "
         f"{'above' if shift > 0 else 'below'} its {sigma:.3g} on all of them (over "
         f"{HALVES_AGREE:.0%}): the width follows how densely the views sample the lobe, not "
-        f"the tissue alone (the peak F_tilde/sigma^2: {peaks})",
+        f"the tissue alone (the peak F_tilde/sigma^2: {peaks}{spacing})",
     )
 
 
 def _facet_status(
-    sigma, f, sigmas, F_tildes, gain, halves, sigma_stderr=math.nan, unchecked=None
+    sigma, f, sigmas, F_tildes, gain, halves, sigma_stderr=math.nan, unchecked=None, step=None
 ) -> tuple[str, tuple]:
     """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
     grid, a gain under `MIN_LOBE_GAIN`, halves apart or a half without the lobe (its
@@ -288,7 +341,7 @@ def _facet_status(
                 f"{'either half' if len(lacking) == 2 else 'one half'} of the frames",
             )
         )
-    shifted = _shifted_by_the_halves(sigma, f, halves)
+    shifted = _shifted_by_the_halves(sigma, f, halves, step)
     if shifted is not None and not any(u.parameter == "sigma" for u in found):
         found.append(shifted)
     if unchecked is not None and not any(u.parameter == "sigma" for u in found):
@@ -401,7 +454,10 @@ def facet_lobe(
     )  # fmt: skip
     best = min(calibration.values())  # the grid's least: the refined choice is between points
     gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
-    status, reasons = _facet_status(sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked)
+    step = views_step(train, rotations)
+    status, reasons = _facet_status(
+        sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked, step
+    )
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
         shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
@@ -428,6 +484,7 @@ def facet_lobe(
         stderr,
         name,
         candidate_rmse,
+        step,
     )
 
 

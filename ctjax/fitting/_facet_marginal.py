@@ -46,6 +46,8 @@ from ._facet_lobe import (
     _chosen,
     _facet_status,
     halves_json,
+    views_step,
+    views_step_json,
 )
 from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
@@ -286,7 +288,7 @@ class FacetMarginal(eqx.Module):
     (the nuisances at an end of their grids are `at_bound` too: the likelihood then
     misdescribes the data; F_tilde's halves are checked as sigma's; no `no_lobe` check: a
     lobe the data do not want puts F_tilde at its grid's bottom), `at_bound` (sigma or
-    F_tilde at an end of its grid).
+    F_tilde at an end of its grid), `views_step` (`FacetLobe.views_step`).
 
     Against synthetic truth (attached sparkles at 256x192 x 12, micro-lobe 0.06, F_tilde
     0.012, facets of Beckmann 0.2, 1 level of noise; `benchmarks/facet_truth.py
@@ -306,6 +308,7 @@ class FacetMarginal(eqx.Module):
     halves: tuple | None = None
     status: str = "successful"
     undetermined: tuple = ()
+    views_step: tuple = (math.nan, math.nan, math.nan)
 
     @property
     def peak(self) -> float:
@@ -325,6 +328,7 @@ class FacetMarginal(eqx.Module):
             "undetermined": list(self.undetermined),
             "at_bound": self.at_bound,
             "halves": halves,
+            "views_step_rad": views_step_json(self.views_step),
             "log_likelihood": {
                 f"sigma={s:g},F_tilde={f:g}": v for (s, f), v in self.log_likelihood.items()
             },
@@ -467,7 +471,10 @@ def facet_marginal(
     gain = float((likelihood[:, :, 0].max() - without[0][0].max()) / values) if values else math.nan
     split = (choice(1), choice(2)) if checked else None
     unchecked = frames if halves and not checked else None
-    _, reasons = _facet_status(sigma, f, sigmas, F_tildes, math.nan, split, math.nan, unchecked)
+    step = views_step(train, rotations)
+    _, reasons = _facet_status(
+        sigma, f, sigmas, F_tildes, math.nan, split, math.nan, unchecked, step
+    )
     found = [
         *reasons,
         *_F_tilde_reasons(f, split, F_tildes),
@@ -488,6 +495,7 @@ def facet_marginal(
         split,
         status,
         tuple(found),
+        step,
     )
 
 
