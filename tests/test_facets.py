@@ -257,8 +257,8 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
     # Halves that agree with each other on a width away from the whole's (SCARED's frames
-    # 61-84: 0.139 / 0.141 against 0.086): the width follows the views' spacing; within 20%
-    # of it, nothing is said.
+    # 61-84: 0.139 / 0.141 against 0.086): the width moves with the frames that choose it;
+    # within 20% of it, nothing is said.
     status, reasons = _facet_status(0.086, 0.013, *grid, 0.06, ((0.139, 0.032), (0.141, 0.036)))
     assert status == "unstable" and reasons[0]["parameter"] == "sigma"
     assert "63% above its 0.086" in reasons[0]["reason"]

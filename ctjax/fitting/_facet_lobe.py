@@ -269,11 +269,14 @@ def _chosen(grid: dict, squared: bool = True) -> tuple[float, float]:
 def _shifted_by_the_halves(sigma, f, halves, step=None) -> Undetermined | None:
     """Where the even and the odd calibration frames alone agree with each other but both
     put sigma more than `HALVES_AGREE` off its value on all of them (geometric mean): each
-    half sees every point from views twice as far apart, and a width that moves with that
-    follows the views' sampling of the lobe, not only the tissue. On SCARED's frames 61-84
-    the facet lobe read 0.086 on all 15 calibration frames and 0.139 / 0.141 on the halves
-    (0.059 on frames 61-72's 8); on synthetic sparkles the facets integrated out read 0.0631
-    and 0.0657 / 0.0653 (docs/real-video.md, "Facets"). `step`: `views_step`, quoted."""
+    half sees every point from views twice as far apart, and a width that moves with the
+    frames that choose it is not the tissue's alone. On SCARED's frames 61-84 the facet lobe
+    read 0.086 on all 15 calibration frames and 0.139 / 0.141 on the halves (0.059 on frames
+    61-72's 8), with consecutive views 0.016 rad apart: five steps within the width, well
+    sampled. On synthetic sparkles whose views are as far apart, a micro-lobe of 0.06 read
+    0.049 on 15 frames and 0.055 / 0.053 on their halves (10%), one of 0.025 (below what the
+    grid resolves) 0.036 and 0.047 / 0.052 (37%); the facets integrated out read 0.0631 and
+    0.0657 / 0.0653 (docs/real-video.md, "Facets"). `step`: `views_step`, quoted."""
     if halves is None or not sigma > 0:
         return None
     (a, fa), (b, fb) = halves
@@ -295,7 +298,7 @@ def _shifted_by_the_halves(sigma, f, halves, step=None) -> Undetermined | None:
         f"the even and the odd calibration frames alone (each point's views twice as far "
         f"apart) put sigma at {a:.3g} and {b:.3g}, {abs(shift):.0%} "
         f"{'above' if shift > 0 else 'below'} its {sigma:.3g} on all of them (over "
-        f"{HALVES_AGREE:.0%}): the width follows how densely the views sample the lobe, not "
+        f"{HALVES_AGREE:.0%}): the width moves with the frames that choose it, not with "
         f"the tissue alone (the peak F_tilde/sigma^2: {peaks}{spacing})",
     )
 

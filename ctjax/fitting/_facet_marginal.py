@@ -392,8 +392,8 @@ def _F_tilde_reasons(f: float, split, F_tildes: Sequence[float]) -> list[dict]:
             Status.unstable,
             f"the even and the odd calibration frames alone put F_tilde at {a:.3g} and "
             f"{b:.3g}, {abs(shift):.0%} {'above' if shift > 0 else 'below'} its {f:.3g} on "
-            f"all of them (over {HALVES_AGREE:.0%}): the lobe's weight follows how densely "
-            "the views sample it",
+            f"all of them (over {HALVES_AGREE:.0%}): the lobe's weight moves with the frames "
+            "that choose it",
         ).to_json()
     ]
 
