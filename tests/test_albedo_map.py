@@ -204,10 +204,8 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
     assert np.isfinite(fitted["facets"]["heldout_rgb_rmse"])
     # How finely the calibration views sample the lobe, in both blocks (the same tracks).
     step = fitted["facets"]["views_step_rad"]
-    assert (
-        0 < step["all_frames"] < step["even_frames"]
-        and step == (fitted["facet_marginal"]["views_step_rad"])
-    )
+    assert 0 < step["all_frames"] < step["even_frames"]
+    assert step == fitted["facet_marginal"]["views_step_rad"]
     found = fitted["facet_marginal"]
     grid = coarse_facets
     assert min(grid["sigmas"]) <= found["sigma"] <= max(grid["sigmas"])
