@@ -466,16 +466,17 @@ def near_light_map(
         lens = placed_fit(_at_the_lens(choice, diffuse, offset_axes), hold=hold)[0]
         lens_error = heldout.heldout_rmse(lens.model)
         offset_better = error < (1 - SIMPLEST_WITHIN) * lens_error
-        return chosen, error if offset_better else lens_error, placed, lens
+        return chosen, error if offset_better else lens_error, placed, lens, (error, lens_error)
 
-    fits, errors, placements, lens_fits = [], [], [], []
-    for choice, (chosen, error, placed, lens) in zip(
+    fits, errors, placements, lens_fits, both = [], [], [], [], {}
+    for choice, (chosen, error, placed, lens, pair) in zip(
         choices, in_order(fit_choice, choices, workers), strict=True
     ):
         fits.append(chosen)
         errors.append(error)
         placements.append(placed)
         lens_fits.append(lens)
+        both[_name(choice)] = {"fitted_offset": round(pair[0], 4), "at_the_lens": round(pair[1], 4)}
         say(f"  falloff {_name(choice)}: held-out RMSE {error:.3f} levels")
     chosen = simplest_within(choices, errors, observations=heldout.capture)
     offset_fit = heldout.judge(fits[chosen], noise_floor=False)
@@ -524,6 +525,9 @@ def near_light_map(
         )
     reported = _take_refit(result, every, tracks, detected, reported, placed)
     result.details |= _details(result, capture, choices, errors, detected, offset, reported)
+    # Each set's held-out RMSE with its offset fitted and at the lens (`falloff_selection`
+    # holds the one it would report).
+    result.details["falloff_selection_offsets"] = both
     if detected and np.isfinite(every.cost):
         say("the offset on the even and on the odd frames apart")
         offset_halves(result, placing, fit, reported)
