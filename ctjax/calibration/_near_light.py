@@ -453,13 +453,9 @@ def near_light_map(
         return every_view, (placed.model, placing_train)
 
     def fit_choice(choice):
-        """The set with its offset fitted and with the light at the lens (held, not frozen:
-        the same compiled program), and the held-out RMSE of the one it would report: at
-        the lens unless the offset predicts the held-out frames `SIMPLEST_WITHIN` better.
-        Judged with its fitted offset alone, a set whose offset goes astray loses to one
-        it beats at the lens, where it is then reported (SCARED's frames 61-84: the spot
-        alone 12.49 levels with an offset of (-4.2, 7.1) mm, 10.57 at the lens, against
-        the pair's 11.26, which won)."""
+        """The set with its offset and at the lens (held: the same program), judged as it
+        would be reported: at the lens unless its offset is `SIMPLEST_WITHIN` better (SCARED
+        61-84: the spot alone 12.49 with its offset, 10.57 at the lens; the pair 11.26)."""
         chosen, placed = placed_fit(_starts(choice, capture, diffuse, offset_axes))
         error = heldout.heldout_rmse(chosen.model)
         hold = (_position(chosen.model),)
@@ -525,9 +521,7 @@ def near_light_map(
         )
     reported = _take_refit(result, every, tracks, detected, reported, placed)
     result.details |= _details(result, capture, choices, errors, detected, offset, reported)
-    # Each set's held-out RMSE with its offset fitted and at the lens (`falloff_selection`
-    # holds the one it would report).
-    result.details["falloff_selection_offsets"] = both
+    result.details["falloff_selection_offsets"] = both  # both figures of every set
     if detected and np.isfinite(every.cost):
         say("the offset on the even and on the odd frames apart")
         offset_halves(result, placing, fit, reported)
