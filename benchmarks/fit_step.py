@@ -30,7 +30,7 @@ from _results import emit  # noqa: E402
 
 from ctjax import Status  # noqa: E402
 from ctjax._buckets import padded  # noqa: E402
-from ctjax.calibration._near_light import _starts  # noqa: E402
+from ctjax.calibration._near_light import near_light_starts  # noqa: E402
 from ctjax.fitting import pixel_columns, pixel_predict  # noqa: E402
 from ctjax.fitting._fit import _masked_residuals, initial_weights  # noqa: E402
 from ctjax.fitting._parameters import constrained, free_parameters, unconstrained  # noqa: E402
@@ -50,7 +50,7 @@ def problem(pixels: int):
     capture = load_capture(synthesize(Path(tempfile.mkdtemp()) / "c", options))
     train = HeldOut.split(capture, None, max_samples=pixels, heldout_samples=1000).train
     samples, mask = padded(train, len(train.values))
-    model = initial_weights(_starts((), capture)[0], samples, pixel_columns, mask)
+    model = initial_weights(near_light_starts((), capture)[0], samples, pixel_columns, mask)
     parameters = free_parameters(model)
 
     def residuals(u, _):

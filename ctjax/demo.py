@@ -19,7 +19,7 @@ import numpy as np
 
 from ._errors import CtjaxError
 from .calibration import ClosedFormLM, calibrate_light_field, calibrate_near_light, named_falloff
-from .calibration._near_light import FALLOFF_NAMES
+from .calibration._near_light_models import FALLOFF_NAMES
 from .estimation import MaskOptions, capture_sets, fit_capture
 from .evaluation import evaluate, evaluation_plots
 from .io import load_capture

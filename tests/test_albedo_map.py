@@ -529,7 +529,7 @@ def test_a_parameter_the_data_leave_alone_does_not_hide_the_others_standard_erro
     """sigma where every F_tilde is 0 has a zero Jacobian column: its standard error is
     undetermined (inf), the others' are the rest's block of the information; a block still
     rank-deficient leaves them all undetermined."""
-    from ctjax.fitting._map_least_squares import _variances
+    from ctjax.fitting._fit import variances as _variances
 
     information = np.array([[0.0, 0.0, 0.0], [0.0, 4.0, 1.0], [0.0, 1.0, 2.0]])
     variance = _variances(0.5, information)

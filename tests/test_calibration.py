@@ -29,6 +29,26 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     assert set(selection) == {"none", "inverse_square", "spot", "inverse_square+spot"}
     assert result.heldout_rmse <= 1.15 * NOISE_FLOOR
     assert result.noise_floor == pytest.approx(NOISE_FLOOR, rel=0.1)
+    # The offset is reported as detected, with its standard errors (Gauss-Newton), and each
+    # falloff set was judged with its offset and at the lens.
+    details = result.details
+    assert details["offset_detected"] is True and result.status.name == "successful"
+    assert all(0 < e < 0.2 for e in details["offset_stderr_mm"][:2])
+    assert details["stderr"]["brdf.lobes[1].distribution.sigma"] > 0
+    both = details["falloff_selection_offsets"]["none"]
+    assert both["fitted_offset"] < 0.5 * both["at_the_lens"]
+
+    # The same capture with the light at the lens: no offset reported, the bound said.
+    options = SynthOptions(**SMALL)
+    capture = load_capture(synthesize(tmp_path / "lens", options))
+    at_lens = calibrate_near_light(
+        capture, max_samples=8000, heldout_samples=20_000, albedo="uniform", falloff=()
+    )
+    assert at_lens.details["offset_detected"] is False
+    assert np.all(np.asarray(at_lens.model.light.position_mm) == 0)
+    assert 0 < at_lens.details["offset_bound_mm"] < 0.5
+    assert any(w.startswith("no light offset detected") for w in at_lens.warnings)
+    assert at_lens.heldout_rmse <= 1.15 * NOISE_FLOOR
 
 
 def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets):

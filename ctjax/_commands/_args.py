@@ -174,7 +174,7 @@ def add_falloff_argument(parser) -> None:
     parser.add_argument(
         "--falloff",
         default="auto",
-        # ctjax.calibration._near_light.FALLOFF_NAMES (not imported here: it loads JAX)
+        # ctjax.calibration._near_light_models.FALLOFF_NAMES (not imported here: it loads JAX)
         choices=("auto", "none", "inverse_square", "spot", "inverse_square+spot"),
         help="falloffs of the near light (auto: chosen on held-out frames)",
     )

@@ -11,6 +11,6 @@ from ._field_problem import solve_pixels as solve_pixels
 from ._light_field import FIELD_SOLVER as FIELD_SOLVER
 from ._light_field import calibrate_light_field as calibrate_light_field
 from ._near_light import calibrate_near_light as calibrate_near_light
-from ._near_light import falloff_choices as falloff_choices
-from ._near_light import named_falloff as named_falloff
+from ._near_light_models import falloff_choices as falloff_choices
+from ._near_light_models import named_falloff as named_falloff
 from ._spline import fit_spline as fit_spline

@@ -7,13 +7,10 @@ Which falloffs the data show is decided on held-out frames. The light's intensit
 into rho_tilde and F_tilde, as the paper does (it is not separable from them).
 """
 
-import itertools
 import math
 import time
 from collections.abc import Sequence
 
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._determined import flag_model
@@ -27,32 +24,37 @@ from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     LEVENBERG_MARQUARDT,
     ShadingModel,
-    fit_model,
     fit_model_map,
     free_parameters,
     lobe_gain_where_it_shows,
     map_standard_errors,
-    paper_model,
-    pixel_columns,
-    pixel_predict,
     roughness_variants,
 )
 from ..fitting._map_least_squares import TrackSamples, diffuse_lobe
 from ..heldout import (
     SIMPLEST_WITHIN,
-    HeldOut,
     HeldOutTracks,
     median_depth_mm,
     simplest_within,
 )
 from ..io import Capture
-from ..lights import AbstractFalloff, InverseSquare, LensPlaneLight, PointLight, SpotFalloff
-from ..lights._point import offset_starts
+from ..lights import AbstractFalloff, LensPlaneLight
 from ..lobes import BRDF, Lambertian
-from ..lobes._diffuse import with_diffuse_lobe
 from ..observations import Observations
 from ..solvers import Solver
 from ..specular import flag_misoriented
+from ._near_light_models import (
+    OFFSET_AXES,
+    at_the_lens,
+    falloff_name,
+    falloff_sets,
+    near_light_starts,
+    no_offset,
+    offset_axes_of,
+    position_name,
+    position_stderr,
+)
+from ._near_light_uniform import near_light_uniform
 from ._offset_checks import (
     HIGHLIGHT_MARGIN_PX,
     edge_margin_px,
@@ -62,97 +64,6 @@ from ._offset_checks import (
     placing_views,
     reconstructed,
 )
-
-
-def falloff_choices(capture: "Capture | Observations") -> list[tuple[AbstractFalloff, ...]]:
-    """Every subset of inverse-square (referenced at the working distance) and spot falloff:
-    what `calibrate_near_light` compares by default."""
-    factors = (InverseSquare(median_depth_mm(capture)), SpotFalloff(2.0))
-    return [c for r in range(len(factors) + 1) for c in itertools.combinations(factors, r)]
-
-
-FALLOFF_NAMES = ("auto", "none", "inverse_square", "spot", "inverse_square+spot")
-
-
-def named_falloff(name: str, capture: "Capture | Observations"):
-    """A falloff set by name (`FALLOFF_NAMES`, the command line's `--falloff`): None for
-    "auto" (every set of `falloff_choices`, chosen on held-out frames), else its factors."""
-    if name not in FALLOFF_NAMES:
-        raise CtjaxError(f"falloff must be one of {', '.join(FALLOFF_NAMES)}, got {name!r}")
-    if name == "auto":
-        return None
-    return next(c for c in falloff_choices(capture) if _name(c) == name)
-
-
-def _name(falloff: tuple[AbstractFalloff, ...]) -> str:
-    return "+".join(f.name for f in falloff) or "none"
-
-
-def _paper(diffuse: type[Lambertian]) -> ShadingModel:
-    """The paper's model with `diffuse` as its diffuse term (its shape at the middle of its
-    domain), a fit's start."""
-    model = paper_model(1.0, 0.3, 0.2)
-    return eqx.tree_at(lambda m: m.brdf, model, with_diffuse_lobe(model.brdf, diffuse))
-
-
-# Where the light's offset is fitted: in the lens plane (`LensPlaneLight`, the default: the
-# scope's light leaves the face of its tip) or anywhere (`PointLight`).
-OFFSET_AXES = ("lens_plane", "free")
-
-
-def _light(offset, falloff, axes: str):
-    """The light at `offset` (x, y, z) with `falloff`, fitted along `axes` (`OFFSET_AXES`)."""
-    if axes == "lens_plane":
-        return LensPlaneLight(jnp.asarray(offset[:2], float), falloff=tuple(falloff))
-    return PointLight(jnp.asarray(offset, float), falloff=tuple(falloff))
-
-
-def _position(model) -> str:
-    """The dotted name of `model`'s light position (`hold` and `freeze` take it)."""
-    return f"light.{type(model.light).position_field}"
-
-
-def _axes(model) -> str:
-    """Where `model`'s light offset was fitted (`OFFSET_AXES`)."""
-    return "lens_plane" if isinstance(model.light, LensPlaneLight) else "free"
-
-
-def _position_stderr(stderr: dict, model, default):
-    """The standard errors of `model`'s light position along x, y, z (0 along the axis in
-    the lens plane, where it is not fitted) from `stderr` (by dotted name), or `default`."""
-    errors = stderr.get(_position(model))
-    if errors is None:
-        return default
-    return [*errors, 0.0] if len(errors) == 2 else list(errors)
-
-
-def _starts(
-    falloff: tuple[AbstractFalloff, ...],
-    capture,
-    diffuse: type[Lambertian] = Lambertian,
-    axes: str = "lens_plane",
-) -> list[ShadingModel]:
-    """Starting models from every offset of `offset_starts` and several roughnesses."""
-    starts = []
-    unit = length_unit_of(capture)
-    for offset in offset_starts(unit, median_depth_mm(capture)):
-        light = _light(offset, falloff, axes)
-        starts.extend(roughness_variants(eqx.tree_at(lambda m: m.light, _paper(diffuse), light)))
-    return starts
-
-
-def _choices(capture, falloff) -> list[tuple[AbstractFalloff, ...]]:
-    if falloff is None:
-        choices = falloff_choices(capture)
-    elif all(isinstance(f, AbstractFalloff) for f in falloff):
-        choices = [tuple(falloff)]
-    else:
-        choices = [tuple(c) for c in falloff]
-    for choice in choices:
-        for factor in choice:
-            if not isinstance(factor, AbstractFalloff):
-                raise CtjaxError(f"a falloff must be an AbstractFalloff, got {factor!r}")
-    return choices
 
 
 def calibrate_near_light(
@@ -223,43 +134,22 @@ def calibrate_near_light(
         return _with_highlight_alignment(fit, capture)
     if right_views:
         raise CtjaxError("the right views are fitted with the albedo map (albedo='map')")
-    started = time.perf_counter()
-    heldout = HeldOut.split(
-        capture, calibration, max_samples=max_samples, heldout_samples=heldout_samples, seed=seed
+    fit = near_light_uniform(
+        capture,
+        calibration=calibration,
+        falloff=falloff,
+        solver=solver,
+        max_samples=max_samples,
+        heldout_samples=heldout_samples,
+        max_steps=max_steps,
+        seed=seed,
+        say=say,
+        workers=workers,
+        diffuse=diffuse,
+        offset_axes=offset_axes,
     )
-    choices = _choices(capture, falloff)
-    say(f"fitting {len(choices)} falloff set(s) on frames {heldout.calibration}, one albedo")
-
-    def fit_choice(choice):
-        return fit_model(
-            _starts(choice, capture, diffuse, offset_axes),
-            heldout.train,
-            pixel_predict,
-            columns=pixel_columns,
-            solver=solver,
-            max_steps=max_steps,
-            refine=3,
-        )
-
-    fits = list(in_order(fit_choice, choices, workers))
-    errors = [heldout.heldout_rmse(fit.model) for fit in fits]
-    fit = heldout.judge(fits[simplest_within(choices, errors, observations=heldout.capture)])
-    if not np.isfinite(fit.heldout_rmse):
-        raise CtjaxError("the near-light fit did not produce finite estimates")
-    fit.details |= {
-        "model": "near",
-        "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
-        "falloff": falloff_json(fit.model.light),
-        "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
-        "offset_mm": np.asarray(fit.model.light.position_mm, float).tolist(),
-        "offset_axes": _axes(fit.model),
-    }
-    fit.details["albedo"] = "uniform"
     fit.warnings.extend([unmapped] if unmapped else [])
-    fit.seconds = {"total": time.perf_counter() - started}
-    if not fit.converged:
-        fit.warnings.append(f"the solver did not converge: {fit.status.message}")
-    return _with_highlight_alignment(flag_model(fit), capture)
+    return _with_highlight_alignment(fit, capture)
 
 
 def _with_highlight_alignment(fit: Estimate, capture: Observations) -> Estimate:
@@ -273,13 +163,6 @@ def _with_highlight_alignment(fit: Estimate, capture: Observations) -> Estimate:
     return flag_misoriented(fit, capture.capture, capture.sets, position)
 
 
-def _at_the_lens(
-    falloff: tuple[AbstractFalloff, ...], diffuse: type[Lambertian], axes: str
-) -> list[ShadingModel]:
-    light = _light((0.0, 0.0, 0.0), falloff, axes)
-    return roughness_variants(eqx.tree_at(lambda m: m.light, _paper(diffuse), light))
-
-
 def _details(result, capture, choices, errors, detected, offset, reported) -> dict:
     """The near-light estimate's details: the model, the falloff chosen and the others'
     held-out errors, the offset (fitted, detected, its standard errors) and their notes."""
@@ -288,10 +171,12 @@ def _details(result, capture, choices, errors, detected, offset, reported) -> di
         "albedo": "map",
         "intensity_note": "folded into rho_tilde and F_tilde (not separable from them)",
         "falloff": falloff_json(result.model.light),
-        "falloff_selection": {_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)},
+        "falloff_selection": {
+            falloff_name(c): round(e, 4) for c, e in zip(choices, errors, strict=True)
+        },
         "offset_detected": detected,
         "offset_mm": np.asarray(result.model.light.position_mm, float).tolist(),
-        "offset_axes": _axes(result.model),
+        "offset_axes": offset_axes_of(result.model),
         "offset_fitted_mm": offset.tolist(),
         "offset_stderr_mm": reported,  # None where the data do not determine it
         "length_unit": length_unit_of(capture),
@@ -318,7 +203,7 @@ def _take_refit(result, every, tracks, detected: bool, reported, placed=None):
     result.rmse["all_frames"] = every.rmse["calibration"]
     if detected:
         result.details["stderr"] = _standard_errors(every.model, tracks, placed)
-        reported = _position_stderr(result.details["stderr"], every.model, reported)
+        reported = position_stderr(result.details["stderr"], every.model, reported)
     return reported
 
 
@@ -417,7 +302,7 @@ def near_light_map(
         seed=seed,
         right_views=right_views,
     )
-    choices = _choices(capture, falloff)
+    choices = falloff_sets(capture, falloff)
     # A reconstructed shape's views near the highlights do not place the light: in the
     # calibration frames' fits as in the refit on every frame below.
     placing_train = _placing_train(capture, heldout, max_points, seed, right_views)
@@ -456,10 +341,10 @@ def near_light_map(
         """The set with its offset and at the lens (held: the same program), judged as it
         would be reported: at the lens unless its offset is `SIMPLEST_WITHIN` better (SCARED
         61-84: the spot alone 12.49 with its offset, 10.57 at the lens; the pair 11.26)."""
-        chosen, placed = placed_fit(_starts(choice, capture, diffuse, offset_axes))
+        chosen, placed = placed_fit(near_light_starts(choice, capture, diffuse, offset_axes))
         error = heldout.heldout_rmse(chosen.model)
-        hold = (_position(chosen.model),)
-        lens = placed_fit(_at_the_lens(choice, diffuse, offset_axes), hold=hold)[0]
+        hold = (position_name(chosen.model),)
+        lens = placed_fit(at_the_lens(choice, diffuse, offset_axes), hold=hold)[0]
         lens_error = heldout.heldout_rmse(lens.model)
         offset_better = error < (1 - SIMPLEST_WITHIN) * lens_error
         return chosen, error if offset_better else lens_error, placed, lens, (error, lens_error)
@@ -472,8 +357,11 @@ def near_light_map(
         errors.append(error)
         placements.append(placed)
         lens_fits.append(lens)
-        both[_name(choice)] = {"fitted_offset": round(pair[0], 4), "at_the_lens": round(pair[1], 4)}
-        say(f"  falloff {_name(choice)}: held-out RMSE {error:.3f} levels")
+        both[falloff_name(choice)] = {
+            "fitted_offset": round(pair[0], 4),
+            "at_the_lens": round(pair[1], 4),
+        }
+        say(f"  falloff {falloff_name(choice)}: held-out RMSE {error:.3f} levels")
     chosen = simplest_within(choices, errors, observations=heldout.capture)
     offset_fit = heldout.judge(fits[chosen], noise_floor=False)
     if not np.isfinite(offset_fit.heldout_rmse):
@@ -482,7 +370,7 @@ def near_light_map(
     offset_fit.details["stderr"] = _standard_errors(
         offset_fit.model, heldout.train, placements[chosen]
     )
-    reported = _position_stderr(offset_fit.details["stderr"], offset_fit.model, [None] * 3)
+    reported = position_stderr(offset_fit.details["stderr"], offset_fit.model, [None] * 3)
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     say("standard errors, and the same model with the light at the lens")
     lens_fit = heldout.judge(lens_fits[chosen], noise_floor=False)  # fitted with the choice
@@ -504,7 +392,7 @@ def near_light_map(
         placing, warning = placing_views(capture, tracks, right if right_views else None)
         result.warnings.extend([warning] if warning else [])
     # Frozen, not held: other tracks, another program anyway, and fewer Jacobian columns.
-    every = fit([result.model], placing, freeze=() if detected else (_position(result.model),))
+    every = fit([result.model], placing, freeze=() if detected else (position_name(result.model),))
     placed = None
     if placing is not tracks and np.isfinite(every.cost):
         say("the BRDF on every view, the light held where the views away from S put it")
@@ -539,7 +427,7 @@ def near_light_map(
     if right_views:  # the right views the refit on every frame used
         result.details["n_right_views"] = int(right.sum())
     if not detected:
-        _no_offset(result, offset, stderr, offset_fit, lens_fit, length_unit_of(capture))
+        no_offset(result, offset, stderr, offset_fit, lens_fit, length_unit_of(capture))
     result.seconds = {"total": time.perf_counter() - started}
     if not result.converged:
         result.warnings.append(f"the solver did not converge: {result.status.message}")
@@ -547,7 +435,7 @@ def near_light_map(
     # offset's standard error that could not be computed leaves infinite.
     gain = _lobe_gain(result, every, tracks)
     # The bound by the light's own parameter (in the lens plane: x and y).
-    name = paper_names(result.model).get(_position(result.model), "offset_mm")
+    name = paper_names(result.model).get(position_name(result.model), "offset_mm")
     bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
     return flag_model(result, None if detected else {name: bound}, lobe_gain=gain)
 
@@ -573,27 +461,3 @@ def _lobe_gain(result, every, tracks) -> float | None:
     result.details["lobe_shows_observations"] = shows
     result.details["lambertian_same_light_rmse_all_frames"] = plain.rmse["calibration"]
     return gain
-
-
-def _no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
-    """The light at the lens as the estimate: the bound on an offset, and the warning."""
-    bound = float(np.linalg.norm(offset) + 2 * np.linalg.norm(stderr))
-    # None (JSON null) where the standard errors could not be computed: no bound.
-    result.details["offset_bound_mm"] = bound if np.isfinite(bound) else None
-    errors = f"{lens_fit.heldout_rmse:.3f} vs {offset_fit.heldout_rmse:.3f} levels held-out"
-    if offset_fit.heldout_rmse >= (1 - SIMPLEST_WITHIN) * lens_fit.heldout_rmse:
-        why = f"the light at the lens explains the held-out frames about as well ({errors})"
-    elif not np.all(np.isfinite(stderr)):
-        why = f"the offset's standard errors could not be computed (at the lens {errors})"
-    else:
-        why = f"the fitted offset is within 2 standard errors of 0 (at the lens {errors})"
-    limit = (
-        f"an offset below {bound:.2g} {unit} cannot be told from none"
-        if np.isfinite(bound)
-        else "the data set no bound on an offset (its standard errors could not be computed)"
-    )
-    result.warnings.append(
-        f"no light offset detected: {why}; "
-        f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
-        f"{unit}: {limit}"
-    )

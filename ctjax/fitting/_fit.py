@@ -113,6 +113,74 @@ def _least_squares(model, samples, mask, predict, names, solver, max_steps, scal
     return constrained(model, parameters, value), cost, status, steps
 
 
+def variances(scale: float, information: np.ndarray) -> np.ndarray:
+    """The parameters' variances from their information matrix (times the residuals'
+    variance `scale`): inf for a parameter the data leave alone (a zero column: sigma where
+    every F_tilde is 0), and for every one where the rest are still rank-deficient."""
+    size = len(information)
+    diagonal = np.diagonal(information)
+    determined = diagonal > 1e-12 * max(float(np.max(diagonal, initial=0.0)), 1e-300)
+    variance = np.full(size, np.inf)
+    block = information[np.ix_(determined, determined)]
+    if determined.any() and np.linalg.matrix_rank(block) == determined.sum():
+        variance[determined] = np.abs(np.diagonal(scale * np.linalg.pinv(block, hermitian=True)))
+    return variance
+
+
+def named_errors(model, parameters, scale: float, information: np.ndarray) -> dict:
+    """The standard error of each of `parameters` (free parameters of `model`, in the
+    order of `information`'s rows) by dotted name: a list for an array parameter, None
+    where the data do not determine it (`variances`)."""
+    variance = variances(scale, information)
+    out, start = {}, 0
+    for p in parameters:
+        count = int(np.size(p.get(model)))
+        value = [float(v) if np.isfinite(v) else None for v in np.sqrt(variance[start:][:count])]
+        out[p.name] = value if np.ndim(p.get(model)) else value[0]
+        start += count
+    return out
+
+
+@persistent_jit
+def _information(model, samples, mask, predict, names):
+    """The residuals' variance (their sum of squares over the degrees of freedom) and the
+    Gauss-Newton information matrix J^T J of the free parameters (`names` frozen), in
+    their own units (not the solver's reparametrisation)."""
+    parameters = free_parameters(model, lambda name: name in names)
+    if not parameters:
+        return 0.0, jnp.zeros((0, 0))
+    values = [jnp.asarray(p.get(model)) for p in parameters]
+    shapes = [v.shape for v in values]
+    flat = jnp.concatenate([v.reshape(-1) for v in values])
+
+    def residuals(theta):
+        parts, start = [], 0
+        for shape in shapes:
+            size = math.prod(shape)
+            parts.append(theta[start : start + size].reshape(shape))
+            start += size
+        fitted = eqx.tree_at(lambda m: [p.get(m) for p in parameters], model, parts)
+        return _masked_residuals(fitted, samples, mask, predict).reshape(-1)
+
+    jacobian = jax.jacfwd(residuals)(flat)
+    residual = residuals(flat)
+    dof = jnp.maximum(jnp.sum(mask) * samples.values.shape[-1] - flat.shape[0], 1)
+    return jnp.sum(residual * residual) / dof, jacobian.T @ jacobian
+
+
+def standard_errors(model, samples, predict: Predict, freeze: Sequence[str] = ()) -> dict:
+    """The standard error of every free parameter of a fitted `model` on `samples` (as
+    `fit_model` fitted it; `freeze` as there), by dotted name: the Gauss-Newton covariance
+    scaled by the residuals' variance. None where the data do not determine a parameter (a
+    zero or rank-deficient column of the Jacobian: sigma where every F_tilde is 0)."""
+    model = strongly_typed(model)
+    names = tuple(freeze)
+    samples, mask = padded(samples, len(samples.values))
+    scale, information = _information(model, samples, mask, predict, names)
+    parameters = free_parameters(model, lambda name: name in names)
+    return named_errors(model, parameters, float(scale), np.asarray(information, np.float64))
+
+
 # The default solver (Levenberg-Marquardt on the Jacobian matrix, `ctjax.solvers.DenseLM`):
 # residuals are in the user's units (8-bit levels for images), and so are these tolerances.
 LEVENBERG_MARQUARDT = DenseLM(rtol=1e-6, atol=1e-6)
@@ -227,7 +295,9 @@ def pixel_columns(model, sample) -> Float[Array, " K"]:
 __all__ = [
     "Parameter",
     "fit_model",
+    "named_errors",
     "pixel_columns",
     "pixel_predict",
     "roughness_variants",
+    "standard_errors",
 ]

@@ -28,7 +28,7 @@ from ..effects._effect import Site, apply_effects, undo_effects
 from ..estimation._variable_projection import projected_residuals
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
-from ._fit import LEVENBERG_MARQUARDT
+from ._fit import LEVENBERG_MARQUARDT, named_errors
 from ._parameters import constrained, free_parameters, strongly_typed, unconstrained
 
 
@@ -454,34 +454,13 @@ def _covariance(model, samples, names, per_point):
     return jnp.sum(residual * residual) / dof, information
 
 
-def _variances(scale: float, information: np.ndarray) -> np.ndarray:
-    """The parameters' variances from their information matrix (times the residuals'
-    variance `scale`): inf for a parameter the data leave alone (a zero column: sigma where
-    every F_tilde is 0), and for every one where the rest are still rank-deficient."""
-    size = len(information)
-    diagonal = np.diagonal(information)
-    determined = diagonal > 1e-12 * max(float(np.max(diagonal, initial=0.0)), 1e-300)
-    variance = np.full(size, np.inf)
-    block = information[np.ix_(determined, determined)]
-    if determined.any() and np.linalg.matrix_rank(block) == determined.sum():
-        variance[determined] = np.abs(np.diagonal(scale * np.linalg.pinv(block, hermitian=True)))
-    return variance
-
-
 def _standard_errors(model, samples, names, per_point) -> dict[str, list | float]:
     """Standard error of every free nonlinear parameter (see `fit_model_map`); None where
-    the data do not determine it (`_variances`)."""
+    the data do not determine it (`named_errors`)."""
     freeze = lambda name: name in names or _weights_frozen(name)  # noqa: E731
     parameters = free_parameters(model, freeze)
     scale, information = _covariance(model, samples, names, per_point)
-    variance = _variances(float(scale), np.asarray(information, np.float64))
-    out, start = {}, 0
-    for p in parameters:
-        count = int(np.size(p.get(model)))
-        value = [float(v) if np.isfinite(v) else None for v in np.sqrt(variance[start:][:count])]
-        out[p.name] = value if np.ndim(p.get(model)) else value[0]
-        start += count
-    return out
+    return named_errors(model, parameters, float(scale), np.asarray(information, np.float64))
 
 
 def map_standard_errors(model, tracks: "Tracks | TrackSamples", freeze: Sequence[str] = ()):
