@@ -257,11 +257,12 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
     # Halves that agree with each other on a width away from the whole's (SCARED's frames
-    # 61-84: 0.139 / 0.141 against 0.086): the width moves with the frames that choose it;
-    # within 20% of it, nothing is said.
+    # 61-84: 0.139 / 0.141 against 0.086): the width depends on how many views choose each
+    # point's facet (fewer: broader); within 20% of it, nothing is said.
     status, reasons = _facet_status(0.086, 0.013, *grid, 0.06, ((0.139, 0.032), (0.141, 0.036)))
     assert status == "unstable" and reasons[0]["parameter"] == "sigma"
     assert "63% above its 0.086" in reasons[0]["reason"]
+    assert "fewer views place each point's facet less precisely" in reasons[0]["reason"]
     assert "peak F_tilde/sigma^2: 1.76 on all of them, 1.66 / 1.81" in reasons[0]["reason"]
     # With the views' spacing (`views_step`) quoted beside it.
     step = (0.0157, 0.0313, 0.0305)
@@ -273,6 +274,7 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     )
     status, reasons = _facet_status(0.2, 0.01, *grid, 0.06, ((0.15, 0.01), (0.15, 0.01)))
     assert status == "unstable" and "25% below its 0.2" in reasons[0]["reason"]
+    assert "the frames that choose it move it" in reasons[0]["reason"]
     assert _facet_status(0.049, 0.0107, *grid, 0.06, ((0.057, 0.01), (0.056, 0.01)))[0] == (
         "successful"
     )

@@ -276,7 +276,12 @@ def _shifted_by_the_halves(sigma, f, halves, step=None) -> Undetermined | None:
     sampled. On synthetic sparkles whose views are as far apart, a micro-lobe of 0.06 read
     0.049 on 15 frames and 0.055 / 0.053 on their halves (10%), one of 0.025 (below what the
     grid resolves) 0.036 and 0.047 / 0.052 (37%); the facets integrated out read 0.0631 and
-    0.0657 / 0.0653 (docs/real-video.md, "Facets"). `step`: `views_step`, quoted."""
+    0.0657 / 0.0653 (docs/real-video.md, "Facets"). What widens the halves is the views
+    that choose each facet, not the candidates: on SCARED's frames 151-162 every view judging
+    with the even frames' candidates only read 0.081 (0.078 with all), each half judging with
+    every frame's candidates 0.173 / 0.146 (0.153 / 0.168 with its own); on 61-72 0.082 (0.059)
+    and 0.207 / 0.154 (0.201 / 0.163). `step`:
+    `views_step`, quoted."""
     if halves is None or not sigma > 0:
         return None
     (a, fa), (b, fb) = halves
@@ -292,14 +297,20 @@ def _shifted_by_the_halves(sigma, f, halves, step=None) -> Undetermined | None:
             f"; a point's consecutive views {step[0]:.3g} rad apart on all of them, "
             f"{step[1]:.3g} / {step[2]:.3g} on the halves"
         )
+    why = (
+        "fewer views place each point's facet less precisely, and the lobe that predicts a "
+        "view from a misplaced facet is a broader one"
+        if shift > 0
+        else "the frames that choose it move it"
+    )
     return Undetermined(
         "sigma",
         Status.unstable,
         f"the even and the odd calibration frames alone (each point's views twice as far "
         f"apart) put sigma at {a:.3g} and {b:.3g}, {abs(shift):.0%} "
         f"{'above' if shift > 0 else 'below'} its {sigma:.3g} on all of them (over "
-        f"{HALVES_AGREE:.0%}): the width moves with the frames that choose it, not with "
-        f"the tissue alone (the peak F_tilde/sigma^2: {peaks}{spacing})",
+        f"{HALVES_AGREE:.0%}): the width depends on how many views each point has, not on "
+        f"the tissue alone ({why}; the peak F_tilde/sigma^2: {peaks}{spacing})",
     )
 
 
