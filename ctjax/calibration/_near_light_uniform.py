@@ -83,13 +83,16 @@ def near_light_uniform(
     fits = list(in_order(fit_choice, choices, workers))
     errors = [o if o < (1 - SIMPLEST_WITHIN) * lens else lens for _, _, (o, lens) in fits]
     chosen = simplest_within(choices, errors, observations=heldout.capture)
-    offset_fit = heldout.judge(fits[chosen][0])
-    lens_fit = heldout.judge(fits[chosen][1])
+    offset_fit = heldout.judge(fits[chosen][0], noise_floor=False)
+    lens_fit = heldout.judge(fits[chosen][1], noise_floor=False)
     if not np.isfinite(offset_fit.heldout_rmse):
         raise CtjaxError("the near-light fit did not produce finite estimates")
     offset = np.asarray(offset_fit.model.light.position_mm, float)
     say("standard errors of the chosen set's fit")
-    offset_fit.details["stderr"] = standard_errors(offset_fit.model, heldout.train, pixel_predict)
+    # On the calibration fit's model (judging gives per-frame parameters the held-out frames').
+    offset_fit.details["stderr"] = standard_errors(
+        fits[chosen][0].model, heldout.train, pixel_predict
+    )
     reported = position_stderr(offset_fit.details["stderr"], offset_fit.model, [None] * 3)
     stderr = np.asarray([np.inf if e is None else e for e in reported], float)
     fitted = stderr > 0  # the axis in the lens plane is not
@@ -101,9 +104,11 @@ def near_light_uniform(
     result = offset_fit
     if not detected:
         result = lens_fit
+        lens = fits[chosen][1].model
         result.details["stderr"] = standard_errors(
-            lens_fit.model, heldout.train, pixel_predict, freeze=(position_name(lens_fit.model),)
+            lens, heldout.train, pixel_predict, freeze=(position_name(lens),)
         )
+    result.noise_floor = heldout.noise_floor(result.model)
     unit = length_unit_of(capture)
     result.details |= {
         "model": "near",
