@@ -48,6 +48,7 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     assert np.all(np.asarray(at_lens.model.light.position_mm) == 0)
     assert 0 < at_lens.details["offset_bound_mm"] < 0.5
     assert any(w.startswith("no light offset detected") for w in at_lens.warnings)
+    assert not any("count that misfit as noise" in w for w in at_lens.warnings + result.warnings)
     assert at_lens.heldout_rmse <= 1.15 * NOISE_FLOOR
 
 
@@ -338,3 +339,6 @@ def test_near_light_with_the_albedo_map_reports_no_offset_at_the_lens(independen
     # The paper's uniform albedo on the same textured capture: a spurious offset or a bad fit.
     uniform = calibrate_near_light(capture, falloff=(), albedo="uniform")
     assert uniform.heldout_rmse > 2 * result.heldout_rmse
+    # ...and its standard errors said not to bound it (the texture counted as noise).
+    assert any("count that misfit as noise" in w for w in uniform.warnings)
+    assert not any("count that misfit as noise" in w for w in result.warnings)
