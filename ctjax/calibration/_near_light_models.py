@@ -142,3 +142,22 @@ def no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
         f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
         f"{unit}: {limit}"
     )
+
+
+# Held-out residuals above this multiple of their noise floor: the standard errors, which
+# take the residuals for noise, are said not to bound the parameters.
+MISFIT_TIMES = 3.0
+
+
+def warn_of_misfit(result, hint: str) -> None:
+    """A warning on `result` (an `Estimate` with its held-out RMSE and noise floor) where
+    its held-out residuals exceed `MISFIT_TIMES` their noise floor: its standard errors
+    count that misfit as noise. `hint`: what may be missing, said in parentheses."""
+    floor = result.noise_floor
+    times = result.heldout_rmse / floor if floor and floor > 0 else float("nan")
+    if times > MISFIT_TIMES:
+        result.warnings.append(
+            f"the model leaves {result.heldout_rmse:.3g} levels on the held-out frames, "
+            f"{times:.0f}x their noise floor ({floor:.3g}): the standard errors count that "
+            f"misfit as noise and understate what the data leave open ({hint})"
+        )

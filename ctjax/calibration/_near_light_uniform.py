@@ -9,7 +9,6 @@ lens; otherwise the light at the lens is the estimate, with the bound an offset 
 the data cannot tell from none (as `near_light_map` does with the albedo map).
 """
 
-import math
 import time
 from collections.abc import Sequence
 
@@ -36,11 +35,8 @@ from ._near_light_models import (
     offset_axes_of,
     position_name,
     position_stderr,
+    warn_of_misfit,
 )
-
-# Held-out residuals above this multiple of their noise floor: the standard errors, which
-# take the residuals for noise, are said not to bound the parameters.
-MISFIT_TIMES = 3.0
 
 
 def near_light_uniform(
@@ -114,16 +110,9 @@ def near_light_uniform(
             lens, heldout.train, pixel_predict, freeze=(position_name(lens),)
         )
     result.noise_floor = heldout.noise_floor(result.model)
-    times = result.heldout_rmse / result.noise_floor if result.noise_floor else math.nan
-    if times > MISFIT_TIMES:
-        # The shared sinus with one albedo: 51.6 levels held out, 32x its noise floor, and an
-        # offset of 0.2 working distances at over 50 standard errors (the map's fit: 22.8 levels).
-        result.warnings.append(
-            f"the model leaves {result.heldout_rmse:.3g} levels on the held-out frames, "
-            f"{times:.0f}x their noise floor ({result.noise_floor:.3g}): the standard errors "
-            "count that misfit as noise and understate what the data leave open (on textured "
-            "tissue one albedo is the wrong model: albedo='map')"
-        )
+    # The shared sinus with one albedo: 51.6 levels held out, 32x its noise floor, and an
+    # offset of 0.2 working distances at over 50 standard errors (the map's fit: 22.8 levels).
+    warn_of_misfit(result, "on textured tissue one albedo is the wrong model: albedo='map'")
     unit = length_unit_of(capture)
     result.details |= {
         "model": "near",
