@@ -33,6 +33,8 @@ Measured (2026-11-28, seed 1, `--sparkle-px 6`, 354 s): sigma 0.0631, F_tilde 0.
 sigma_M 0.2, halves 0.0657 / 0.0653 (F_tilde 0.0161 / 0.0161), `successful`. `--seed 2`
 (333 s): 0.0637, 0.0206, sigma_M 0.1 (the grid's bottom), halves 0.0614 / 0.0617 (F_tilde
 0.0223 / 0.0163): the width within 6%, F_tilde 34-72% high.
+Again 2026-12-02, after the closed forms (`ctjax/fitting/_profiled_albedo.py`): seed 1 the
+same figures to 3 digits in 143.7 s (two sigmas alone: 72-78 s, 180-211 s before).
 """
 
 import argparse
@@ -51,7 +53,7 @@ from ctjax.io import load_capture
 from ctjax.synth import SPARKLE_MICRO_SIGMA, SynthOptions, synthesize
 
 F_TILDE = 0.012
-# The marginal's sigmas: FACET_SIGMAS' middle five (0.035-0.15), about 6 minutes a capture.
+# The marginal's sigmas: FACET_SIGMAS' middle five (0.035-0.15), about 2.5 minutes a capture.
 MARGINAL_SIGMAS = FACET_SIGMAS[1:6]
 
 

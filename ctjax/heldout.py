@@ -18,7 +18,7 @@ from ._errors import CtjaxError
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
 from .fitting._facet_lobe import facet_lobe
-from .fitting._facet_marginal import at_the_marginal_width, facet_marginal
+from .fitting._facet_marginal import facet_marginal
 from .fitting._fit import fit_model, pixel_predict, rmse_levels
 from .fitting._map_least_squares import (
     TrackSamples,
@@ -26,6 +26,7 @@ from .fitting._map_least_squares import (
     heldout_map_residuals,
     heldout_map_rmse,
 )
+from .fitting._marginal_width import at_the_marginal_width
 from .fitting._parameters import free_parameters
 from .io import Capture
 from .lights import LightField

@@ -12,10 +12,7 @@ from ._facet_lobe import facet_lobe_line as facet_lobe_line
 from ._facet_lobe import facets_suggestion as facets_suggestion
 from ._facet_lobe import views_step as views_step
 from ._facet_marginal import FacetMarginal as FacetMarginal
-from ._facet_marginal import at_the_marginal_width as at_the_marginal_width
-from ._facet_marginal import at_the_marginal_width_line as at_the_marginal_width_line
 from ._facet_marginal import facet_marginal as facet_marginal
-from ._facet_marginal import facet_marginal_line as facet_marginal_line
 from ._facets import FacetJudgement as FacetJudgement
 from ._facets import facet_heldout as facet_heldout
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
@@ -30,6 +27,9 @@ from ._map_least_squares import TrackSamples as TrackSamples
 from ._map_least_squares import fit_model_map as fit_model_map
 from ._map_least_squares import lobe_gain_where_it_shows as lobe_gain_where_it_shows
 from ._map_least_squares import map_standard_errors as map_standard_errors
+from ._marginal_width import at_the_marginal_width as at_the_marginal_width
+from ._marginal_width import at_the_marginal_width_line as at_the_marginal_width_line
+from ._marginal_width import facet_marginal_line as facet_marginal_line
 from ._measured import DirectionSamples as DirectionSamples
 from ._measured import brdf_columns as brdf_columns
 from ._measured import brdf_predict as brdf_predict

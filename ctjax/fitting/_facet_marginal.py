@@ -42,7 +42,6 @@ from ._facet_lobe import (
     _MIN_FRAMES_FOR_HALVES,
     FACET_F_TILDES,
     FACET_SIGMAS,
-    FacetLobe,
     _chosen,
     _facet_status,
     halves_json,
@@ -51,6 +50,7 @@ from ._facet_lobe import (
 )
 from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
+from ._profiled_albedo import gaussian_nll, gaussian_ssr, view_sums
 
 # The facets' spread about the reconstruction's normal (Beckmann widths): from a smooth
 # surface to a rough one. Up to 0.7 at first: both real sequences put it at that top
@@ -93,8 +93,8 @@ def _node_frame(h, w):
 
 
 def _one_point(
-    model, rotations, gains, subsets, sigma, prior_sigmas, noise, nu, nodes, refine, point,
-    normal, pixel, weight, values, w, frame, h,
+    model, rotations, gains, subsets, sigma, prior_sigmas, noise, nu, nodes, refine, exact,
+    point, normal, pixel, weight, values, w, frame, h,
 ):  # fmt: skip
     """One tracked point's log-likelihood (G, T, SM, NS) per set of lobe weights `gains`
     (G, K, C), subset of its frames (`subsets`: None all, 0 the even, 1 the odd), facet
@@ -102,7 +102,8 @@ def _one_point(
     (T, NS). The quadrature's nodes: a coarse grid over the views' arc (`nodes`), then the
     3 x 3 cells about its likeliest node (the middle set of weights, all frames) each split
     `refine` x `refine`: a point's likelihood is far narrower in its facet than the lobe
-    when the lobe stands well above the noise."""
+    when the lobe stands well above the noise. The sum over the nodes: a logsumexp
+    (`exact`), or a product of matrices, with whether it underflowed (third)."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
     smooth, about = _lobe_columns(model, "lobe", rotations, point, normal, pixel, weight, frame)
@@ -137,7 +138,14 @@ def _one_point(
         [w if s is None else jnp.where(frame % 2 == s, w, 0.0) for s in subsets]
     )
 
+    def lobes_of(x):  # the lobes other than the diffuse one: (..., K, ...) -> (..., K', ...)
+        return x[..., jnp.array(others), :] if others else x[..., :0, :]
+
     def nll(columns, g, subset_weights, noise):  # (N, K, M) -> (N, T, NS)
+        if nu is None:  # Gaussian: sums over the views that serve every weight and scale
+            sums = view_sums(smooth[diffuse], lobes_of(columns), values, subset_weights)
+            return gaussian_nll(gaussian_ssr(sums, lobes_of(g)), sums["count"], noise)
+
         def per_column(c):
             a = c[diffuse]
             rest = sum((c[k][None] * g[k][:, None] for k in others), jnp.zeros_like(values))
@@ -147,10 +155,6 @@ def _one_point(
                 b = jnp.where(ws > 0, a, 0.0)
                 albedo = jnp.sum(ws * b * target, -1) / jnp.maximum(jnp.sum(ws * b * b), 1e-30)
                 r2 = (target - jnp.maximum(albedo, 0.0)[:, None] * b) ** 2  # (C, M)
-                if nu is None:  # Gaussian: the sum of squares serves every scale
-                    ssr = jnp.sum(jnp.where(ws > 0, ws * r2, 0.0))
-                    count = r2.shape[0] * jnp.sum(ws)
-                    return ssr / (2 * noise * noise) + count * jnp.log(noise)  # (NS,)
                 scale2 = nu * noise * noise
                 rho = (nu + 1) / 2 * jnp.log1p(r2[None] / scale2[:, None, None])  # (NS, C, M)
                 rho = jnp.where(ws > 0, ws * (rho + jnp.log(noise)[:, None, None]), 0.0)
@@ -183,13 +187,44 @@ def _one_point(
     off = smooth.at[jnp.array(others)].set(0.0) if others else smooth
     columns = jnp.concatenate([off[None], coarse_columns, jax.vmap(about)(refined)])
 
-    def per_gain(g):
-        costs = nll(columns, g, subset_weights, noise)  # (N + 1, T, NS)
-        joint = log_weights[None, :, None, :] - jnp.moveaxis(costs, 0, -1)[:, None]
-        return jax.scipy.special.logsumexp(joint, -1), -costs[0]  # (T, SM, NS), (T, NS)
+    if nu is None and not exact:
+        sums = view_sums(smooth[diffuse], lobes_of(columns), values, subset_weights)
 
-    ll, without = jax.vmap(per_gain)(gains)
-    return jnp.where(seen, ll, 0.0), jnp.where(seen, without[0], 0.0)
+    def per_gain(g):
+        if exact or nu is not None:
+            costs = nll(columns, g, subset_weights, noise)  # (N + 1, T, NS)
+        if exact:
+            joint = log_weights[None, :, None, :] - jnp.moveaxis(costs, 0, -1)[:, None]
+            ll = jax.scipy.special.logsumexp(joint, -1)  # (T, SM, NS)
+            return ll, jnp.asarray(False), -costs[0]
+        if nu is None:  # each node's excess over the least sum of squares, scaled per noise
+            ssr = gaussian_ssr(sums, lobes_of(g))  # (N + 1, T)
+            least = jnp.min(ssr, 0)
+            excess = jnp.exp(-(ssr - least)[..., None] / (2 * noise * noise))  # (N + 1, T, NS)
+            best = gaussian_nll(least, sums["count"], noise)  # (T, NS)
+            without = -gaussian_nll(ssr[0], sums["count"], noise)
+        else:
+            best = jnp.min(costs, 0)  # (T, NS)
+            excess, without = jnp.exp(best - costs), -costs[0]
+        return *_over_the_nodes(log_weights, excess, best), without
+
+    ll, underflow, without = jax.vmap(per_gain)(gains)
+    return jnp.where(seen, ll, 0.0), jnp.where(seen, without[0], 0.0), jnp.any(underflow) & seen
+
+
+def _over_the_nodes(log_weights, excess, best):
+    """log sum_n exp(log_weights[s, n] - cost[n, t, k]) (T, SM, NS), the costs given as
+    `best` (T, NS), their least over the nodes, and `excess` (N, T, NS) = exp(best - cost):
+    a product of matrices, each factor scaled by its largest value. One exponential per
+    node, weights and scale, where the logsumexp takes one per prior width too (8x as many:
+    90% of `facet_marginal`'s time). Second: whether the sum came within a factor 1/eps of
+    the smallest normal number (the likeliest nodes e^-700 below the prior's peak, e^-87 in
+    float32), where it may have lost terms (`_marginal` then takes the logsumexp)."""
+    top = jnp.max(log_weights, -1)  # (SM,)
+    prior = jnp.exp(log_weights - top[:, None])
+    total = jnp.einsum("sn,ntk->tsk", prior, excess)
+    smallest = jnp.finfo(total.dtype).tiny / jnp.finfo(total.dtype).eps
+    return jnp.log(total) + top[:, None] - best[:, None], jnp.any(total < smallest)
 
 
 @persistent_jit
@@ -267,14 +302,31 @@ def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior
     point, normal, pixel, weight, values, w, _, frame, _ = arrays
     h = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(point, pixel, weight, frame)
 
-    def one(x):
-        return _one_point(
-            model, rotations, gains, subsets, sigma, prior_sigmas, noise, nu, nodes, refine, *x
-        )
+    def points(exact, x):
+        def one(*a):
+            options = (sigma, prior_sigmas, noise, nu, nodes, refine, exact)
+            return _one_point(model, rotations, gains, subsets, *options, *a)
 
-    return jax.lax.map(
-        one, (point, normal, pixel, weight, values, w, frame, h), batch_size=_POINTS_AT_ONCE
+        return jax.vmap(one)(*x)
+
+    def batch(x):
+        """`_POINTS_AT_ONCE` points by the product of matrices, again by the logsumexp
+        where a point's sum underflowed."""
+        ll, without, underflow = points(False, x)
+        return jax.lax.cond(jnp.any(underflow), lambda: points(True, x)[:2], lambda: (ll, without))
+
+    arrays = (point, normal, pixel, weight, values, w, frame, h)
+    count = point.shape[0]
+    batches = -(-count // _POINTS_AT_ONCE)
+    padded = batches * _POINTS_AT_ONCE - count  # repeat the last point (a valid one)
+    arrays = jax.tree.map(
+        lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], padded, 0)]).reshape(
+            batches, _POINTS_AT_ONCE, *a.shape[1:]
+        ),
+        arrays,
     )
+    ll, without = jax.lax.map(batch, arrays)
+    return ll.reshape(-1, *ll.shape[2:])[:count], without.reshape(-1, *without.shape[2:])[:count]
 
 
 class FacetMarginal(eqx.Module):
@@ -496,81 +548,4 @@ def facet_marginal(
         status,
         tuple(found),
         step,
-    )
-
-
-def facet_marginal_line(summary: dict) -> str:
-    """One line for a command's output from `FacetMarginal.to_json()`."""
-    halves = summary["halves"]
-    split = (
-        f"; halves sigma {halves['even_frames']['sigma']:.3g} / "
-        f"{halves['odd_frames']['sigma']:.3g}, F_tilde {halves['even_frames']['F_tilde']:.3g} / "
-        f"{halves['odd_frames']['F_tilde']:.3g} (even / odd calibration frames)"
-        if halves
-        else ""
-    )
-    return (
-        f"the facets integrated out (a marginal likelihood on the calibration frames): sigma "
-        f"{summary['sigma']:.3g}, F_tilde {summary['F_tilde']:.3g} (an upper bound), the "
-        f"facets' spread sigma_M {summary['facet_prior_sigma']:.3g}, noise "
-        f"{summary['noise_levels']:.3g} levels, {summary['gain_nats_per_value']:.3g} nats per "
-        f"value over no lobe{split}; status {summary['status']}"
-        + "".join(f"; {u['reason']}" for u in _first_of_status(summary)[:1])
-    )
-
-
-def _first_of_status(summary: dict) -> list[dict]:
-    """The reasons behind the status first (the line shows one)."""
-    reasons = summary["undetermined"]
-    return sorted(reasons, key=lambda u: u.get("status") != summary["status"])
-
-
-# The marginal's reasons that concern the width (its F_tilde is an upper bound, and the
-# lobe at its width chooses its own).
-_WIDTH_REASONS = ("sigma", "sigma_M", "noise_levels")
-
-
-def at_the_marginal_width(lobe: FacetLobe, marginal: dict) -> dict:
-    """The facet lobe with sigma held at the marginal likelihood's, as JSON: `lobe` is
-    `facet_lobe` on a grid of that one width (its F_tilde and every point's facet chosen by
-    the facet protocol, judged on the held-out views), `marginal` `FacetMarginal.to_json()`.
-    Each estimator for what it reads consistently: the width from the marginal (within 6%
-    of synthetic truth, where the facet protocol's follows the views' spacing), the weight
-    and the facets from the protocol at that width. The status is the worst of the
-    marginal's reasons about the width (sigma, the facets' spread, the noise), the
-    fixed-width lobe's own (its grid, its gain against Lambert) and its F_tilde's halves,
-    checked as the marginal's (`_F_tilde_reasons`: F_tilde is what is measured here). On
-    SCARED's frames 61-84 (docs/real-video.md): sigma 0.150 (halves 0.175 / 0.176), F_tilde
-    0.035 (halves 0.032 / 0.028), 0.751x Lambert's test error under the same light; on
-    61-72 sigma 0.119, F_tilde 0.021, halves 0.010 / 0.016: `unstable`."""
-    F_tildes = sorted({f for _, f in lobe.calibration_rmse})
-    width = [u for u in marginal["undetermined"] if u["parameter"] in _WIDTH_REASONS]
-    reasons = [*width, *lobe.undetermined, *_F_tilde_reasons(lobe.F_tilde, lobe.halves, F_tildes)]
-    statuses = [Status[u["status"]] for u in reasons]
-    status = min(statuses, key=PRIORITY.index).name if statuses else Status.successful.name
-    dropped = ("sigma_stderr", "at_bound", "calibration_rmse_by_candidates", "calibration_rgb_rmse")
-    summary = {key: value for key, value in lobe.to_json().items() if key not in dropped}
-    del summary["halves"]
-    summary["F_tilde_halves"] = [f for _, f in lobe.halves] if lobe.halves else None
-    summary["sigma_halves"] = (
-        [part["sigma"] for part in marginal["halves"].values()] if marginal["halves"] else None
-    )
-    summary.update(status=status, undetermined=reasons, sigma_from="facet_marginal")
-    return summary
-
-
-def at_the_marginal_width_line(summary: dict) -> str:
-    """One line for a command's output from `at_the_marginal_width`."""
-
-    def halves(name):
-        parts = summary[f"{name}_halves"]
-        return f" (halves {parts[0]:.3g} / {parts[1]:.3g})" if parts else ""
-
-    return (
-        f"the facet lobe at the marginal's width: sigma {summary['sigma']:.3g}"
-        f"{halves('sigma')}, F_tilde {summary['F_tilde']:.3g}{halves('F_tilde')} chosen on the "
-        f"calibration frames: held-out RMSE {summary['heldout_rgb_rmse']:.2f} levels, "
-        f"{summary['ratio']:.3f}x Lambert's under the same light "
-        f"({summary['lambertian_same_light_rgb_rmse']:.2f}); status {summary['status']}"
-        + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
     )
