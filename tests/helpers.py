@@ -88,3 +88,21 @@ def wavy_surface(camera: Camera, seed=0):
     n = unit(np.cross(dpv, dpu))
     n[np.sum(n * ray, -1) > 0] *= -1
     return depth, n
+
+
+def command_error(argv, capsys) -> tuple[int, list[str]]:
+    """Run `ctjax ARGV` in this process as the console would, for a command that should
+    fail: its status and its stderr's lines, with every Python warning it raised turned
+    into a failure (a separate process would print them to stderr, beside the one line).
+    The process-level path (`python -m ctjax.cli`, its exit status, no traceback at exit) is
+    test_cli.py's subprocess test; one command there costs an import of JAX, ~5 s."""
+    import warnings
+
+    from ctjax.cli import main
+
+    capsys.readouterr()
+    with warnings.catch_warnings(record=True) as raised:
+        warnings.simplefilter("always")
+        status = main(list(argv))
+    assert not raised, [str(w.message) for w in raised]
+    return status, capsys.readouterr().err.strip().splitlines()

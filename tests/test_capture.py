@@ -7,7 +7,7 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from helpers import wavy_surface
+from helpers import command_error, wavy_surface
 
 import ctjax
 from ctjax import Camera
@@ -254,23 +254,14 @@ def test_outputs_respect_the_umask(tmp_path, umask, mode):
     assert not list(tmp_path.glob(".*.tmp"))  # no temporary file left behind
 
 
-def test_identical_frames_are_one_line_and_status_2(tmp_path):
+def test_identical_frames_are_one_line_and_status_2(tmp_path, capsys):
     """Three identical frames (a still camera): every command stops with one line naming
     them, exit status 2, before any work."""
-    import subprocess
-    import sys
-
     frames = _frames(3)
     frames = [dataclasses.replace(f, image=frames[0].image) for f in frames]
     root = write_capture(tmp_path / "still", CAMERA, frames)
-    result = subprocess.run(
-        [sys.executable, "-m", "ctjax.cli", "diagnose", str(root), "--json", str(tmp_path / "d")],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
+    status, lines = command_error(["diagnose", str(root), "--json", str(tmp_path / "d")], capsys)
+    assert status == 2
     assert len(lines) == 1 and "duplicate frames" in lines[0] and "f1 = f0, f2 = f0" in lines[0]
 
 

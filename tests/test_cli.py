@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import command_error
 
 from ctjax import CtjaxError
 from ctjax.cli import main
@@ -70,22 +71,27 @@ def test_demo_command_runs_the_whole_pipeline_from_images(tmp_path):
     assert summary["brdf_fit"]["status"] == "successful" and "<td>status</td>" in page
 
 
-@pytest.mark.parametrize(
-    "argv, message",
-    [
-        (["synth", "{tmp}/c", "--sigma", "-1"], "sigma"),
-        (["synth", "{tmp}/c", "--frames", "0"], "frames"),
-        (["synth", "{tmp}/c", "--ambient", "0.1", "0.2"], "1 or 3 values"),
-    ],
-)
-def test_bad_input_is_one_line_and_status_2(tmp_path, argv, message):
-    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+def test_bad_input_is_one_line_and_status_2(tmp_path):
+    """From the console (a process of its own: the exit status, nothing after the line)."""
+    argv = ["synth", str(tmp_path / "c"), "--sigma", "-1"]
     result = subprocess.run(
         [sys.executable, "-m", "ctjax.cli", *argv], capture_output=True, text=True, timeout=300
     )
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and message in lines[0] and "Traceback" not in result.stderr
+    assert len(lines) == 1 and "sigma" in lines[0] and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["synth", "{tmp}/c", "--frames", "0"], "frames"),
+        (["synth", "{tmp}/c", "--ambient", "0.1", "0.2"], "1 or 3 values"),
+    ],
+)
+def test_bad_input_is_one_line_and_status_2_in_process(tmp_path, capsys, argv, message):
+    status, lines = command_error([a.replace("{tmp}", str(tmp_path)) for a in argv], capsys)
+    assert status == 2 and len(lines) == 1 and message in lines[0]
 
 
 def test_the_compilation_cache_folder_is_documented_and_overridable(monkeypatch, tmp_path):

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import command_error
 from scipy.optimize import nnls as scipy_nnls
 
 from ctjax.cli import main
@@ -275,14 +276,8 @@ def test_masks_and_fit_commands(capture, tmp_path, capsys):
     np.testing.assert_allclose(result["F_tilde"], truth["F_tilde"], rtol=0.05)
 
 
-def _run(*argv):
-    return subprocess.run(
-        [sys.executable, "-m", "ctjax.cli", *argv], capture_output=True, text=True, timeout=300
-    )
-
-
 @pytest.mark.parametrize("case", ["no specular pixels", "all saturated", "nan depth"])
-def test_fit_bad_input_is_one_clear_error(tmp_path, case):
+def test_fit_bad_input_is_one_clear_error(tmp_path, capsys, case):
     small = dict(width=64, height=48, frames=2, texture=False)
     if case == "no specular pixels":
         root = synthesize(tmp_path / "c", SynthOptions(**small, F_tilde=(0.0, 0.0, 0.0)))
@@ -303,10 +298,8 @@ def test_fit_bad_input_is_one_clear_error(tmp_path, case):
                 np.save(root / "depth" / f"{name}.npy", np.full((48, 64), np.nan, np.float32))
                 (root / "normals" / f"{name}.npy").unlink()
                 expected = "no finite positive depth"
-    result = _run("fit", str(root), "--json", str(tmp_path / "o.json"))
-    assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and expected in lines[0], result.stderr
+    status, lines = command_error(["fit", str(root), "--json", str(tmp_path / "o.json")], capsys)
+    assert status == 2 and len(lines) == 1 and expected in lines[0], lines
     assert not (tmp_path / "o.json").exists()
 
 
