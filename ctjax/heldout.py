@@ -15,14 +15,16 @@ import numpy as np
 
 from ._convert import on_device
 from ._errors import CtjaxError
+from ._paired import SampleErrors
 from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
 from .fitting._facet_lobe import facet_lobe
 from .fitting._facet_marginal import facet_marginal
-from .fitting._fit import fit_model, pixel_predict, rmse_levels
+from .fitting._fit import fit_model, pixel_predict, rmse_levels, squared_errors
 from .fitting._map_least_squares import (
     TrackSamples,
     fit_model_map,
+    heldout_map_errors,
     heldout_map_residuals,
     heldout_map_rmse,
 )
@@ -234,6 +236,14 @@ class HeldOut:
             "heldout": self.heldout_rmse(model),
         }
 
+    def heldout_errors(self, model) -> SampleErrors:
+        """Each held-out sample's error under `model` as `judge` left it (its per-frame
+        parameters fitted there): for comparing two judged models (`ctjax._paired`)."""
+        test = self.test
+        count = np.full(len(test), test.values.shape[-1], float)
+        frame, row, col = (np.asarray(a) for a in (test.frame, test.row, test.col))
+        return SampleErrors(squared_errors(model, test, pixel_predict), count, frame, row, col)
+
     def noise_floor(self, model) -> float:
         """The noise floor (8-bit levels) of the held-out frames' residuals under `model`."""
         return noise_floor_levels(self.capture, self.heldout, model)
@@ -399,6 +409,11 @@ class HeldOutTracks:
                 total = float(np.sum(weight[here])) * residual.shape[0]
                 out[f] = math.sqrt(float(np.sum(squared[here])) / total) if total else math.nan
         return out
+
+    def heldout_errors(self, model) -> SampleErrors:
+        """Each tracked point's error on its held-out views under `model` as `judge` left it
+        (its per-frame parameters fitted there): for comparing two judged models."""
+        return heldout_map_errors(model, self.test, self.judged)
 
     def noise_floor(self, model) -> float:
         """The noise floor (8-bit levels) of the held-out frames under the albedo map."""

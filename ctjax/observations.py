@@ -126,7 +126,10 @@ def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
 def usable_mask(frame, saturation_level: float = 1.0) -> np.ndarray:
     """Pixels with geometry (finite positive depth and normal) and no clipped channel."""
     if frame.depth is None or frame.normals is None:
-        raise CtjaxError(f"frame {frame.name}: needs depth (and normals) to compare the model")
+        raise CtjaxError(
+            f"frame {frame.name}: needs depth (and normals) to compare the model"
+            " (`ctjax reconstruct CAPTURE` estimates them from the images)"
+        )
     return frame.geometry_mask & np.all(frame.image < saturation_level, axis=-1)
 
 

@@ -73,6 +73,9 @@ def test_verdict_names_the_hidden_effect(captures, effect):
         best = diagnosis.candidates[0]
         assert best.heldout_rmse <= 1.15 * diagnosis.noise_floor
         assert best.details["improvement"] > 0
+        # Told apart from the base by at least two standard errors of the paired difference
+        # (light_guides, the least: 2.5; its gain lies near the highlights, in few blocks).
+        assert diagnosis.leading["effect"] == effect and diagnosis.leading["z"] > 2
 
 
 def test_a_judged_bases_per_frame_values_are_its_calibration_fits_again(tmp_path):
@@ -138,12 +141,18 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
         "noise_floor",
         "candidates",
         "verdict",
+        "leading",
+        "close",
         "warnings",
         "residual_budget",
         "highlight_alignment",
     ]
     assert result["length_unit"] == "mm" and result["warnings"] == []
     assert result["verdict"] == "light_offset"
+    # The verdict's gain, in standard errors of the held-out difference (blocks of the image).
+    leading = result["leading"]
+    assert leading["effect"] == "light_offset" and leading["z"] > 5
+    assert all(c["z"] is None or c["z"] < 2 for c in result["close"])
     # A few solid highlights a frame, about the true normals: never said to be misoriented.
     alignment = result["highlight_alignment"]
     assert alignment["status"] in ("aligned", "too_few_highlights"), alignment["reason"]
@@ -296,6 +305,7 @@ def test_the_loop_adds_each_verdict_until_none(monkeypatch, tmp_path):
     out = loop.to_json()
     assert [s["base_rmse"] for s in out["steps"]] == [9.0, 4.0, 2.5]
     assert out["steps"][2]["over_noise_floor"] == 1.25 and out["final_verdict"] == "none"
+    assert out["steps"][0]["leading"] is None and out["steps"][0]["close"] == []
     assert plot_loop(loop, tmp_path / "loop.png").is_file()
 
 

@@ -129,6 +129,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
         if (note := facets_note(diagnosis.verdict, budget.highlight_share)) is not None:
             print(f"ctjax diagnose: note: {note}", file=sys.stderr)
     print(highlight_alignment_line(summary["highlight_alignment"]))
+    for line in diagnosis.comparison():
+        print(line)
     print(
         f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
         f"noise floor {diagnosis.noise_floor:.2f}); wrote {args.json} "

@@ -296,7 +296,10 @@ def calibrate_light_field(
     started = time.perf_counter()
     capture = Observations.of(capture, masks)
     if any(f.depth is None or f.normals is None for f in capture.frames):
-        raise CtjaxError(f"{capture.root}: the light field needs depth and normals for every frame")
+        raise CtjaxError(
+            f"{capture.root}: the light field needs depth and normals for every frame"
+            " (`ctjax reconstruct CAPTURE` estimates them from the images)"
+        )
     unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:

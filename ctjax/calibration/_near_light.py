@@ -111,7 +111,10 @@ def calibrate_near_light(
     workers = checked_workers(workers)
     capture = Observations.of(capture)
     if any(f.depth is None for f in capture.frames):
-        raise CtjaxError(f"{capture.root}: the near-light model needs depth for every frame")
+        raise CtjaxError(
+            f"{capture.root}: the near-light model needs depth for every frame"
+            " (`ctjax reconstruct CAPTURE` estimates it from the images)"
+        )
     unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:

@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from .._errors import CtjaxError, ParameterError
+from .._paired import paired_difference, z_score
 from .._result import Estimate
 from .._threads import checked_workers, in_order
 from .._units import length_unit_of
@@ -45,6 +46,14 @@ from ._candidates import CANDIDATES, AbstractCandidate, candidate
 # term brought the held-out RMSE from 1.36 to 1.31 levels, below that floor, where the
 # earlier rule (the base at least 5% above the floor) said "none".
 MATERIAL_IMPROVEMENT = 0.03
+
+# How the leading candidates are told apart: on the held-out samples, pair by pair, in
+# standard errors of the difference of their mean squared errors (`ctjax._paired`: blocks
+# of the image as independent draws). Candidates within this many of the best predict the
+# held-out frames as well as it does; at most `COMPARED` candidates that improve on the base
+# are compared (one run of a compiled program each).
+TOLD_APART_Z = 2.0
+COMPARED = 6
 
 # LM runs from this many of a model's starts (with their roughness variants), those of
 # lowest projected cost: each LM run is most of a candidate's time.
@@ -86,7 +95,10 @@ class Prepared:
     def observations(self) -> Observations:
         obs = Observations.of(self.capture)
         if not obs.capture.has_geometry or any(f.depth is None for f in obs.frames):
-            raise CtjaxError(f"{obs.root}: diagnose needs depth for every frame (depth/NAME.npy)")
+            raise CtjaxError(
+                f"{obs.root}: diagnose needs depth for every frame (depth/NAME.npy;"
+                " `ctjax reconstruct CAPTURE` estimates it from the images)"
+            )
         return obs
 
     @functools.cached_property
@@ -154,6 +166,12 @@ class Diagnosis:
     # What the user should know about the diagnosis as a whole (why the albedo map was not
     # possible where some frames lack a pose or depth, `why_no_albedo_map`).
     warnings: list[str] = dataclasses.field(default_factory=list)
+    # The best candidate where it improves on the base, verdict or not (`effect`,
+    # `improvement`, and `z`: its gain in standard errors, `compared`), and the others that
+    # predict the held-out frames within `TOLD_APART_Z` standard errors of it (`close`,
+    # each with its `z` behind the best): what these frames cannot tell apart.
+    leading: dict | None = None
+    close: list[dict] = dataclasses.field(default_factory=list)
 
     @property
     def base_rmse(self) -> float:
@@ -183,8 +201,31 @@ class Diagnosis:
                 for c in self.candidates
             ],
             "verdict": self.verdict,
+            "leading": self.leading,
+            "close": list(self.close),
             "warnings": list(self.warnings),
         }
+
+    def comparison(self) -> list[str]:
+        """What the held-out frames say of the leading candidates beyond the verdict, in
+        words: the best one where it is under the verdict's line, and those as good."""
+        lines, leading = [], self.leading
+        if leading is not None and self.verdict == "none":
+            lines.append(
+                f"leading candidate: {leading['effect']}, held-out RMSE "
+                f"{100 * leading['improvement']:.1f}% lower ({_in_errors(leading['z'])}), "
+                f"under the {100 * MATERIAL_IMPROVEMENT:g}% a verdict needs"
+            )
+        if self.close:
+            named = ", ".join(
+                f"{c['effect']} ({100 * c['improvement']:.1f}% lower, {_in_errors(c['z'])} behind)"
+                for c in self.close
+            )
+            lines.append(
+                f"as good on the held-out frames as {leading['effect']} (within "
+                f"{TOLD_APART_Z:g} standard errors): {named}; these frames do not tell them apart"
+            )
+        return lines
 
     @property
     def best_model(self) -> ShadingModel:
@@ -192,6 +233,10 @@ class Diagnosis:
             if c.details["effect"] == self.verdict:
                 return c.model
         return self.base.model
+
+
+def _in_errors(z) -> str:
+    return "no spread to judge it by" if z is None else f"{z:.1f} standard errors"
 
 
 def _new_parameters(base: ShadingModel, fitted: ShadingModel) -> dict:
@@ -501,4 +546,24 @@ def diagnose(
     verdict = "none"
     if results and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT:
         verdict = results[0].details["effect"]
-    return Diagnosis(base, noise, results, verdict, time.perf_counter() - started, heldout)
+    leading, close = compared(heldout, base, results)
+    seconds = time.perf_counter() - started
+    return Diagnosis(base, noise, results, verdict, seconds, heldout, [], leading, close)
+
+
+def compared(heldout, base: Estimate, results: list[Estimate]) -> tuple[dict | None, list]:
+    """The best of `results` (sorted, judged on `heldout`) against the base, and the others
+    that improve on the base against the best, on the same held-out samples: its gain in
+    standard errors, and those within `TOLD_APART_Z` of it (see `Diagnosis`)."""
+    better = [c for c in results[:COMPARED] if c.details["improvement"] > 0]
+    if not better:
+        return None, []
+    best = heldout.heldout_errors(better[0].model)
+
+    def row(c: Estimate, behind) -> dict:
+        z = z_score(*paired_difference(behind, best))
+        return {"effect": c.details["effect"], "improvement": c.details["improvement"], "z": z}
+
+    leading = row(better[0], heldout.heldout_errors(base.model))
+    close = [row(c, heldout.heldout_errors(c.model)) for c in better[1:]]
+    return leading, [c for c in close if c["z"] is None or c["z"] < TOLD_APART_Z]

@@ -49,7 +49,11 @@ class DiagnosisLoop:
                     "verdict": step.verdict,
                     "albedo": step.base.details.get("albedo"),
                     "seconds": round(step.seconds, 2),
-                    **{k: v for k, v in step.to_json().items() if k == "candidates"},
+                    **{
+                        key: value
+                        for key, value in step.to_json().items()
+                        if key in ("candidates", "leading", "close")
+                    },
                 }
                 for k, step in enumerate(self.steps)
             ],

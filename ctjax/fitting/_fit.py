@@ -31,13 +31,21 @@ def predictions(model, samples, predict: Predict) -> Float[Array, "N 3"]:
     return jax.vmap(lambda s: predict(model, s))(samples)
 
 
-def rmse_levels(model, samples, predict: Predict, scale: float = 255.0) -> Scalar:
+def rmse_levels(model, samples, predict: Predict, scale: float = 255.0) -> float:
     """Root-mean-square error of `model` on `samples`, times `scale` (255: 8-bit levels
     for images in linear units; 1 for measured BRDF data in their own units)."""
+    squared = squared_errors(model, samples, predict, scale)
+    return math.sqrt(float(np.sum(squared)) / (squared.size * samples.values.shape[-1]))
+
+
+def squared_errors(model, samples, predict: Predict, scale: float = 255.0) -> np.ndarray:
+    """Each sample's squared residual summed over its channels, times `scale`^2 (N,): the
+    terms of `rmse_levels`, for comparing two models sample by sample (`ctjax._paired`)."""
     # One signature however `scale` is passed (default, positional, int or float), and the
     # samples padded to a bucket size (`ctjax._buckets`): the compiled function is shared.
-    samples, mask = padded(samples, len(samples.values))
-    return _rmse_levels(model, samples, mask, predict, float(scale))
+    count = len(samples.values)
+    samples, mask = padded(samples, count)
+    return np.asarray(_squared_errors(model, samples, mask, predict, float(scale)))[:count]
 
 
 def _masked_residuals(model, samples, mask, predict: Predict) -> Float[Array, "N 3"]:
@@ -47,6 +55,11 @@ def _masked_residuals(model, samples, mask, predict: Predict) -> Float[Array, "N
 
 
 @persistent_jit
+def _squared_errors(model, samples, mask, predict: Predict, scale: float) -> Float[Array, " N"]:
+    residual = _masked_residuals(model, samples, mask, predict)
+    return scale * scale * jnp.sum(residual * residual, axis=-1)
+
+
 def _rmse_levels(model, samples, mask, predict: Predict, scale: float) -> Scalar:
     residual = _masked_residuals(model, samples, mask, predict)
     count = jnp.sum(mask) * samples.values.shape[-1]

@@ -18,6 +18,7 @@ import numpy as np
 
 from .._convert import on_device
 from .._errors import ParameterError
+from .._paired import SampleErrors
 from .._programs import persistent_jit
 from .._result import Estimate
 from .._status import Status
@@ -275,9 +276,10 @@ def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
 
 @persistent_jit
 def _predicted_ssr(model, samples: TrackSamples, judged, per_point: int):
-    """Weighted sum of squared residuals and sum of weights (`_predicted_views`)."""
+    """Each point's weighted sum of squared residuals and sum of weights over its channels
+    and judged views (P,) each (`_predicted_views`)."""
     residual, w = _predicted_views(model, samples, judged, per_point)
-    return jnp.sum(w * residual * residual), jnp.sum(w) * samples.channels
+    return jnp.sum(w * residual * residual, axis=(0, 1)), jnp.sum(w, axis=0) * samples.channels
 
 
 def heldout_map_residuals(
@@ -302,10 +304,30 @@ def heldout_map_rmse(
     judged; the total weight counts the judged ones only). A model that
     is right gives about the noise (a little more: the albedo is itself estimated; less
     where bilinear sampling averages the noise). Weighted as in the fit."""
+    return heldout_map_errors(model, samples, judged, per_point).rmse
+
+
+def heldout_map_errors(
+    model, samples: TrackSamples, judged=None, per_point: int | None = None
+) -> SampleErrors:
+    """Each tracked point's error as `heldout_map_rmse` counts it: its weighted squared
+    residual over its judged views and channels (8-bit levels^2), their weight, and the
+    frame and pixel where it is first judged (for comparing two models point by point,
+    `ctjax._paired`)."""
     per_point = diffuse_lobe(model) if per_point is None else per_point
     judged = samples.weight > 0 if judged is None else jnp.asarray(judged)
-    ssr, total = _predicted_ssr(strongly_typed(model), samples, judged, per_point)
-    return 255 * math.sqrt(float(ssr) / float(total)) if float(total) > 0 else math.nan
+    squared, total = _predicted_ssr(strongly_typed(model), samples, judged, per_point)
+    first = np.argmax(np.asarray(judged), axis=0)  # (P,): each point's first judged view
+    points = np.arange(first.size)
+    at = lambda a: np.asarray(a)[first, points]  # noqa: E731
+    u, v = samples.site.pixel
+    return SampleErrors(
+        255**2 * np.asarray(squared, float),
+        np.asarray(total, float),
+        at(samples.site.frame),
+        at(v),
+        at(u),
+    )
 
 
 @persistent_jit

@@ -1,0 +1,86 @@
+"""Two models compared on the same held-out samples (`ctjax._paired`), and how a diagnosis
+reports the candidates its verdict leaves level (`Diagnosis.comparison`)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from ctjax._errors import CtjaxError
+from ctjax._paired import SampleErrors, paired_difference, z_score
+
+
+def _errors(squared, frames=4, size=64, count=3.0):
+    """Samples on a `size` x `size` pixel grid of `frames` frames, row-major."""
+    n = squared.size
+    index = np.arange(n)
+    frame = index // (size * size) % frames
+    row, col = index // size % size, index % size
+    return SampleErrors(squared, np.full(n, count), frame, row, col)
+
+
+def test_the_difference_is_that_of_the_mean_squared_errors_and_its_error_is_the_blocks():
+    rng = np.random.default_rng(0)
+    n = 4 * 64 * 64
+    a = _errors(rng.chisquare(3, n))
+    b = _errors(a.squared + 0.3 + 0.1 * rng.standard_normal(n))
+    difference, error = paired_difference(a, b)
+    assert difference == pytest.approx(a.rmse**2 - b.rmse**2, rel=1e-12)
+    # 64 blocks of 16 x 16 px: the standard error of a mean over blocks (each holds 256
+    # samples of 3 values), against its direct computation.
+    unit = a.blocks()
+    assert unit.max() + 1 == 4 * 4 * 4
+    per_block = np.bincount(unit, a.squared - b.squared) / np.bincount(unit, a.count)
+    expected = np.std(per_block, ddof=1) / math.sqrt(per_block.size)
+    assert error == pytest.approx(expected, rel=1e-9)
+    assert z_score(difference, error) < -10  # b is worse by 0.1 level^2 a value, everywhere
+
+
+def test_a_difference_shared_by_neighbours_counts_once_per_block():
+    """Errors that move together within a block (what a model misses is smooth) give the
+    standard error of the blocks, not of the pixels: a pixel-wise one would be 16x smaller."""
+    rng = np.random.default_rng(1)
+    frames = 4
+    shift = np.repeat(np.repeat(rng.standard_normal((frames, 4, 4)), 16, 1), 16, 2).ravel()
+    base = rng.chisquare(3, shift.size) + 10
+    a, b = _errors(base + shift), _errors(base)
+    difference, error = paired_difference(a, b)
+    blocks = shift.reshape(frames, 4, 16, 4, 16).mean(axis=(2, 4)).ravel() / 3
+    assert difference == pytest.approx(blocks.mean(), rel=1e-9)
+    assert error == pytest.approx(np.std(blocks, ddof=1) / math.sqrt(blocks.size), rel=1e-9)
+
+
+def test_unequal_judged_samples_and_edge_cases():
+    rng = np.random.default_rng(2)
+    n = 2 * 64 * 64
+    a = _errors(rng.chisquare(3, n))
+    counts = a.count.copy()
+    counts[::7] = 0  # some samples judged under one model only: each over its own
+    b = SampleErrors(np.where(counts > 0, a.squared, 0), counts, a.frame, a.row, a.col)
+    difference, error = paired_difference(a, b)
+    assert difference == pytest.approx(a.rmse**2 - b.rmse**2, rel=1e-12)
+    assert 0 < error < abs(difference) + 1
+    # The same errors: no difference, no spread, no z.
+    assert paired_difference(a, a) == (0.0, 0.0) and z_score(0.0, 0.0) is None
+    # Nothing judged: NaN, and one block: no spread to judge by.
+    none = SampleErrors(a.squared, np.zeros(n), a.frame, a.row, a.col)
+    assert all(math.isnan(x) for x in paired_difference(none, a))
+    one = _errors(np.ones(4), size=2)
+    assert paired_difference(one, one)[1] == math.inf
+    with pytest.raises(CtjaxError, match="same samples"):
+        paired_difference(a, one)
+
+
+def test_the_comparison_in_words():
+    from ctjax.diagnostics import Diagnosis
+
+    leading = {"effect": "spot_falloff", "improvement": 0.0244, "z": 6.3}
+    close = [{"effect": "vignetting", "improvement": 0.0241, "z": 0.4}]
+    diagnosis = Diagnosis(None, 2.5, [], "none", 1.0, None, [], leading, close)
+    first, second = diagnosis.comparison()
+    assert first.startswith("leading candidate: spot_falloff") and "6.3 standard errors" in first
+    assert "under the 3% a verdict needs" in first
+    assert "vignetting (2.4% lower, 0.4 standard errors behind)" in second
+    assert "do not tell them apart" in second
+    named = Diagnosis(None, 2.5, [], "spot_falloff", 1.0, None, [], leading, [])
+    assert named.comparison() == []
