@@ -141,6 +141,7 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
         "noise_floor",
         "candidates",
         "verdict",
+        "verdict_status",
         "leading",
         "close",
         "warnings",
@@ -153,6 +154,7 @@ def test_diagnose_command_json_and_plots(captures, tmp_path):
     leading = result["leading"]
     assert leading["effect"] == "light_offset" and leading["z"] > 5
     assert all(c["z"] is None or c["z"] < 2 for c in result["close"])
+    assert result["verdict_status"] == ("ambiguous" if result["close"] else "determined")
     # A few solid highlights a frame, about the true normals: never said to be misoriented.
     alignment = result["highlight_alignment"]
     assert alignment["status"] in ("aligned", "too_few_highlights"), alignment["reason"]
@@ -306,6 +308,7 @@ def test_the_loop_adds_each_verdict_until_none(monkeypatch, tmp_path):
     assert [s["base_rmse"] for s in out["steps"]] == [9.0, 4.0, 2.5]
     assert out["steps"][2]["over_noise_floor"] == 1.25 and out["final_verdict"] == "none"
     assert out["steps"][0]["leading"] is None and out["steps"][0]["close"] == []
+    assert out["steps"][0]["verdict_status"] is None  # (the stand-in compares nothing)
     assert plot_loop(loop, tmp_path / "loop.png").is_file()
 
 

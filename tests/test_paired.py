@@ -82,5 +82,15 @@ def test_the_comparison_in_words():
     assert "under the 3% a verdict needs" in first
     assert "vignetting (2.4% lower, 0.4 standard errors behind)" in second
     assert "do not tell them apart" in second
+    assert diagnosis.verdict_status is None
     named = Diagnosis(None, 2.5, [], "spot_falloff", 1.0, None, [], leading, [])
-    assert named.comparison() == []
+    assert named.comparison() == [] and named.verdict_status == "determined"
+    both = Diagnosis(None, 2.5, [], "spot_falloff", 1.0, None, [], leading, close)
+    assert both.verdict_status == "ambiguous"
+    # A verdict over the 3% line whose gain the held-out samples do not tell from noise.
+    weak = {"effect": "frame_exposure", "improvement": 0.040, "z": 1.18}
+    guess = Diagnosis(None, 2.5, [], "frame_exposure", 1.0, None, [], weak, [])
+    assert guess.verdict_status == "not_determined"
+    (line,) = guess.comparison()
+    assert line.startswith("the verdict is not determined: frame_exposure's held-out RMSE")
+    assert "4.0% lower, 1.2 standard errors" in line

@@ -118,7 +118,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
             print(
                 f"step {k + 1} ({' + '.join(['paper', *loop.added[:k]])}): held-out RMSE "
                 f"{step.base_rmse:.2f} levels, {step.base_rmse / step.noise_floor:.2f}x the "
-                f"noise floor {step.noise_floor:.2f}; verdict {step.verdict} "
+                f"noise floor {step.noise_floor:.2f}; verdict {step.verdict}"
+                f"{'' if step.verdict_status is None else f', {step.verdict_status}'} "
                 f"({step.seconds:.0f} s)"
             )
         print(f"loop stopped: {loop.stopped}; {loop.seconds:.0f} s in all")
@@ -131,8 +132,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
     print(highlight_alignment_line(summary["highlight_alignment"]))
     for line in diagnosis.comparison():
         print(line)
+    status = diagnosis.verdict_status
     print(
-        f"verdict: {diagnosis.verdict} (base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
+        f"verdict: {diagnosis.verdict}{'' if status is None else f', {status}'} "
+        f"(base held-out RMSE {diagnosis.base_rmse:.2f} levels, "
         f"noise floor {diagnosis.noise_floor:.2f}); wrote {args.json} "
         f"in {diagnosis.seconds:.0f} s"
     )

@@ -201,10 +201,25 @@ class Diagnosis:
                 for c in self.candidates
             ],
             "verdict": self.verdict,
+            "verdict_status": self.verdict_status,
             "leading": self.leading,
             "close": list(self.close),
             "warnings": list(self.warnings),
         }
+
+    @property
+    def verdict_status(self) -> str | None:
+        """How far the held-out samples determine the verdict: `determined` (its gain over
+        the base at least `TOLD_APART_Z` standard errors, and no other candidate within that
+        of it), `ambiguous` (ahead of the base, and the candidates in `close` as good),
+        `not_determined` (its gain within the spread other samples could give); None where
+        the verdict is none."""
+        if self.verdict == "none" or self.leading is None:
+            return None
+        z = self.leading["z"]
+        if z is None or z < TOLD_APART_Z:
+            return "not_determined"
+        return "ambiguous" if self.close else "determined"
 
     def comparison(self) -> list[str]:
         """What the held-out frames say of the leading candidates beyond the verdict, in
@@ -215,6 +230,12 @@ class Diagnosis:
                 f"leading candidate: {leading['effect']}, held-out RMSE "
                 f"{100 * leading['improvement']:.1f}% lower ({_in_errors(leading['z'])}), "
                 f"under the {100 * MATERIAL_IMPROVEMENT:g}% a verdict needs"
+            )
+        if self.verdict_status == "not_determined":
+            lines.append(
+                f"the verdict is not determined: {self.verdict}'s held-out RMSE is "
+                f"{100 * leading['improvement']:.1f}% lower, {_in_errors(leading['z'])} of "
+                f"the difference, under the {TOLD_APART_Z:g} that tell it from the base"
             )
         if self.close:
             named = ", ".join(

@@ -47,6 +47,7 @@ class DiagnosisLoop:
                     if step.noise_floor > 0
                     else None,
                     "verdict": step.verdict,
+                    "verdict_status": step.verdict_status,
                     "albedo": step.base.details.get("albedo"),
                     "seconds": round(step.seconds, 2),
                     **{
