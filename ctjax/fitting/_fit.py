@@ -35,6 +35,8 @@ def rmse_levels(model, samples, predict: Predict, scale: float = 255.0) -> float
     """Root-mean-square error of `model` on `samples`, times `scale` (255: 8-bit levels
     for images in linear units; 1 for measured BRDF data in their own units)."""
     squared = squared_errors(model, samples, predict, scale)
+    if squared.size == 0:
+        return math.nan
     return math.sqrt(float(np.sum(squared)) / (squared.size * samples.values.shape[-1]))
 
 
