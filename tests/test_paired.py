@@ -94,3 +94,15 @@ def test_the_comparison_in_words():
     (line,) = guess.comparison()
     assert line.startswith("the verdict is not determined: frame_exposure's held-out RMSE")
     assert "4.0% lower, 1.2 standard errors" in line
+
+
+def test_no_samples_have_no_errors_and_no_rmse():
+    from ctjax._vector import Vec3
+    from ctjax.fitting import paper_model, rmse_levels
+    from ctjax.fitting._fit import pixel_predict, squared_errors
+    from ctjax.observations import PixelSamples
+
+    z, i = np.zeros(0), np.zeros(0, int)
+    none = PixelSamples(Vec3(z, z, z), Vec3(z, z, z), (z, z), np.zeros((0, 3)), i, i, i)
+    assert squared_errors(paper_model(), none, pixel_predict).shape == (0,)
+    assert math.isnan(rmse_levels(paper_model(), none, pixel_predict))

@@ -46,6 +46,8 @@ def squared_errors(model, samples, predict: Predict, scale: float = 255.0) -> np
     # One signature however `scale` is passed (default, positional, int or float), and the
     # samples padded to a bucket size (`ctjax._buckets`): the compiled function is shared.
     count = len(samples.values)
+    if count == 0:
+        return np.zeros(0)
     samples, mask = padded(samples, count)
     return np.asarray(_squared_errors(model, samples, mask, predict, float(scale)))[:count]
 
