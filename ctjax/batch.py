@@ -160,7 +160,7 @@ def _client(workers: int, scheduler: str | None):
     if scheduler is not None:
         try:
             return Client(scheduler, timeout=30)
-        except OSError as failure:
+        except (OSError, ValueError, TypeError) as failure:  # unreachable, or not an address
             raise CtjaxError(f"cannot reach the Dask scheduler at {scheduler}: {failure}") from None
     cluster = LocalCluster(
         n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
@@ -199,8 +199,13 @@ def _jobs(captures, out: Path, steps) -> list[CaptureJob]:
     unknown = [s for s in steps if s not in STEPS]
     if unknown:
         raise CtjaxError(f"unknown step(s) {', '.join(unknown)}; the steps are {', '.join(STEPS)}")
+    if not steps:
+        raise CtjaxError(f"no step given; the steps are {', '.join(STEPS)}")
     if not captures:
         raise CtjaxError("no capture given")
+    missing = [str(c) for c in captures if not Path(c).is_dir()]
+    if missing:  # before any work, not as a failed row after the others ran
+        raise CtjaxError(f"not a capture folder: {', '.join(missing)}")
     jobs = [CaptureJob(Path(c).resolve(), out.resolve(), steps) for c in captures]
     names = [job.name for job in jobs]
     repeated = sorted({n for n in names if names.count(n) > 1})

@@ -325,6 +325,15 @@ def test_sixteen_bit_capture_is_supported(tmp_path, capsys):
 OPTION_CASES = [
     pytest.param(["synth", "{out}/s", "--width", "0"], "image size 0x", id="synth-width-0"),
     pytest.param(["synth", "{out}/s", "--frames", "-2"], "frames=-2", id="synth-negative-frames"),
+    pytest.param(["synth", "{out}/s", "--seed", "-1"], "seed=-1 (>= 0)", id="synth-negative-seed"),
+    pytest.param(
+        ["demo", "--out", "{out}/d", "--seed", "-1"], "seed=-1 (>= 0)", id="demo-negative-seed"
+    ),
+    pytest.param(
+        ["synth", "{out}/s", "--width", "100000", "--height", "100000"],
+        "image size 100000x100000 (from 16x16 to 4096x4096)",
+        id="synth-huge",
+    ),
     pytest.param(["synth", "{out}/s", "--sigma", "nan"], "sigma=nan", id="synth-sigma-nan"),
     pytest.param(
         ["synth", "{out}/s", "--noise", "-1"], "noise_levels=-1", id="synth-negative-noise"
@@ -441,6 +450,22 @@ OPTION_CASES = [
         ["reconstruct", "{cap}", "--out", "{out}/r", "--knot-px", "nan"],
         "knot_spacing_px (--knot-px) must be a positive finite number",
         id="reconstruct-nan-knots",
+    ),
+    pytest.param(
+        ["reconstruct", "{cap}", "--out", "{out}/r", "--knot-px", "0.1"],
+        "knot_spacing_px (--knot-px) 0.1 gives 310569 spline coefficients over the 64x48 "
+        "image, more than the 4096 the dense surfaces solve for: give at least 1 px",
+        id="reconstruct-knots-too-fine",
+    ),
+    pytest.param(
+        ["reconstruct", "{cap}", "--out", "{out}/r", "--scale-mm", "1e300"],
+        "scale_mm (--scale-mm) must be in [0.001, 1e+06], got 1e+300",
+        id="reconstruct-huge-scale",
+    ),
+    pytest.param(
+        ["reconstruct", "{cap}", "--out", "{out}/r", "--texture-smoothing", "1e30"],
+        "texture_smoothing (--texture-smoothing) must be in [1e-06, 1e+06], got 1e+30",
+        id="reconstruct-huge-smoothing",
     ),
     pytest.param(
         ["fit", "{cap}", "--json", "{out}/f.json", "--max-tracks", "1"],

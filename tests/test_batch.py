@@ -58,13 +58,24 @@ def test_captures_run_on_dask_workers(captures, tmp_path):
 
 @pytest.mark.parametrize(
     ("extra", "message"),
-    [(["--steps", "fit,paint"], "unknown step(s) paint"), (["--workers", "-1"], "--workers")],
+    [
+        (["--steps", "fit,paint"], "unknown step(s) paint"),
+        (["--workers", "-1"], "--workers"),
+        (["--steps", " , "], "no step given"),
+        (["--steps", "fit", "--scheduler", "notanaddress"], "Dask scheduler at notanaddress"),
+        (["{missing}", "--steps", "fit"], "not a capture folder: {missing}"),
+    ],
 )
 def test_bad_batch_options_are_one_line(captures, tmp_path, capsys, extra, message):
     good, _ = captures
-    assert main(["batch", str(good), "--out", str(tmp_path / "o"), *extra]) == 2
+    missing = str(tmp_path / "no-such-capture")
+    extra = [word.format(missing=missing) for word in extra]
+    given = [str(good), *extra[:1]] if extra[0] == missing else [str(good)]
+    extra = extra[1:] if extra[0] == missing else extra
+    assert main(["batch", *given, "--out", str(tmp_path / "o"), *extra]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and message in lines[0]
+    assert len(lines) == 1 and message.format(missing=missing) in lines[0], lines
+    assert not (tmp_path / "o" / good.name).exists()  # refused before any work
 
 
 def test_without_dask_one_line_names_the_extra_and_exit_2(captures, tmp_path, capsys, monkeypatch):

@@ -65,6 +65,16 @@ def test_sixteen_bit_round_trip(tmp_path):
     np.testing.assert_allclose(load_capture(root).frames[0].image, image, atol=1e-7)
 
 
+def test_a_folder_with_other_frames_is_not_written_into(tmp_path):
+    root = write_capture(tmp_path / "cap", CAMERA, _frames(3))
+    write_capture(root, CAMERA, _frames(3))  # the same frames: replaced
+    with pytest.raises(
+        ctjax.CaptureError, match=r"images: holds images of other frames \(f2.png\)"
+    ):
+        write_capture(root, CAMERA, _frames(2))  # f2 would stay beside the new f0 and f1
+    assert len(load_capture(root).frames) == 3
+
+
 def test_rgb_channel_order(tmp_path):
     image = np.zeros((32, 40, 3), np.float32)
     image[..., 0] = 1.0  # pure red

@@ -532,6 +532,7 @@ def write_capture(
     `stereo` (camera.json's "stereo") and `right` {NAME: the right camera's linear image}.
     """
     root = Path(path)
+    _refuse_other_frames(root, {frame.name for frame in frames})
     root.mkdir(parents=True, exist_ok=True)
     described = {**camera.to_json(), "encoding": encoding}
     if stereo is not None:
@@ -555,3 +556,20 @@ def write_capture(
     if truth is not None:
         atomic_write_json(root / "truth.json", truth)
     return root
+
+
+def _refuse_other_frames(root: Path, names: set[str]) -> None:
+    """A folder holding images of other frames would become a capture mixing two (its stale
+    frames loaded beside the new ones): refused, naming them. The same frames are replaced."""
+    for folder in (root / "images", root / RIGHT):
+        if not folder.is_dir():
+            continue
+        others = sorted(p.name for p in folder.iterdir() if p.is_file() and p.stem not in names)
+        if others:
+            shown = ", ".join(others[:3]) + (
+                f" and {len(others) - 3} more" if len(others) > 3 else ""
+            )
+            raise CaptureError(
+                f"{folder}: holds images of other frames ({shown}); write the capture into an "
+                "empty folder (or remove them)"
+            )

@@ -13,7 +13,6 @@ reference view (its median depth is 1) and the report says so.
 
 import dataclasses
 import json
-import math
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -26,6 +25,7 @@ from .._errors import CaptureError, CtjaxError, ParameterError, ReconstructionEr
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
+from ._checks import check_knots, check_scale
 from ._colmap import MAPPING_ENOUGH, SparseModel
 from ._focal import sparse_with_focal, with_focal
 from ._pairs import pairs_reconstruction
@@ -65,21 +65,6 @@ class Reconstruction:
     views: dict[str, ViewSurface]
     sparse: SparseModel
     report: dict
-
-
-def _check_scale(scale_mm, volume_mm3, knot_spacing_px=None, texture_smoothing=None) -> None:
-    if scale_mm is not None and volume_mm3 is not None:
-        raise ParameterError("give scale_mm (--scale-mm) or volume_mm3 (--volume-mm3), not both")
-    # Each named as the Python API and the command line call it.
-    given = (
-        ("scale_mm (--scale-mm)", scale_mm),
-        ("volume_mm3 (--volume-mm3)", volume_mm3),
-        ("knot_spacing_px (--knot-px)", knot_spacing_px),
-        ("texture_smoothing (--texture-smoothing)", texture_smoothing),
-    )
-    for name, value in given:
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise ParameterError(f"{name} must be a positive finite number, got {value}")
 
 
 def _to_camera(cam_from_world: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -144,7 +129,9 @@ def reconstruct_capture(
     Raises `ReconstructionError` (too few features, no initial pair); frames that do not
     register are listed in the report and get no geometry.
     """
-    _check_scale(scale_mm, volume_mm3, knot_spacing_px, texture_smoothing)
+    check_scale(scale_mm, volume_mm3, knot_spacing_px, texture_smoothing)
+    if knot_spacing_px is not None:
+        check_knots(capture.camera, knot_spacing_px)
     if texture_smoothing is not None and (not photometric or stereo == "pairs"):
         raise ParameterError(
             "texture_smoothing (--texture-smoothing) is the texture refinement's: not with "
@@ -349,7 +336,7 @@ def reconstruct(
 
     Returns the report (see `reconstruct_capture`).
     """
-    _check_scale(scale_mm, volume_mm3, knot_spacing_px, texture_smoothing)
+    check_scale(scale_mm, volume_mm3, knot_spacing_px, texture_smoothing)
     if shading not in (None, False, True, *SHADING_LIGHTS):
         raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {shading!r}")
     root = Path(capture_dir)

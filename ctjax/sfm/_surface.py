@@ -31,6 +31,10 @@ _TUKEY_C = 4.685
 _SMOOTHING_GRID = np.logspace(-2, 2, 9)
 _INITIAL_SMOOTHING = 1.0
 _FOLDS = 5
+# The most coefficients a view's surface may have: its normal equations and penalty are dense
+# (coefficients^2 float64 each, 134 MB at 4096, with a few copies while they are built). At
+# 640x512 it allows knots every 10 px (default 32).
+MAX_SURFACE_COEFFICIENTS = 4096
 
 
 def _cubic_weights(f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -111,6 +115,13 @@ class DepthSurface:
         return np.where(ok, z, np.nan), normal
 
 
+def surface_coefficients(width: float, height: float, knot_spacing_px: float) -> int:
+    """How many coefficients a surface over a `width` x `height` px rectangle has."""
+    u_axis = _Axis.covering(0.0, float(width), knot_spacing_px)
+    v_axis = _Axis.covering(0.0, float(height), knot_spacing_px)
+    return u_axis.count * v_axis.count
+
+
 def fit_depth_surface(
     u: np.ndarray,
     v: np.ndarray,
@@ -133,7 +144,11 @@ def fit_depth_surface(
     n = len(z)
     design = design_matrix(u_axis, v_axis, u, v)
     penalty = thin_plate_penalty(u_axis, v_axis)
-    blocks = _blocks(u, v, 2 * knot_spacing_px)
+    # Blocks of two knots; four along the longer side where two knots span it all (one block
+    # was one fold holding out every point, and its solve failed).
+    extent = max(bounds[1] - bounds[0], bounds[3] - bounds[2])
+    block = 2 * knot_spacing_px if 2 * knot_spacing_px < extent else extent / 4
+    blocks = _blocks(u, v, block)
     weights = np.ones(n)
     smoothing = _INITIAL_SMOOTHING
     for iteration in range(robust_iterations + 2):
@@ -217,7 +232,13 @@ def solve_banded(system: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     banded = np.zeros((band + 1, n))
     for k in range(band + 1):
         banded[band - k, k:] = np.diagonal(system, k)
-    return scipy.linalg.solveh_banded(banded, rhs, check_finite=False)
+    try:
+        return scipy.linalg.solveh_banded(banded, rhs, check_finite=False)
+    except np.linalg.LinAlgError:
+        # Numerically semi-definite: a penalty weight far above the data's (texture smoothing
+        # 1e6), or knots so wide that held-out blocks leave coefficients unseen. The least-
+        # squares solution (the penalty's limit: the smoothest surface) instead of a failure.
+        return scipy.linalg.lstsq(system, rhs, check_finite=False)[0]
 
 
 def _cross_validated_smoothing(design, penalty, z, weights, folds) -> float:
@@ -232,8 +253,8 @@ def _cross_validated_smoothing(design, penalty, z, weights, folds) -> float:
     errors = np.zeros(len(_SMOOTHING_GRID))
     for fold in range(_FOLDS):
         held = folds == fold
-        if not np.any(held & (weights > 0)):
-            continue
+        if not np.any(held & (weights > 0)) or not np.any(~held & (weights > 0)):
+            continue  # nothing to judge, or nothing left to fit
         train = np.where(held, 0.0, weights)
         normal, _ = _system(design, penalty, train)
         rhs = design.T @ (train * z)
@@ -241,4 +262,6 @@ def _cross_validated_smoothing(design, penalty, z, weights, folds) -> float:
             coefficients = solve_banded(normal + smoothing * scaled_penalty, rhs)
             residual = (z - design @ coefficients)[held]
             errors[k] += np.sum(weights[held] * residual**2)
+    if not np.any(errors):  # no fold could be judged (a handful of points in one block)
+        return _INITIAL_SMOOTHING
     return float(_SMOOTHING_GRID[int(np.argmin(errors))])

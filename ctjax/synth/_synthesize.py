@@ -54,6 +54,11 @@ def synth_effects() -> dict:
     }
 
 
+# The largest side rendered: 4096 x 4096 x 3 float64 channels and their intermediates are
+# gigabytes already (100000 x 100000 asked for 240 GB and failed in numpy).
+MAX_SIDE_PX = 4096
+
+
 @dataclasses.dataclass(frozen=True)
 class SynthOptions:
     """What `synthesize` makes. Intensities are linear, 1.0 = 8-bit level 255.
@@ -105,8 +110,12 @@ class SynthOptions:
         if self.sparkles_attached and not self.sparkles:
             object.__setattr__(self, "sparkles", True)
         problems = []
-        if self.width < 16 or self.height < 16:
-            problems.append(f"image size {self.width}x{self.height} (at least 16x16)")
+        if not (16 <= self.width <= MAX_SIDE_PX and 16 <= self.height <= MAX_SIDE_PX):
+            problems.append(
+                f"image size {self.width}x{self.height} (from 16x16 to {MAX_SIDE_PX}x{MAX_SIDE_PX})"
+            )
+        if self.seed < 0:
+            problems.append(f"seed={self.seed} (>= 0)")
         if not (np.isfinite(self.texture_contrast) and 0 <= self.texture_contrast <= 1):
             problems.append(f"texture_contrast={self.texture_contrast} (in [0, 1])")
         if self.frames < 1:
