@@ -440,8 +440,10 @@ class HeldOutTracks:
 
 def frame_consistency(tracks: HeldOutTracks, models: dict) -> dict:
     """Each frame's RMSE (8-bit levels) under each of `models` (by name;
-    `HeldOutTracks.frame_rmse`), by frame name, and the calibration frames the others do not
-    predict under the first model (`frames_not_predicted`), as JSON."""
+    `HeldOutTracks.frame_rmse`), by frame name, the calibration frames the others do not
+    predict under the first model (`frames_not_predicted`) and the frames with no judged view
+    (`not_judged`: none of their pixels on a surface point another frame sees, a frame whose
+    depth, normals or pose disagree with the others'), as JSON."""
     names = [frame.name for frame in tracks.capture.frames]
     rmse = {name: tracks.frame_rmse(model) for name, model in models.items()}
     first = next(iter(rmse.values()))
@@ -454,6 +456,7 @@ def frame_consistency(tracks: HeldOutTracks, models: dict) -> dict:
         **{name: {names[f]: plain(v) for f, v in sorted(r.items())} for name, r in rmse.items()},
         "calibration_median_levels": plain(median),
         "not_predicted": [names[f] for f in outliers],
+        "not_judged": [names[f] for f, v in sorted(first.items()) if not math.isfinite(v)],
         "note": (
             "8-bit levels per frame: a calibration frame's views each predicted from the "
             "point's albedo in its other views, a test frame's judged views as the test RMSE "
@@ -461,7 +464,8 @@ def frame_consistency(tracks: HeldOutTracks, models: dict) -> dict:
             f"the calibration frames' median under the {next(iter(rmse))} model (tissue or "
             "scope motion the poses and shape do not follow, blur): no lobe explains them, "
             "and they weigh on the fit; `ctjax fit` on a capture without them says what "
-            "they change"
+            "they change; not_judged: frames none of whose views was judged (their "
+            "depth, normals or pose put none of their pixels on a point the others see)"
         ),
     }
 

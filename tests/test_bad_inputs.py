@@ -273,6 +273,13 @@ CAPTURE_CASES = [
         id="black-images",
     ),
     pytest.param(
+        lambda r: _rewrite_image(r, np.zeros((48, 64, 3), np.uint8)),
+        _fit,
+        ("fit",),
+        "frame(s) frame_000 have no pixel in their field of view (black: brightest level 0",
+        id="one-black-frame",
+    ),
+    pytest.param(
         _white_images,
         _fit,
         ("fit",),

@@ -109,3 +109,19 @@ def test_a_frame_the_others_do_not_predict_is_named(fitted):
     block = frame_consistency(split, {"lambertian": model})
     assert block["not_predicted"] == [capture.frames[0].name]
     assert block["lambertian"][capture.frames[0].name] == pytest.approx(rmse[0])
+
+
+def test_a_frame_whose_depth_disagrees_is_named_not_judged(fitted):
+    """A held-out frame whose depth is 1e6 times the others' (a corrupt depth map) has no
+    pixel on a point the other frames see: `frame_consistency` names it (evaluate warns),
+    where it was a silent null in frames_rmse."""
+    from ctjax.heldout import HeldOutTracks, frame_consistency
+
+    capture, model = fitted
+    frames = list(capture.frames)
+    frames[-1] = dataclasses.replace(frames[-1], depth=1e6 * frames[-1].depth)
+    split = HeldOutTracks.split(dataclasses.replace(capture, frames=tuple(frames)), 3)
+    block = frame_consistency(split, {"lambertian": model})
+    assert block["not_judged"] == [capture.frames[-1].name]
+    assert block["lambertian"][capture.frames[-1].name] is None
+    assert frame_consistency(HeldOutTracks.split(capture, 3), {"l": model})["not_judged"] == []

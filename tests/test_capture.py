@@ -157,6 +157,8 @@ def _break(root, how):
         (root / "depth" / "f0.npy").write_bytes(b"not numpy")
     elif how == "duplicate frames":
         shutil.copy(root / "images" / "f0.png", root / "images" / "f2.png")
+    elif how == "one frame in two files":
+        cv2.imwrite(str(root / "images" / "f1.jpg"), cv2.imread(str(root / "images" / "f1.png")))
     elif how == "malformed poses":
         (root / "poses.json").write_text(json.dumps({"f0": [[1, 0], [0, 1]]}))
     elif how in NOT_RIGID:
@@ -207,6 +209,7 @@ BAD = {
     "depth all NaN": "no finite positive depth",
     "corrupt depth file": "cannot read depth",
     "malformed poses": "4x4",
+    "one frame in two files": r"frame f1 has 2 images \(f1.jpg, f1.png\): keep one",
     "duplicate frames": r"duplicate frames \(identical images\): f2 = f0",
     "pose with a projective last row": r"poses.json: the pose of 'f1' is not a rigid transform "
     r"\(its last row is \[0.0, 0.0, 0.1, 1.05\], not \[0, 0, 0, 1\]\)",

@@ -126,6 +126,19 @@ def test_a_missing_right_image_is_named(stereo_capture, tmp_path):
         load_capture(copy)
 
 
+def test_a_right_image_of_another_size_is_named_where_it_is_read(stereo_capture, tmp_path):
+    # Every user of the right images (the pairs, the right views of fit, evaluate and
+    # calibrate-light) reads them through `Capture.right_image`, which checks the rig's size.
+    copy = tmp_path / "c"
+    shutil.copytree(stereo_capture, copy)
+    path = copy / "right" / "frame_001.png"
+    cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path)), (96, 80)))
+    capture = load_capture(copy)
+    capture.right_image("frame_000")
+    with pytest.raises(CaptureError, match=r"frame_001 is 96x80, the stereo camera .* 192x160"):
+        capture.right_image("frame_001")
+
+
 def test_synth_command_stereo(tmp_path):
     out = tmp_path / "s"
     argv = ["synth", str(out), "--frames", "1", "--width", "64", "--height", "48"]

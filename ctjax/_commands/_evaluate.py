@@ -146,6 +146,13 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"of {frames['calibration_median_levels']:.1f} over the calibration frames: motion "
             "the poses and shape do not follow; no lobe explains them (frames_rmse in the JSON)"
         )
+    if frames.get("not_judged"):
+        print(
+            f"ctjax evaluate: warning: no view of {', '.join(frames['not_judged'])} was judged "
+            "(none of its pixels on a surface point the other frames see: its depth, normals "
+            "or pose disagree with theirs); the RMSEs are over the other frames",
+            file=sys.stderr,
+        )
     for name, budget in (summary.get("residual_budget") or {}).items():
         if "rmse_levels" in budget:
             print(

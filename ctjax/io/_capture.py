@@ -21,6 +21,7 @@ import dataclasses
 import functools
 import json
 import math
+from collections import Counter
 from pathlib import Path
 
 import cv2
@@ -111,6 +112,12 @@ class Capture:
         if path is None:
             return None
         raw = read_recorded(path)
+        right = self.stereo.right
+        if raw.shape[:2] != (right.height, right.width):  # every user of it needs this
+            raise CaptureError(
+                f"{path}: the right image of {name} is {raw.shape[1]}x{raw.shape[0]}, the "
+                f"stereo camera (camera.json's stereo.right) says {right.width}x{right.height}"
+            )
         top = 255.0 if raw.dtype == np.uint8 else 65535.0
         return raw.astype(np.float32) / top
 
@@ -350,6 +357,12 @@ def load_capture(
     image_paths = sorted(p for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not image_paths:
         raise CaptureError(f"{image_dir}: no images ({', '.join(IMAGE_SUFFIXES)}) in the capture")
+    twice = sorted(stem for stem, n in Counter(p.stem for p in image_paths).items() if n > 1)
+    if twice:  # two files of one frame (frame_001.png and .jpg): which one is the frame?
+        files = [p.name for p in image_paths if p.stem == twice[0]]
+        raise CaptureError(
+            f"{image_dir}: frame {twice[0]} has {len(files)} images ({', '.join(files)}): keep one"
+        )
     poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
     size = (camera.height, camera.width)
     declared = read_encoding(root / "camera.json")
@@ -455,14 +468,29 @@ def black_frames(capture: "Capture") -> str | None:
             f"{capture.root}: the images are saturated ({share:.0%} of the pixels white, "
             "every channel at full scale): lower the exposure or the light"
         )
-    frames = [f for f in capture.frames if f.field_of_view is not None]
-    if not frames or any(f.field_of_view.any() for f in frames):
+    # A frame without a field-of-view mask shows the whole image.
+    empty = [f for f in capture.frames if f.field_of_view is not None and not f.field_of_view.any()]
+    if not empty:
         return None
-    brightest = max(float(np.max(frame.image)) for frame in capture.frames)
-    return (
-        f"{capture.root}: no frame has a pixel in its field of view: the images are black "
-        f"(their brightest level {brightest:.3g} of 1), or all border"
-    )
+    brightest = max(float(np.max(frame.image)) for frame in empty)
+    if len(empty) < len(capture.frames):
+        names = ", ".join(f.name for f in empty[:5]) + (" ..." if len(empty) > 5 else "")
+        return (
+            f"{capture.root}: frame(s) {names} have no pixel in their field of view (black: "
+            f"brightest level {brightest:.3g} of 1, or all border): remove them from the capture"
+        )
+    if brightest < _BLACK_LEVEL:
+        why = f"the images are black (their brightest level {brightest:.3g} of 1)"
+    else:  # bright images whose every pixel was masked: not black
+        why = (
+            f"the images are not black (brightest level {brightest:.3g} of 1) but every pixel "
+            "is border or overlay, or camera.json's distortion moved the image out of its frame"
+        )
+    return f"{capture.root}: no frame has a pixel in its field of view: {why}"
+
+
+# Brighter than this (linear, of 1) anywhere, a frame is not black.
+_BLACK_LEVEL = 0.1
 
 
 # A stereo endoscope's baseline (mm): a da Vinci's 4-5.5, the smallest 3D scopes' about 2.

@@ -74,12 +74,7 @@ def stereo_points(
     if rig is None:
         raise CaptureError(f"{capture.root}: not a stereo capture (camera.json has no stereo)")
     frame = capture.frames[index]
-    right = capture.right_image(frame.name)
-    if right.shape[:2] != (rig.right.height, rig.right.width):
-        raise CaptureError(
-            f"{capture.root}: the right image of {frame.name} is {right.shape[1]}x"
-            f"{right.shape[0]}, the stereo camera says {rig.right.width}x{rig.right.height}"
-        )
+    right = capture.right_image(frame.name)  # its size checked against the rig's
     left_camera = capture.camera
     size = (left_camera.width, left_camera.height)
     k1 = np.asarray(left_camera.intrinsic_matrix, np.float64)
