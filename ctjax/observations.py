@@ -364,7 +364,7 @@ class Observations:
 
     def _follow(self, radius_px, max_points, neighbours, tolerance, seed, frames, anchor_frames):
         from . import _tracks
-        from .io._capture import black_frames
+        from .io._field_of_view import black_frames
 
         if black_frames(self.capture):  # not "no anchor pixel with depth and a normal"
             raise CtjaxError(black_frames(self.capture))

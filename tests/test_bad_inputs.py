@@ -262,7 +262,8 @@ CAPTURE_CASES = [
         lambda r: _tint_all_images(r, (0.3, 0.4, 1.0)),
         _fit,
         ("fit",),
-        "no specular pixels",
+        "no specular pixels (S is empty) in any of 2 frame(s) with --highlights whiter "
+        "(--whiteness 0.5, --contrast 1.15)",
         id="no-specular-pixels",
     ),
     pytest.param(
@@ -402,6 +403,16 @@ OPTION_CASES = [
         ["diagnose", "{cap}", "--json", "{out}/d.json", "--max-samples", "0"],
         "--max-samples: must be a positive integer, got '0'",
         id="diagnose-max-samples-0",
+    ),
+    pytest.param(
+        ["diagnose", "{cap}", "--json", "{out}/d.json", "--max-samples", "20"],
+        "max_samples (--max-samples) must be at least 500, got 20",
+        id="diagnose-max-samples-20",
+    ),
+    pytest.param(
+        ["diagnose", "{cap}", "--json", "{out}/d.json", "--add", "bogus"],
+        "unknown effect 'bogus'; known: albedo_texture, ambient,",
+        id="diagnose-add-unknown",
     ),
     pytest.param(
         ["calibrate-light", "{cap}", "--json", "{out}/c.json", "--calib", "5"],
@@ -561,6 +572,18 @@ PARAMETER_CASES = [
         id="specular-sets-nan-image",
     ),
 ]
+
+
+def test_a_ring_wider_than_the_image_is_the_whole_image(recwarn):
+    # 1e300 px overflowed the float32 distances (a warning); any ring past the diagonal is
+    # the same ring.
+    image = np.full((16, 16, 3), 0.3, np.float32)
+    image[7:9, 7:9] = 1.0
+    visible = np.ones((16, 16), bool)
+    wide, huge = (specular_sets(image, visible, ring_px=r) for r in (40.0, 1e300))
+    np.testing.assert_array_equal(wide.ring, huge.ring)
+    assert huge.ring.sum() == 16 * 16 - huge.specular.sum() > 0
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
 
 
 @pytest.mark.parametrize("call, message", PARAMETER_CASES)

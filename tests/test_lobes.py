@@ -220,3 +220,23 @@ def test_radiance_given_geometry_is_the_radiance(lobe):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-300)
     for a, b in zip(*(jax.tree.leaves(g) for g in geometries), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_parameter_driven_past_its_domain_stays_inside_it():
+    """An unconstrained roughness of -1000 (a degenerate fit) maps to the smallest positive
+    float, not to 0, which the lobe refuses (`GGX.alpha must be positive, got 0.0` ended a
+    diagnosis on 100 samples)."""
+    from ctjax import ShadingModel
+    from ctjax.fitting import free_parameters
+    from ctjax.fitting._parameters import constrained, unconstrained
+    from ctjax.lights import PointLight
+
+    model = ShadingModel(
+        (Lambertian(jnp.ones(3)), Specular(jnp.ones(3), GGX(0.3))), PointLight((0.0, 0.0, 0.0))
+    )
+    parameters = free_parameters(model)
+    values = unconstrained(model, parameters)
+    index = [p.name for p in parameters].index("brdf[1].distribution.alpha")
+    values[index] = jnp.asarray(-1000.0)
+    alpha = constrained(model, parameters, values).brdf[1].distribution.alpha
+    assert 0 < float(alpha) < 1e-300

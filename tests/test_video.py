@@ -107,13 +107,15 @@ def test_a_still_camera_gives_one_frame_and_a_warning(tmp_path, capsys):
         (None, ["--start", "5", "--end", "2"], "--end must be a time after --start"),
         # --width only shrinks: no silent upsampling of a 64-px video.
         (None, ["--width", "100"], "--width 100 cannot exceed the video's width (64 px)"),
+        # 3 black frames: nothing in view (12 identical frames were kept).
+        ("black", [], "no frame between --start and --end shows anything (black"),
     ],
 )
 def test_bad_imports_fail_with_one_line(tmp_path, capsys, content, extra, expected):
     camera, image = _one_view(tmp_path / "t")
     path = tmp_path / "v.mp4"
-    if content is None:
-        _write_video(path, [image], held=3)
+    if content in (None, "black"):
+        _write_video(path, [image if content is None else 0 * image], held=3)
     else:
         path.write_text(content)
     argv = ["import", str(path), "--camera", str(camera), "--out"]
@@ -141,3 +143,9 @@ def test_a_video_without_calibration_gets_a_guessed_camera(tmp_path, capsys):
     assert (camera["cx"], camera["cy"]) == ((width - 1) / 2, (height - 1) / 2)
     assert camera["encoding"] == "srgb"
     assert "--focal refine" in capsys.readouterr().err
+    # --width: the guess scaled with the frames, in the note as in camera.json.
+    argv = ["import", str(path), "--camera", "guess", "--out", str(tmp_path / "c"), "--force"]
+    assert main([*argv, "--width", "32"]) == 0
+    camera = json.loads((tmp_path / "c" / "camera.json").read_text())
+    assert camera["fx"] == pytest.approx(0.8 * 32)
+    assert f"fx = fy = {0.8 * 32:.1f} px" in capsys.readouterr().err

@@ -33,7 +33,7 @@ def add_diagnose_parser(commands) -> None:
         default=12_000,
         metavar="N",
         help="calibration pixels (or tracked points, with the albedo map) each model is fitted "
-        "on, a random subset (default %(default)s; fewer run faster)",
+        "on, a random subset (default %(default)s, at least 500; fewer run faster)",
     )
     diag.add_argument(
         "--albedo",

@@ -88,10 +88,12 @@ def run_import(args: argparse.Namespace) -> int:
         folder = tempfile.TemporaryDirectory(prefix="ctjax-camera-")
         args.camera = Path(folder.name) / "camera.json"
         args.camera.write_text(json.dumps(guess))
+        # In the frames written: --width scales the guess with them.
+        fx = guess["fx"] * (1 if args.width is None else args.width / guess["width"])
         print(
-            f"ctjax import: note: no calibration: a guessed camera, fx = fy = "
-            f"{guess['fx']:.1f} px (0.8 width), the principal point at the centre; `ctjax "
-            "reconstruct OUT --out DIR --focal refine` refines the focal length from the frames",
+            f"ctjax import: note: no calibration: a guessed camera, fx = fy = {fx:.1f} px "
+            "(0.8 width), the principal point at the centre; `ctjax reconstruct OUT --out DIR "
+            "--focal refine` refines the focal length from the frames",
             file=sys.stderr,
         )
 

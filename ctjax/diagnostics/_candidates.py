@@ -18,4 +18,5 @@ def candidate(name: str, candidates=CANDIDATES) -> AbstractCandidate:
     for c in candidates:
         if c.name == name:
             return c
-    raise CtjaxError(f"unknown effect {name!r}; known: {', '.join(c.name for c in candidates)}")
+    known = ", ".join(dict.fromkeys(c.name for c in candidates))  # each once, in order
+    raise CtjaxError(f"unknown effect {name!r}; known: {known}")

@@ -11,7 +11,7 @@ from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._result import Estimate
 from ..io import Capture
-from ..io._capture import black_frames
+from ..io._field_of_view import black_frames
 from ..lights import ColocatedLight
 from ..lobes import Lambertian
 from ..observations import Observations, usable_mask

@@ -86,10 +86,12 @@ def _from_unconstrained(u, domain):
     lo, hi = domain
     if math.isfinite(lo) and math.isfinite(hi):
         return lo + (hi - lo) * jax.nn.sigmoid(u)
+    # softplus underflows to 0 below u = -745 (float64): a fit driven to the domain's edge
+    # stays inside it, not on it (a GGX alpha of exactly 0 is refused by the lobe).
     if math.isfinite(lo):
-        return lo + jax.nn.softplus(u)
+        return lo + jnp.maximum(jax.nn.softplus(u), jnp.finfo(jnp.result_type(u)).tiny)
     if math.isfinite(hi):
-        return hi - jax.nn.softplus(-u)
+        return hi - jnp.maximum(jax.nn.softplus(-u), jnp.finfo(jnp.result_type(u)).tiny)
     return u
 
 

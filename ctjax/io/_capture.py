@@ -30,7 +30,6 @@ import numpy as np
 from .._camera import DISTORTION_KEYS, Camera
 from .._errors import CaptureError
 from .._geometry import normals_from_depth
-from .._tissue import channel_min
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._encoding import LINEAR, SRGB, declared_encoding, decode, default_encoding, encode
@@ -442,55 +441,6 @@ def load_capture(
         if not BASELINE_MM[0] <= stereo.baseline_mm <= BASELINE_MM[1]:
             notes = (*notes, _unlikely_baseline(root, stereo.baseline_mm))
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo)
-
-
-# A capture whose frames are white (every channel at full scale) over at least this share
-# of their view on average is saturated: nothing to measure.
-SATURATED_SHARE = 0.95
-
-
-def black_frames(capture: "Capture") -> str | None:
-    """Why no frame has a pixel of the scene, where none has one in its field of view (black
-    images, or all border), or where the frames are white over `SATURATED_SHARE` of their
-    view (saturated); None otherwise."""
-    if not capture.frames:
-        return None
-
-    def white(frame) -> float:
-        white = channel_min(frame.image) >= 254.5 / 255
-        if frame.field_of_view is None or not frame.field_of_view.any():
-            return float(np.mean(white))
-        return float(np.mean(white[frame.field_of_view]))
-
-    share = float(np.mean([white(f) for f in capture.frames]))
-    if share >= SATURATED_SHARE:  # a flat field at full scale is no scene (and not black)
-        return (
-            f"{capture.root}: the images are saturated ({share:.0%} of the pixels white, "
-            "every channel at full scale): lower the exposure or the light"
-        )
-    # A frame without a field-of-view mask shows the whole image.
-    empty = [f for f in capture.frames if f.field_of_view is not None and not f.field_of_view.any()]
-    if not empty:
-        return None
-    brightest = max(float(np.max(frame.image)) for frame in empty)
-    if len(empty) < len(capture.frames):
-        names = ", ".join(f.name for f in empty[:5]) + (" ..." if len(empty) > 5 else "")
-        return (
-            f"{capture.root}: frame(s) {names} have no pixel in their field of view (black: "
-            f"brightest level {brightest:.3g} of 1, or all border): remove them from the capture"
-        )
-    if brightest < _BLACK_LEVEL:
-        why = f"the images are black (their brightest level {brightest:.3g} of 1)"
-    else:  # bright images whose every pixel was masked: not black
-        why = (
-            f"the images are not black (brightest level {brightest:.3g} of 1) but every pixel "
-            "is border or overlay, or camera.json's distortion moved the image out of its frame"
-        )
-    return f"{capture.root}: no frame has a pixel in its field of view: {why}"
-
-
-# Brighter than this (linear, of 1) anywhere, a frame is not black.
-_BLACK_LEVEL = 0.1
 
 
 # A stereo endoscope's baseline (mm): a da Vinci's 4-5.5, the smallest 3D scopes' about 2.

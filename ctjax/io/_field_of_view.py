@@ -34,6 +34,9 @@ structure-from-motion features.
   glint of more than 30 px whose edge is as sharp as a drawn one is taken as an overlay.
 
 A synthetic or cropped capture has no border and no overlay: everything is in view.
+
+- **Nothing in view** (`black_frames`): why a capture cannot be measured, where frames have no
+  pixel in their field of view (black, or all border: named) or all are saturated.
 """
 
 import cv2
@@ -232,3 +235,52 @@ def visible_masks(images: list[np.ndarray]) -> list[np.ndarray]:
     (those constant over the frames, and white ones with sharp edges in each frame)."""
     overlay = overlay_mask(images) | white_overlays(images)
     return [field_of_view(image) & ~overlay for image in images]
+
+
+# A capture whose frames are white (every channel at full scale) over at least this share
+# of their view on average is saturated: nothing to measure.
+SATURATED_SHARE = 0.95
+
+
+def black_frames(capture) -> str | None:
+    """Why no frame has a pixel of the scene, where none has one in its field of view (black
+    images, or all border), or where the frames are white over `SATURATED_SHARE` of their
+    view (saturated); None otherwise."""
+    if not capture.frames:
+        return None
+
+    def white(frame) -> float:
+        white = channel_min(frame.image) >= 254.5 / 255
+        if frame.field_of_view is None or not frame.field_of_view.any():
+            return float(np.mean(white))
+        return float(np.mean(white[frame.field_of_view]))
+
+    share = float(np.mean([white(f) for f in capture.frames]))
+    if share >= SATURATED_SHARE:  # a flat field at full scale is no scene (and not black)
+        return (
+            f"{capture.root}: the images are saturated ({share:.0%} of the pixels white, "
+            "every channel at full scale): lower the exposure or the light"
+        )
+    # A frame without a field-of-view mask shows the whole image.
+    empty = [f for f in capture.frames if f.field_of_view is not None and not f.field_of_view.any()]
+    if not empty:
+        return None
+    brightest = max(float(np.max(frame.image)) for frame in empty)
+    if len(empty) < len(capture.frames):
+        names = ", ".join(f.name for f in empty[:5]) + (" ..." if len(empty) > 5 else "")
+        return (
+            f"{capture.root}: frame(s) {names} have no pixel in their field of view (black: "
+            f"brightest level {brightest:.3g} of 1, or all border): remove them from the capture"
+        )
+    if brightest < _BLACK_LEVEL:
+        why = f"the images are black (their brightest level {brightest:.3g} of 1)"
+    else:  # bright images whose every pixel was masked: not black
+        why = (
+            f"the images are not black (brightest level {brightest:.3g} of 1) but every pixel "
+            "is border or overlay, or camera.json's distortion moved the image out of its frame"
+        )
+    return f"{capture.root}: no frame has a pixel in its field of view: {why}"
+
+
+# Brighter than this (linear, of 1) anywhere, a frame is not black.
+_BLACK_LEVEL = 0.1

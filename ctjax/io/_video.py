@@ -180,7 +180,7 @@ def _scan(path: Path, options: ImportOptions, progress: Callable[[str], None]) -
     fov = size = None
     for index, image in _frames(path, options, fps):
         image = _halves(image, options)[0]
-        if fov is None:
+        if fov is None or not fov.any():  # from the first frame that shows something
             size = (image.shape[1], image.shape[0])
             fov = field_of_view(_small(image).astype(np.float32) / 255)
         thumbnail, sharp = _thumbnail(image, fov)
@@ -191,6 +191,11 @@ def _scan(path: Path, options: ImportOptions, progress: Callable[[str], None]) -
             progress(f"scanned {index + 1}" + (f"/{total}" if total else "") + " frames")
     if not indices:
         raise CaptureError(f"{path}: no frame between --start and --end (the video has {total})")
+    if not fov.any():  # the frames before the first that shows something have sharpness 0
+        raise CaptureError(
+            f"{path}: no frame between --start and --end shows anything (black, or all "
+            "border): nothing to import"
+        )
     return _Scan(np.array(indices), thumbnails, np.array(sharpness), size, fps, fov)
 
 

@@ -108,6 +108,9 @@ class WhiterThanTissue:
     grow: float = 2 / 3
     rim: float = 0.006
 
+    def __str__(self) -> str:  # in messages: the command line's words
+        return f"--highlights whiter (--whiteness {self.whiteness:g}, --contrast {self.contrast:g})"
+
     def __post_init__(self):
         for name in ("whiteness", "near_white", "clip_level", "clip_chroma", "white"):
             _fraction(name, getattr(self, name))
@@ -215,6 +218,11 @@ class HLSThresholds:
     def __post_init__(self):
         _fraction("lightness", self.lightness)
         _fraction("saturation", self.saturation)
+
+    def __str__(self) -> str:  # in messages: the command line's words
+        return (
+            f"--highlights hls (--lightness {self.lightness:g}, --saturation {self.saturation:g})"
+        )
 
     def __call__(self, image: np.ndarray, visible: np.ndarray) -> np.ndarray:
         hls = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2HLS)

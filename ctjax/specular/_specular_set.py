@@ -86,6 +86,7 @@ def specular_sets(
     _check_image(image)
     if not np.isfinite(ring_px) or ring_px <= 0:
         raise ParameterError(f"ring_px must be positive, got {ring_px}")
+    ring_px = min(float(ring_px), float(np.hypot(*image.shape[:2])))  # wider: the same ring
     visible = _check_mask("visible", visible, image, default=True)
     valid = _check_mask("valid", valid, image, default=True)
     specular = specular_mask(image, highlights, min_speck_px, visible)
