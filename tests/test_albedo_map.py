@@ -1,6 +1,7 @@
 """The albedo map (textured tissue): the variable projection against a joint solve, its
 gradient, truth recovery on textured captures, the command and its errors."""
 
+import dataclasses
 import json
 
 import jax
@@ -12,7 +13,7 @@ from scipy.optimize import nnls as scipy_nnls
 from ctjax._tracks import views_first
 from ctjax.cli import main
 from ctjax.estimation import PAPER, fit_capture
-from ctjax.estimation._map_fit import summary_stride
+from ctjax.estimation._map_fit import fit_albedo_map, summary_stride
 from ctjax.estimation._variable_projection import project_weights
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
@@ -538,3 +539,20 @@ def test_a_parameter_the_data_leave_alone_does_not_hide_the_others_standard_erro
     degenerate = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
     assert np.all(_variances(0.5, degenerate) == np.inf)
     assert _variances(0.5, np.zeros((0, 0))).shape == (0,)
+
+
+def test_a_frame_sharing_no_point_is_named_and_its_half_not_fitted(textured):
+    """Frame 1's depth a million times too far (a corrupt map): its points meet no other
+    frame's, so it adds nothing; the odd frames alone (1 and 3) cannot be fitted. The fit
+    of the rest stands, with a warning naming the frame and one that the halves were not
+    compared (it failed on the halves' fit before, naming no frame)."""
+    capture = load_capture(textured[(1, 1.0)])
+    frames = list(capture.frames[:4])
+    frames[1] = dataclasses.replace(frames[1], depth=1e6 * frames[1].depth)
+    estimate = fit_albedo_map(dataclasses.replace(capture, frames=tuple(frames)))
+    assert any(w.startswith("frame_001 share(s) no surface point") for w in estimate.warnings)
+    assert any(
+        "stability across frame subsets is not checked: the odd frames" in w
+        for w in estimate.warnings
+    )
+    assert "halves" not in estimate.details

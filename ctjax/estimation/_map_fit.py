@@ -243,7 +243,10 @@ def _halves(tracks, shading, family: BRDFFamily, tolerance: float, frames: int) 
         keep = (frame >= 0) & (frame % 2 == parity)
         weight = on_device(np.where(keep, np.asarray(shading.weight), 0), shading.weight.dtype)
         half = eqx.tree_at(lambda s: s.weight, shading, weight)
-        out[part] = fit_brdf_map(half, family, tolerance=tolerance)
+        try:
+            out[part] = fit_brdf_map(half, family, tolerance=tolerance)
+        except CtjaxError as error:  # a half too thin to fit: no check, and the fit says why
+            return {"failed": f"the {part.replace('_', ' ')} alone: {error}"}
     return out
 
 
@@ -296,7 +299,8 @@ def fit_albedo_map(
     try:
         fit = fit_brdf_map(shading, family, tolerance=tolerance)
     except CtjaxError as error:
-        raise CtjaxError(f"{obs.root}: {error}{obs.clipped_note()}") from None
+        apart = _apart(tracks, capture)
+        raise CtjaxError(f"{obs.root}: {error}{apart}{obs.clipped_note()}") from None
     # The halves' fits beside everything below, on a thread (their program is the fit's,
     # loaded by now, and XLA runs it without the GIL).
     halves_of = started(_halves, tracks, shading, family, tolerance, len(capture))
@@ -372,7 +376,15 @@ def fit_albedo_map(
         arrays=arrays,
         cost=float(fit.cost),
     )
+    apart = _apart(tracks, capture)
+    if apart:
+        estimate.warnings.append(f"{apart[2:]}: it adds nothing to the fit")
     halves = halves_of.result()
+    if "failed" in halves:
+        estimate.warnings.append(
+            f"the lobe's stability across frame subsets is not checked: {halves['failed']}"
+        )
+        halves = {}
     if halves:
         estimate.details["halves"] = {
             part: _map_fit_json(half, per_point) for part, half in halves.items()
@@ -437,4 +449,18 @@ def _checked_against_the_lights_cone(estimate: Estimate, fit, tracks, tolerance)
             f"it shows by {100 * gain:.2f}% (under {100 * MIN_LOBE_GAIN:g}%): no specular lobe "
             "is found (`ctjax calibrate-light` fits the light's falloff and offset)",
         ),
+    )
+
+
+def _apart(tracks, capture) -> str:
+    """The frames none of whose tracked points another frame sees (their depth or pose
+    disagrees with the others'), as a clause of an error; "" where every frame shares one."""
+    shared = tracks.observed & (tracks.observed.sum(axis=1, keepdims=True) > 1)
+    frames = enumerate(capture.frames)
+    apart = [f.name for i, f in frames if not np.any(shared & (tracks.frame == i))]
+    if not apart or len(apart) == len(capture.frames):
+        return ""
+    return (
+        f"; {', '.join(apart)} share(s) no surface point with the other frames (depth or pose "
+        "disagreeing with theirs?)"
     )
