@@ -65,6 +65,16 @@ def test_sixteen_bit_round_trip(tmp_path):
     np.testing.assert_allclose(load_capture(root).frames[0].image, image, atol=1e-7)
 
 
+def test_normals_partly_facing_away_are_noted(tmp_path):
+    root = write_capture(tmp_path / "cap", CAMERA, _frames(2))
+    assert load_capture(root).notes == ()
+    normals = np.load(root / "normals" / "f1.npy")
+    normals[:, ::5] *= -1  # every fifth column flipped: 20% seen from behind
+    np.save(root / "normals" / "f1.npy", normals)
+    (note,) = load_capture(root).notes
+    assert "f1.npy: 20% of the normals face away from the camera" in note
+
+
 def test_a_folder_with_other_frames_is_not_written_into(tmp_path):
     root = write_capture(tmp_path / "cap", CAMERA, _frames(3))
     write_capture(root, CAMERA, _frames(3))  # the same frames: replaced
@@ -187,6 +197,8 @@ CAMERA_EDITS = {
     "k4": {"k1": 0.1, "k4": 0.01, "k6": 0.001},
     "distortion array": {"distortion": [0.1, 0.01, 0.0, 0.0, 0.0]},
     "cx outside the image": {"cx": 5000},
+    "focal length far too small": {"fx": 1e-300},
+    "focal length in metres": {"fy": 1e6},
     "cy outside the image": {"cy": -3.5},
 }
 
@@ -209,6 +221,8 @@ BAD = {
     "depth all NaN": "no finite positive depth",
     "corrupt depth file": "cannot read depth",
     "malformed poses": "4x4",
+    "focal length far too small": r"fx 1e-300 px is not a focal length for an image 40 px wide",
+    "focal length in metres": r"fy 1e\+06 px is not a focal length for an image 32 px high",
     "one frame in two files": r"frame f1 has 2 images \(f1.jpg, f1.png\): keep one",
     "duplicate frames": r"duplicate frames \(identical images\): f2 = f0",
     "pose with a projective last row": r"poses.json: the pose of 'f1' is not a rigid transform "

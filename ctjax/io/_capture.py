@@ -141,6 +141,13 @@ def _camera_json(path: Path) -> dict:
     return data
 
 
+# Above this share of a frame's normals facing away from the camera, the capture notes it.
+FACING_AWAY_NOTED = 0.05
+
+# A focal length (px) lies between the image's size over this and its size times it.
+FOCAL_RANGE = 100.0
+
+
 def read_camera(path: Path) -> Camera:
     """Parse and validate `camera.json`."""
     return camera_from_json(_camera_json(path), path)
@@ -173,9 +180,17 @@ def camera_from_json(data: dict, path) -> Camera:
     for key in ("width", "height"):
         if values[key] != int(values[key]) or values[key] <= 0:
             raise CaptureError(f"{path}: {key} must be a positive integer, got {data[key]!r}")
-    for key in ("fx", "fy"):
+    for key, size in (("fx", "width"), ("fy", "height")):
         if values[key] <= 0:
             raise CaptureError(f"{path}: {key} must be positive, got {data[key]!r}")
+        # A field of view over 177.7 degrees (a pinhole's) or under 0.57: not a camera's,
+        # a wrong unit (metres for pixels); 1e-300 was read on and blamed the normals.
+        if not values[size] / FOCAL_RANGE <= values[key] <= values[size] * FOCAL_RANGE:
+            raise CaptureError(
+                f"{path}: {key} {values[key]:g} px is not a focal length for an image "
+                f"{values[size]:g} px {'wide' if key == 'fx' else 'high'} (from "
+                f"{values[size] / FOCAL_RANGE:g} to {values[size] * FOCAL_RANGE:g} px)"
+            )
     for key, size in (("cx", "width"), ("cy", "height")):
         # The principal point on the image, its edges included (pixel centres run from 0 to
         # size - 1); off it, the rays and every fit after them would be wrong.
@@ -246,8 +261,8 @@ def _load_npy(path: Path, shape: tuple[int, ...], what: str) -> np.ndarray:
     return array.astype(np.float32)
 
 
-def _mostly_facing_away(camera: Camera, normals: np.ndarray) -> bool:
-    """More than half of the finite normals point away from the camera (N . ray > 0)."""
+def _facing_away(camera: Camera, normals: np.ndarray) -> float:
+    """The share of the finite normals that point away from the camera (N . ray > 0)."""
     h, w = normals.shape[:2]
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     ray = np.stack(
@@ -256,7 +271,7 @@ def _mostly_facing_away(camera: Camera, normals: np.ndarray) -> bool:
     )
     facing = normals[..., 0] * ray[..., 0] + normals[..., 1] * ray[..., 1] + normals[..., 2]
     finite = np.isfinite(facing)
-    return bool(finite.any() and np.mean(facing[finite] > 0) > 0.5)
+    return float(np.mean(facing[finite] > 0)) if finite.any() else 0.0
 
 
 def _read_poses(path: Path) -> dict[str, np.ndarray]:
@@ -365,7 +380,7 @@ def load_capture(
     poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
     size = (camera.height, camera.width)
     declared = read_encoding(root / "camera.json")
-    encodings, frames = set(), []
+    encodings, frames, facing_notes = set(), [], []
     for image_path in image_paths:
         name = image_path.stem
         raw = read_recorded(image_path)
@@ -394,11 +409,14 @@ def load_capture(
             finite = np.isfinite(norm)
             if np.any(np.abs(norm[finite] - 1) > _UNIT_TOLERANCE):
                 raise CaptureError(f"{normals_path}: normals are not unit vectors")
-            if _mostly_facing_away(camera, normals):
+            away = _facing_away(camera, normals)
+            if away > 0.5:
                 raise CaptureError(
                     f"{normals_path}: normals face away from the camera (they must point "
                     "towards it: flip their sign)"
                 )
+            if away > FACING_AWAY_NOTED:  # a surface seen from behind: those pixels unused
+                facing_notes.append(f"{normals_path}: {away:.0%} of the normals face away")
         elif depth is not None:
             normals = normals_from_depth(camera, depth)
         frames.append(Frame(name, image, depth, normals, poses.get(name)))
@@ -424,6 +442,14 @@ def load_capture(
             f"{root / 'camera.json'} does not say how its images are encoded: 8-bit frames are "
             'decoded as sRGB (as video and JPEG frames are); add "encoding": "linear" to it if '
             'they are linear, or "encoding": "srgb" to silence this note',
+        )
+    if facing_notes:
+        notes = (
+            *notes,
+            "; ".join(facing_notes[:3])
+            + (f" (and {len(facing_notes) - 3} more frames)" if len(facing_notes) > 3 else "")
+            + " from the camera: a surface seen from behind, those pixels are not used (normals "
+            "with a wrong sign in places?)",
         )
     if undistort and camera.distortion is not None:
         frames = [_undistort(camera, frame) for frame in frames]
