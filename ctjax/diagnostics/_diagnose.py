@@ -52,6 +52,9 @@ MATERIAL_IMPROVEMENT = 0.03
 # 100 a candidate's roughness driven to 0.
 MIN_SAMPLES = 500
 
+# A noise floor above this (8-bit levels) is no video's: the frames do not agree.
+NOISY_FLOOR_LEVELS = 20.0
+
 # LM runs from this many of a model's starts (with their roughness variants), those of
 # lowest projected cost: each LM run is most of a candidate's time.
 REFINE = 2
@@ -574,5 +577,12 @@ def diagnose(
     if results and results[0].details["improvement"] >= MATERIAL_IMPROVEMENT:
         verdict = results[0].details["effect"]
     leading, close = compared(heldout, base, results)
+    warnings = []
+    if noise > NOISY_FLOOR_LEVELS:
+        warnings.append(
+            f"the held-out frames' noise floor is {noise:.1f} levels (1.7-2.6 on the shared "
+            "real videos): their pixels do not follow the surface from view to view (noise, "
+            "frames of another scene, or a shape not theirs); no verdict means much on them"
+        )
     seconds = time.perf_counter() - started
-    return Diagnosis(base, noise, results, verdict, seconds, heldout, [], leading, close)
+    return Diagnosis(base, noise, results, verdict, seconds, heldout, warnings, leading, close)
