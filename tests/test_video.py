@@ -102,7 +102,8 @@ def test_a_still_camera_gives_one_frame_and_a_warning(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "extra", "expected"),
     [
-        ("not a video", [], "cannot open the video"),
+        # FFmpeg's own complaint in ctjax's one line, not on a line of its own before it.
+        ("not a video", [], "cannot open the video (not a video OpenCV can decode: moov atom"),
         (None, ["--every", "0"], "--every must be a positive integer"),
         (None, ["--start", "5", "--end", "2"], "--end must be a time after --start"),
         # --width only shrinks: no silent upsampling of a 64-px video.

@@ -21,8 +21,13 @@ time) with `camera.json` copied beside them, marked `"encoding": "srgb"` (unless
 endoscope's camera.json says otherwise: video frames are encoded).
 """
 
+import contextlib
 import dataclasses
+import os
+import re
 import shutil
+import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -90,10 +95,38 @@ class _Scan:
 def _open(path: Path) -> cv2.VideoCapture:
     if not path.is_file():
         raise CaptureError(f"{path}: video file not found")
-    video = cv2.VideoCapture(str(path))
-    if not video.isOpened():
-        raise CaptureError(f"{path}: cannot open the video (not a video OpenCV can decode)")
+    # The decoders write their complaints (FFmpeg's "moov atom not found") to the process's
+    # stderr, before ctjax's one line: caught here, and named in it.
+    with _stderr_caught() as said:
+        video = cv2.VideoCapture(str(path))
+        opened = video.isOpened()
+    if not opened:
+        why = re.sub(r"[^\x20-\x7e]", "?", " ".join(said())).strip()
+        raise CaptureError(
+            f"{path}: cannot open the video (not a video OpenCV can decode"
+            + (f": {why[:200]}" if why else "")
+            + ")"
+        )
     return video
+
+
+@contextlib.contextmanager
+def _stderr_caught():
+    """File descriptor 2 into a temporary file while in the block; yields a function giving
+    its lines, without the decoders' "[mov,mp4 @ 0x...]" prefixes."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        text: list[str] = []
+        try:
+            yield lambda: text
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            lines = caught.read().decode("utf-8", "replace").splitlines()
+            text.extend(re.sub(r"^\[[^\]]*\] ", "", line) for line in lines if line.strip())
 
 
 # A video without a calibration (`ctjax import --camera guess`): a pinhole camera with this
