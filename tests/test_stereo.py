@@ -75,25 +75,43 @@ def test_reconstruct_is_metric_from_the_pairs_alone(stereo_capture, tmp_path):
 @pytest.mark.parametrize(
     "stereo, message",
     [
-        ({"right": {"fx": 1, "fy": 1, "cx": 0, "cy": 0}, "R": np.eye(3).tolist()}, "missing T"),
+        (
+            {"right": {"fx": 180, "fy": 180, "cx": 95.5, "cy": 79.5}, "R": np.eye(3).tolist()},
+            "missing T",
+        ),
         (
             {
-                "right": {"fx": 1, "fy": 1, "cx": 0, "cy": 0},
+                "right": {"fx": 180, "fy": 180, "cx": 95.5, "cy": 79.5},
                 "R": [[2, 0, 0], [0, 1, 0], [0, 0, 1]],
                 "T": [-5, 0, 0],
             },
             "rotation",
         ),
-        ({"right": {"fx": 1, "cx": 0, "cy": 0}, "R": np.eye(3).tolist(), "T": [-5, 0, 0]}, "fy"),
         (
             {
-                "right": {"fx": 1, "fy": 1, "cx": 0, "cy": 0},
+                "right": {"fx": 180, "cx": 95.5, "cy": 79.5},
+                "R": np.eye(3).tolist(),
+                "T": [-5, 0, 0],
+            },
+            "fy",
+        ),
+        (
+            {
+                "right": {"fx": 180, "fy": 180, "cx": 95.5, "cy": 79.5},
                 "R": np.eye(3).tolist(),
                 "T": [0, 0, 0],
             },
             "nonzero",
         ),
         ("left", "an object"),
+        (  # the right camera's intrinsics are checked as the left's
+            {
+                "right": {"fx": 1, "fy": 180, "cx": 95.5, "cy": 79.5},
+                "R": np.eye(3).tolist(),
+                "T": [-5, 0, 0],
+            },
+            r"stereo.right\): fx 1 px is not a focal length for an image 192 px wide",
+        ),
     ],
 )
 def test_a_bad_stereo_block_is_one_clear_error(stereo_capture, tmp_path, stereo, message):
