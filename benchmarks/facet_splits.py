@@ -1,0 +1,87 @@
+"""Facets: how far does the facet lobe's sigma move between subsets of the calibration
+frames, split in different ways?
+
+    python benchmarks/facet_splits.py RECONSTRUCTED_CAPTURE [--random 3]
+
+`ctjax.fitting.facet_lobe` (what `ctjax evaluate --facets` and `fit --facets` report) calls
+its lobe `unstable` when the even and the odd calibration frames choose sigmas more than 20%
+apart. Each half sees every point's lobe at about twice the angular step of all the frames
+(`views_step_rad`), so the halves may disagree for the sampling alone. This chooses sigma
+(and F_tilde) on each part of several two-way splits of the calibration frames, the other
+part's views weighted 0, under the paper's light (at the lens): even / odd, the first and
+the second half (contiguous blocks: the same angular step within a block as all frames,
+but different views), and `--random` random splits of the frames into two equal parts.
+Prints one JSON line per split: each part's sigma and F_tilde and their spread
+(|a - b| / mean, as `ctjax._determined`'s halves check).
+
+Measured (2026-12-02, the shared sinus, 12 frames at 640 px, `benchmarks/real_video.py`'s
+reconstruction; 8 calibration frames; 4:45 on 2 cores): all eight sigma 0.090, F_tilde
+0.0167; even / odd 0.094 / 0.069 (30%); first / second half 0.085 / 0.047 (58%); random
+0.080 / 0.076 (5.5%), 0.077 / 0.101 (27%), 0.062 / 0.093 (40%): four frames of this
+sequence do not determine sigma to 25%, whichever four (docs/real-video.md, "Facets").
+"""
+
+import argparse
+import json
+import time
+
+import equinox as eqx
+import numpy as np
+
+from ctjax.fitting import facet_lobe
+from ctjax.heldout import HeldOutTracks
+from ctjax.io import load_capture
+from ctjax.lights import ColocatedLight
+
+
+def _part(train, frames):
+    """`train` with the views of frames outside `frames` weighted 0."""
+    frame = np.asarray(train.site.frame)
+    keep = np.isin(frame, frames) & (frame >= 0)
+    weight = np.where(keep, np.asarray(train.weight), 0)
+    return eqx.tree_at(lambda s: s.weight, train, weight.astype(np.asarray(train.weight).dtype))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("capture")
+    parser.add_argument("--random", type=int, default=3, help="random two-way splits")
+    args = parser.parse_args()
+    capture = load_capture(args.capture)
+    split = HeldOutTracks.split(capture)
+    calib = list(split.calibration)
+    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
+    half = len(calib) // 2
+    splits = {
+        "even / odd": (calib[0::2], calib[1::2]),
+        "first / second half": (calib[:half], calib[half:]),
+    }
+    rng = np.random.default_rng(0)
+    for k in range(args.random):
+        order = rng.permutation(calib)
+        splits[f"random {k}"] = (sorted(order[:half].tolist()), sorted(order[half:].tolist()))
+    light = ColocatedLight()
+    started = time.perf_counter()
+    whole = facet_lobe(split.train, split.test, split.judged, rotations, light, halves=False)
+    print(
+        json.dumps(
+            {"split": "all", "frames": calib, "sigma": whole.sigma, "F_tilde": whole.F_tilde}
+        )
+    )
+    for name, parts in splits.items():
+        chosen = []
+        for frames in parts:
+            lobe = facet_lobe(
+                _part(split.train, frames), split.test, split.judged, rotations, light, halves=False
+            )
+            chosen.append((float(lobe.sigma), float(lobe.F_tilde)))
+        (a, fa), (b, fb) = chosen
+        spread = abs(a - b) / ((a + b) / 2)
+        row = {"split": name, "frames": [list(map(int, p)) for p in parts]}
+        row |= {"sigma": [a, b], "F_tilde": [fa, fb], "sigma_spread": spread}
+        print(json.dumps(row), flush=True)
+    print(json.dumps({"seconds": round(time.perf_counter() - started, 1)}))
+
+
+if __name__ == "__main__":
+    main()
