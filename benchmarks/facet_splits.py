@@ -19,6 +19,10 @@ reconstruction; 8 calibration frames; 4:45 on 2 cores): all eight sigma 0.090, F
 0.0167; even / odd 0.094 / 0.069 (30%); first / second half 0.085 / 0.047 (58%); random
 0.080 / 0.076 (5.5%), 0.077 / 0.101 (27%), 0.062 / 0.093 (40%): four frames of this
 sequence do not determine sigma to 25%, whichever four (docs/real-video.md, "Facets").
+SCARED frames 61-84 (`benchmarks/scared_capture.py`, plain `reconstruct`; 15 calibration
+frames; 11 min): all 0.103; even / odd 0.134 / 0.123 (8%); first / second half 0.066 / 0.071
+(7%); random 9%, 18%, 24% (0.09-0.14): each pair agrees, contiguous frames read half the
+width of interleaved ones (the grid's width follows the views' spacing).
 """
 
 import argparse
