@@ -1,7 +1,7 @@
 """Facets: how far does the facet lobe's sigma move between subsets of the calibration
 frames, split in different ways?
 
-    python benchmarks/facet_splits.py RECONSTRUCTED_CAPTURE [--random 3]
+    python benchmarks/facet_splits.py RECONSTRUCTED_CAPTURE [--random 3] [--marginal]
 
 `ctjax.fitting.facet_lobe` (what `ctjax evaluate --facets` and `fit --facets` report) calls
 its lobe `unstable` when the even and the odd calibration frames choose sigmas more than 20%
@@ -12,7 +12,8 @@ part's views weighted 0, under the paper's light (at the lens): even / odd, the 
 the second half (contiguous blocks: the same angular step within a block as all frames,
 but different views), and `--random` random splits of the frames into two equal parts.
 Prints one JSON line per split: each part's sigma and F_tilde and their spread
-(|a - b| / mean, as `ctjax._determined`'s halves check).
+(|a - b| / mean, as `ctjax._determined`'s halves check). `--marginal`: the width of the
+facets integrated out (`ctjax.fitting.facet_marginal`, `--facet-marginal`'s) instead.
 
 Measured (2026-12-02, the shared sinus, 12 frames at 640 px, `benchmarks/real_video.py`'s
 reconstruction; 8 calibration frames; 4:45 on 2 cores): all eight sigma 0.090, F_tilde
@@ -32,7 +33,7 @@ import time
 import equinox as eqx
 import numpy as np
 
-from ctjax.fitting import facet_lobe
+from ctjax.fitting import facet_lobe, facet_marginal
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
 from ctjax.lights import ColocatedLight
@@ -50,6 +51,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("capture")
     parser.add_argument("--random", type=int, default=3, help="random two-way splits")
+    parser.add_argument("--marginal", action="store_true", help="the facets integrated out")
     args = parser.parse_args()
     capture = load_capture(args.capture)
     split = HeldOutTracks.split(capture)
@@ -65,21 +67,25 @@ def main() -> None:
         order = rng.permutation(calib)
         splits[f"random {k}"] = (sorted(order[:half].tolist()), sorted(order[half:].tolist()))
     light = ColocatedLight()
+
+    def chosen(train):
+        if args.marginal:
+            return facet_marginal(train, rotations, light, halves=False)
+        return facet_lobe(train, split.test, split.judged, rotations, light, halves=False)
+
     started = time.perf_counter()
-    whole = facet_lobe(split.train, split.test, split.judged, rotations, light, halves=False)
+    whole = chosen(split.train)
     print(
         json.dumps(
             {"split": "all", "frames": calib, "sigma": whole.sigma, "F_tilde": whole.F_tilde}
         )
     )
     for name, parts in splits.items():
-        chosen = []
+        picked = []
         for frames in parts:
-            lobe = facet_lobe(
-                _part(split.train, frames), split.test, split.judged, rotations, light, halves=False
-            )
-            chosen.append((float(lobe.sigma), float(lobe.F_tilde)))
-        (a, fa), (b, fb) = chosen
+            lobe = chosen(_part(split.train, frames))
+            picked.append((float(lobe.sigma), float(lobe.F_tilde)))
+        (a, fa), (b, fb) = picked
         spread = abs(a - b) / ((a + b) / 2)
         row = {"split": name, "frames": [list(map(int, p)) for p in parts]}
         row |= {"sigma": [a, b], "F_tilde": [fa, fb], "sigma_spread": spread}
