@@ -23,7 +23,9 @@ sequence do not determine sigma to 25%, whichever four (docs/real-video.md, "Fac
 SCARED frames 61-84 (`benchmarks/scared_capture.py`, plain `reconstruct`; 15 calibration
 frames; 11 min): all 0.103; even / odd 0.134 / 0.123 (8%); first / second half 0.066 / 0.071
 (7%); random 9%, 18%, 24% (0.09-0.14): each pair agrees, contiguous frames read half the
-width of interleaved ones (the grid's width follows the views' spacing).
+width of interleaved ones (the grid's width follows the views' spacing). With `--marginal`
+(8 min a split): all 0.150; even / odd 0.175 / 0.176 (1%, F_tilde at the grid's top);
+first / second half 0.130 / 0.111 (16%).
 """
 
 import argparse
