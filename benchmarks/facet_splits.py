@@ -26,6 +26,12 @@ frames; 11 min): all 0.103; even / odd 0.134 / 0.123 (8%); first / second half 0
 width of interleaved ones (the grid's width follows the views' spacing). With `--marginal`
 (8 min a split): all 0.150; even / odd 0.175 / 0.176 (1%, F_tilde at the grid's top);
 first / second half 0.130 / 0.111 (16%).
+`--float64`: as the command line runs (the figures above are float32's). On synthetic truth
+(2026-12-03, `facet_truth.py`'s capture at 24 frames, written by `synthesize`; `--float64
+--random 1 --marginal`, 14 min; without `--marginal` and `--random 2`, 12 min): the
+marginal 0.058 on all, 0.0596 / 0.0603, 0.0631 / 0.0593, 0.0628 / 0.0586 (truth 0.06); the
+facet protocol 0.049, 0.055 / 0.053, 0.049 / 0.041, 0.050 / 0.052, 0.056 / 0.052: no shift
+between kinds of split on a rigid scene (docs/real-video.md).
 """
 
 import argparse
@@ -33,6 +39,7 @@ import json
 import time
 
 import equinox as eqx
+import jax
 import numpy as np
 
 from ctjax.fitting import facet_lobe, facet_marginal
@@ -54,7 +61,10 @@ def main() -> None:
     parser.add_argument("capture")
     parser.add_argument("--random", type=int, default=3, help="random two-way splits")
     parser.add_argument("--marginal", action="store_true", help="the facets integrated out")
+    parser.add_argument("--float64", action="store_true", help="as the command line runs")
     args = parser.parse_args()
+    if args.float64:
+        jax.config.update("jax_enable_x64", True)
     capture = load_capture(args.capture)
     split = HeldOutTracks.split(capture)
     calib = list(split.calibration)
