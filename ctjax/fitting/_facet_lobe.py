@@ -44,13 +44,13 @@ FACET_F_TILDES = (
 FACET_CANDIDATES = {"across the arc": FACET_ACROSS_RAD, "the views' H": (0.0,)}
 
 
-def halves_json(halves: tuple | None) -> dict | None:
-    """The choices on the even and on the odd calibration frames, for JSON."""
+def halves_json(halves: tuple | None, parts=("even_frames", "odd_frames")) -> dict | None:
+    """The choices on the even and on the odd calibration frames (or on `parts`), for JSON."""
     if halves is None:
         return None
     return {
         part: {"sigma": s, "F_tilde": f, "peak": f / s**2}
-        for part, (s, f) in zip(("even_frames", "odd_frames"), halves, strict=True)
+        for part, (s, f) in zip(parts, halves, strict=True)
     }
 
 

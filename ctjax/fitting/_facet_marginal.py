@@ -38,6 +38,7 @@ from .._determined import HALVES_AGREE, PRIORITY, Undetermined, _unstable
 from .._errors import ParameterError
 from .._programs import persistent_jit
 from .._status import Status
+from ._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
 from ._facet_lobe import (
     _MIN_FRAMES_FOR_HALVES,
     FACET_F_TILDES,
@@ -93,11 +94,12 @@ def _node_frame(h, w):
 
 
 def _one_point(
-    model, rotations, gains, subsets, sigma, prior_sigmas, noise, nu, nodes, refine, exact,
-    point, normal, pixel, weight, values, w, frame, h,
+    model, rotations, gains, subsets, boundary, sigma, prior_sigmas, noise, nu, nodes, refine,
+    exact, point, normal, pixel, weight, values, w, frame, h,
 ):  # fmt: skip
     """One tracked point's log-likelihood (G, T, SM, NS) per set of lobe weights `gains`
-    (G, K, C), subset of its frames (`subsets`: None all, 0 the even, 1 the odd), facet
+    (G, K, C), subset of its frames (`subsets`: `_drift.in_subset`'s, the halves split at
+    `boundary`), facet
     prior width `prior_sigmas` (SM,) and noise scale `noise` (NS,), and without the lobe
     (T, NS). The quadrature's nodes: a coarse grid over the views' arc (`nodes`), then the
     3 x 3 cells about its likeliest node (the middle set of weights, all frames) each split
@@ -135,7 +137,7 @@ def _one_point(
         return facets, log_prior
 
     subset_weights = jnp.stack(
-        [w if s is None else jnp.where(frame % 2 == s, w, 0.0) for s in subsets]
+        [w if s is None else jnp.where(in_subset(s, frame, boundary), w, 0.0) for s in subsets]
     )
 
     def lobes_of(x):  # the lobes other than the diffuse one: (..., K, ...) -> (..., K', ...)
@@ -296,7 +298,8 @@ def _observed_points(train: TrackSamples) -> TrackSamples:
 
 @persistent_jit
 def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior_sigmas,
-              noise, nu: float | None, subsets: tuple, nodes: tuple, refine: int):  # fmt: skip
+              noise, nu: float | None, subsets: tuple, boundary, nodes: tuple,
+              refine: int):  # fmt: skip
     """Every tracked point's `_one_point`: (P, G, T, SM, NS) and (P, T, NS)."""
     arrays = _per_point(model, samples, judged, rotations, candidates)
     point, normal, pixel, weight, values, w, _, frame, _ = arrays
@@ -305,7 +308,7 @@ def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior
     def points(exact, x):
         def one(*a):
             options = (sigma, prior_sigmas, noise, nu, nodes, refine, exact)
-            return _one_point(model, rotations, gains, subsets, *options, *a)
+            return _one_point(model, rotations, gains, subsets, boundary, *options, *a)
 
         return jax.vmap(one)(*x)
 
@@ -336,7 +339,8 @@ class FacetMarginal(eqx.Module):
     `noise_levels`, Student-t's scale in 8-bit levels), `log_likelihood` (grid point -> its
     maximum over the nuisances, nats), `gain_per_value` (nats per value over the model
     without a lobe), `halves` (the choice again on the even and on the odd calibration
-    frames alone; None with fewer than 6), `status` and `undetermined` as `FacetLobe`'s
+    frames alone; None with fewer than 6), `contiguous_halves` (on the first and on the
+    second half of them: `_drift`), `status` and `undetermined` as `FacetLobe`'s
     (the nuisances at an end of their grids are `at_bound` too: the likelihood then
     misdescribes the data; F_tilde's halves are checked as sigma's; no `no_lobe` check: a
     lobe the data do not want puts F_tilde at its grid's bottom), `at_bound` (sigma or
@@ -361,6 +365,7 @@ class FacetMarginal(eqx.Module):
     status: str = "successful"
     undetermined: tuple = ()
     views_step: tuple = (math.nan, math.nan, math.nan)
+    contiguous_halves: tuple | None = None
 
     @property
     def peak(self) -> float:
@@ -380,6 +385,7 @@ class FacetMarginal(eqx.Module):
             "undetermined": list(self.undetermined),
             "at_bound": self.at_bound,
             "halves": halves,
+            "contiguous_halves": halves_json(self.contiguous_halves, ("first_half", "second_half")),
             "views_step_rad": views_step_json(self.views_step),
             "log_likelihood": {
                 f"sigma={s:g},F_tilde={f:g}": v for (s, f), v in self.log_likelihood.items()
@@ -493,7 +499,9 @@ def facet_marginal(
     weight = np.asarray(train.weight)
     frames = len(np.unique(np.asarray(train.site.frame)[weight > 0]))
     checked = halves and frames >= _MIN_FRAMES_FOR_HALVES
-    subsets = (None, 0, 1) if checked else (None,)
+    subsets = (None, 0, 1, FIRST, SECOND) if checked else (None,)
+    boundary = boundary_of(np.unique(np.asarray(train.site.frame)[weight > 0]))
+    boundary = on_device(np.asarray(boundary, np.int32))
     dtype = train.weight.dtype
     prior = jnp.asarray(prior_sigmas, dtype)
     noise = jnp.asarray(np.asarray(noise_levels, float) / 255.0, dtype)
@@ -505,7 +513,8 @@ def facet_marginal(
         )  # fmt: skip
         ll, off = _marginal(
             model, train, judged, rotated, candidates, gains, jnp.asarray(sigma, dtype),
-            prior, noise, None if nu is None else float(nu), subsets, nodes, int(refine),
+            prior, noise, None if nu is None else float(nu), subsets, boundary, nodes,
+            int(refine),
         )  # fmt: skip
         likelihood.append(np.asarray(ll, float).sum(0))  # (G, T, SM, NS)
         without.append(np.asarray(off, float).sum(0))  # (T, NS)
@@ -522,6 +531,7 @@ def facet_marginal(
     values = 3 * float(np.sum(weight))
     gain = float((likelihood[:, :, 0].max() - without[0][0].max()) / values) if values else math.nan
     split = (choice(1), choice(2)) if checked else None
+    contiguous = (choice(3), choice(4)) if checked else None
     unchecked = frames if halves and not checked else None
     step = views_step(train, rotations)
     _, reasons = _facet_status(
@@ -529,6 +539,11 @@ def facet_marginal(
     )
     found = [
         *reasons,
+        *(
+            []
+            if any(u["parameter"] == "sigma" for u in reasons)
+            else drift_reasons(sigma, contiguous)
+        ),
         *_F_tilde_reasons(f, split, F_tildes),
         *_nuisance_reasons("sigma_M", "facets' prior width sigma_M", prior_sigma, prior_sigmas),
         *_nuisance_reasons("noise_levels", "noise's scale", noise_at, noise_levels),
@@ -548,4 +563,5 @@ def facet_marginal(
         status,
         tuple(found),
         step,
+        contiguous,
     )

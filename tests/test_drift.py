@@ -1,0 +1,70 @@
+"""The facets' width along the sequence: the first and the second half of the calibration
+frames beside the even and the odd (`ctjax.fitting._drift`)."""
+
+import numpy as np
+
+from ctjax import ColocatedLight
+from ctjax.fitting import facet_marginal
+from ctjax.fitting._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
+from ctjax.fitting._facet_lobe import FACET_F_TILDES
+from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS
+from ctjax.heldout import HeldOutTracks
+from ctjax.io import load_capture
+from ctjax.synth import SynthOptions, synthesize
+
+
+def test_the_halves_along_the_sequence_split_at_the_middle_calibration_frame():
+    """As `benchmarks/facet_splits.py` splits them: the first len // 2 calibration frames,
+    then the rest; every frame in exactly one half, the parities as before."""
+    calibration = [0, 1, 2, 3, 5, 6, 7, 9, 10]  # frames 4 and 8 held out
+    boundary = boundary_of(calibration)
+    frames = np.arange(12)
+    first, second = in_subset(FIRST, frames, boundary), in_subset(SECOND, frames, boundary)
+    assert boundary == 5 and not (first & second).any() and (first | second).all()
+    assert [f for f in calibration if first[f]] == calibration[: len(calibration) // 2]
+    assert in_subset(None, frames, boundary).all()
+    np.testing.assert_array_equal(in_subset(1, frames, boundary), frames % 2 == 1)
+    assert boundary_of([]) == 0
+
+
+def test_a_width_that_changes_along_the_sequence_is_unstable():
+    """SCARED's frames 61-84 (the facets integrated out): 0.150 on all 15 calibration
+    frames, 0.130 / 0.111 on the first / second half, 16% apart, their geometric mean 19.7%
+    under the whole's: within the 20% (borderline). A synthetic rigid scene: 0.058 and
+    0.0631 / 0.0593. Halves apart, or agreeing away from the whole, are named."""
+    assert drift_reasons(0.150, ((0.130, 0.07), (0.111, 0.07))) == []
+    assert drift_reasons(0.058, ((0.0631, 0.01), (0.0593, 0.01))) == []
+    (apart,) = drift_reasons(0.150, ((0.175, 0.07), (0.111, 0.07)))
+    assert apart["parameter"] == "sigma" and apart["status"] == "unstable"
+    assert "first and the second half" in apart["reason"] and "45% apart" in apart["reason"]
+    (shifted,) = drift_reasons(0.150, ((0.110, 0.07), (0.105, 0.07)))
+    assert "together 28% below it" in shifted["reason"]
+    assert drift_reasons(0.150, None) == [] and drift_reasons(0.150, ((0.0, 0), (0.1, 0))) == []
+
+
+def test_the_marginal_reports_the_halves_along_the_sequence(tmp_path):
+    """On 10 frames (6 calibration frames: halves of 3) the marginal chooses sigma again on
+    the first and the second half in the same pass as the even and the odd, and a reason
+    names them exactly where `drift_reasons` does (none where sigma's halves already did)."""
+    options = SynthOptions(
+        width=128, height=96, frames=10, seed=1, rho_tilde=(0.8, 0.5, 0.4),
+        sparkles_attached=True, sparkle_px=6.0, F_tilde=(0.012,) * 3,
+    )  # fmt: skip
+    synthesize(tmp_path / "c", options)
+    capture = load_capture(tmp_path / "c")
+    tracks = HeldOutTracks.split(capture)
+    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
+    sigmas = (0.04, 0.06, 0.09)
+    found = facet_marginal(
+        tracks.train, rotations, ColocatedLight(), sigmas=sigmas, F_tildes=FACET_F_TILDES[3:7],
+        nodes=(12, 5), refine=2, prior_sigmas=FACET_PRIOR_SIGMAS[:3],
+    )  # fmt: skip
+    block = found.to_json()["contiguous_halves"]
+    assert set(block) == {"first_half", "second_half"}
+    # Each half's choice is refined between the grid's points, as the whole's.
+    assert all(min(sigmas) <= block[part]["sigma"] <= max(sigmas) for part in block)
+    assert found.halves is not None and found.contiguous_halves is not None
+    said = [u for u in found.undetermined if "first and the second half" in u["reason"]]
+    by_halves = any("even" in u["reason"] and u["parameter"] == "sigma" for u in found.undetermined)
+    expected = [] if by_halves else drift_reasons(found.sigma, found.contiguous_halves)
+    assert said == expected
