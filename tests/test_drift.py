@@ -6,8 +6,9 @@ import numpy as np
 from ctjax import ColocatedLight
 from ctjax.fitting import facet_marginal
 from ctjax.fitting._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
-from ctjax.fitting._facet_lobe import FACET_F_TILDES
+from ctjax.fitting._facet_lobe import FACET_F_TILDES, FacetLobe
 from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS
+from ctjax.fitting._marginal_width import at_the_marginal_width, facet_marginal_line
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
@@ -68,3 +69,27 @@ def test_the_marginal_reports_the_halves_along_the_sequence(tmp_path):
     by_halves = any("even" in u["reason"] and u["parameter"] == "sigma" for u in found.undetermined)
     expected = [] if by_halves else drift_reasons(found.sigma, found.contiguous_halves)
     assert said == expected
+
+
+def test_the_lobe_at_the_marginals_width_takes_the_drift_and_the_line_shows_it():
+    """A width that changes along the sequence is a reason about the width: the facet lobe
+    held at it carries it, and the marginal's line prints the halves along the sequence."""
+    grid = {(0.15, f): 10.0 for f in FACET_F_TILDES}
+    lobe = FacetLobe(0.15, 0.035, grid, False, 9.4, 12.5, 12.0, 0.3, halves=((0.15, 0.032),) * 2)
+    (drift,) = drift_reasons(0.150, ((0.110, 0.07), (0.105, 0.07)))
+    halves = {
+        "even_frames": {"sigma": 0.175, "F_tilde": 0.2},
+        "odd_frames": {"sigma": 0.176, "F_tilde": 0.2},
+    }
+    along = {
+        "first_half": {"sigma": 0.110, "F_tilde": 0.07},
+        "second_half": {"sigma": 0.105, "F_tilde": 0.07},
+    }
+    marginal = {"sigma": 0.15, "F_tilde": 0.07, "facet_prior_sigma": 0.7, "noise_levels": 4.0,
+                "gain_nats_per_value": 0.1, "halves": halves, "contiguous_halves": along,
+                "status": "unstable", "undetermined": [drift]}  # fmt: skip
+    found = at_the_marginal_width(lobe, marginal)
+    assert found["status"] == "unstable" and found["undetermined"] == [drift]
+    assert found["sigma_contiguous_halves"] == [0.110, 0.105]
+    line = facet_marginal_line(marginal)
+    assert "sigma 0.11 / 0.105 (first / second half)" in line and "first and the second" in line

@@ -17,6 +17,12 @@ def facet_marginal_line(summary: dict) -> str:
         if halves
         else ""
     )
+    along = summary.get("contiguous_halves")
+    if along:
+        split += (
+            f"; sigma {along['first_half']['sigma']:.3g} / {along['second_half']['sigma']:.3g} "
+            "(first / second half)"
+        )
     return (
         f"the facets integrated out (a marginal likelihood on the calibration frames): sigma "
         f"{summary['sigma']:.3g}, F_tilde {summary['F_tilde']:.3g} (an upper bound), the "
@@ -62,6 +68,10 @@ def at_the_marginal_width(lobe: FacetLobe, marginal: dict) -> dict:
     summary["F_tilde_halves"] = [f for _, f in lobe.halves] if lobe.halves else None
     summary["sigma_halves"] = (
         [part["sigma"] for part in marginal["halves"].values()] if marginal["halves"] else None
+    )
+    along = marginal.get("contiguous_halves")
+    summary["sigma_contiguous_halves"] = (
+        [part["sigma"] for part in along.values()] if along else None
     )
     summary.update(status=status, undetermined=reasons, sigma_from="facet_marginal")
     return summary
