@@ -105,7 +105,8 @@ def enable_compilation_cache(folder: Path | None = None) -> Path | None:
     Returns the folder in use (None: off)."""
     import jax
 
-    from ._programs import keep_programs, private_folder
+    from ._private_files import private_folder
+    from ._programs import keep_programs
 
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         # JAX's own cache, as the user set it: the traced programs beside it, when it is a

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import ctjax
-from ctjax import _performance, _programs
+from ctjax import _performance, _private_files, _programs, _static_data
 from ctjax._camera import Camera
 from ctjax._status import Status
 from ctjax.estimation import PAPER
@@ -32,7 +32,7 @@ from ctjax.lobes import Lambertian
 def kept(tmp_path, monkeypatch):
     folder = tmp_path / "programs"
     _programs.keep_programs(folder)
-    monkeypatch.setattr(_programs, "_WARNED", [False])  # the warning once per test
+    monkeypatch.setattr(_private_files, "_WARNED", [False])  # the warning once per test
     yield folder
     _programs.keep_programs(None)
 
@@ -117,18 +117,18 @@ def test_a_damaged_program_is_exported_again(kept):
 
 
 def test_code_the_key_does_not_cover_is_never_kept(kept):
-    with pytest.raises(_programs._Unkeyable):
-        _programs._keyed(lambda x: x)  # a closure may hold anything
-    with pytest.raises(_programs._Unkeyable):
-        _programs._keyed(object())  # shown by address
+    with pytest.raises(_static_data.Unkeyable):
+        _static_data.keyed(lambda x: x)  # a closure may hold anything
+    with pytest.raises(_static_data.Unkeyable):
+        _static_data.keyed(object())  # shown by address
 
     class UserLobe(Lambertian):  # user code: not in ctjax's digest
         pass
 
-    with pytest.raises(_programs._Unkeyable):
-        _programs._keyed(UserLobe)
-    assert _programs._keyed(_frame_columns.__wrapped__).startswith("ctjax.")
-    assert _programs._keyed((1, 2.5, "a", None)) == "tuple(1,2.5,'a',None)"
+    with pytest.raises(_static_data.Unkeyable):
+        _static_data.keyed(UserLobe)
+    assert _static_data.keyed(_frame_columns.__wrapped__).startswith("ctjax.")
+    assert _static_data.keyed((1, 2.5, "a", None)) == "tuple(1,2.5,'a',None)"
 
 
 def test_off_without_a_folder(tmp_path):
@@ -179,7 +179,7 @@ def test_a_kept_program_is_data_in_the_documented_format(kept, loads):
 
 def test_output_skeletons_are_written_in_a_closed_vocabulary():
     field = ctjax.LightField(jnp.ones((2, 3, 3)) / np.sqrt(3.0), method="linear")
-    model = jax.tree.map(lambda _: _programs._Array(), field)
+    model = jax.tree.map(lambda _: _static_data.Array(), field)
     skeleton = (
         model,
         {"a": 0.5, "b": [1, "x", None, True, float("nan")]},
@@ -188,11 +188,11 @@ def test_output_skeletons_are_written_in_a_closed_vocabulary():
         _performance.compilation_cache_dir,  # a function of ctjax's
         (),
     )
-    data = _programs._skeleton_data(skeleton)
+    data = _static_data.skeleton_data(skeleton)
     text = json.dumps(data)
-    again = _programs._skeleton(json.loads(text))
+    again = _static_data.read_skeleton(json.loads(text))
     assert jax.tree.structure(again) == jax.tree.structure(skeleton)
-    assert again[0].method == "linear" and isinstance(again[0].directions, _programs._Array)
+    assert again[0].method == "linear" and isinstance(again[0].directions, _static_data.Array)
     assert again[2] is Status.at_bound and again[3] is ctjax.LightField
     assert again[4] is _performance.compilation_cache_dir
     assert "equinox._module._flatten:MISSING" in text  # equinox's own static data
@@ -201,8 +201,8 @@ def test_output_skeletons_are_written_in_a_closed_vocabulary():
         pass
 
     for other in [lambda: 0, UserLobe, object(), fractions.Fraction(1, 3), print, os.system]:
-        with pytest.raises(_programs._Unkeyable):
-            _programs._skeleton_data((model, other))
+        with pytest.raises(_static_data.Unkeyable):
+            _static_data.skeleton_data((model, other))
 
 
 @pytest.mark.parametrize(
@@ -225,7 +225,7 @@ def test_output_skeletons_are_written_in_a_closed_vocabulary():
 def test_a_skeleton_names_nothing_outside_its_vocabulary(data):
     leaves = [{"array": None}] * len(data["children"])
     with pytest.raises((ValueError, KeyError)):  # whatever the error, the file is a miss
-        _programs._skeleton({"tree": data, "leaves": leaves})
+        _static_data.read_skeleton({"tree": data, "leaves": leaves})
 
 
 def _one_kept_program(kept):
@@ -321,7 +321,7 @@ def test_the_cache_folders_and_files_are_the_users_alone(tmp_path, monkeypatch):
     group = tmp_path / "group"
     group.mkdir(mode=0o770)
     group.chmod(0o770)
-    monkeypatch.setattr(_programs, "_WARNED", [False])
+    monkeypatch.setattr(_private_files, "_WARNED", [False])
     with pytest.warns(RuntimeWarning, match="another user can write"):
         assert _performance.enable_compilation_cache(group) is None
     assert _programs._FOLDER[0] is None
