@@ -1,10 +1,10 @@
 """Evaluation as in the paper (section 7): RGB error and shape from shading, Lambertian
 against Cook-Torrance."""
 
-from ._evaluate import Evaluation as Evaluation
 from ._evaluate import evaluate as evaluate
 from ._evaluate import fit_colocated as fit_colocated
 from ._evaluate import fit_lambertian as fit_lambertian
+from ._evaluation import Evaluation as Evaluation
 from ._integrate import integrate_gradients as integrate_gradients
 from ._lobes import lobes_judged as lobes_judged
 from ._lobes import lobes_judged_lines as lobes_judged_lines
