@@ -9,8 +9,8 @@ from ._candidates import CANDIDATES as CANDIDATES
 from ._candidates import AbstractCandidate as AbstractCandidate
 from ._candidates import candidate as candidate
 from ._candidates import discover_candidates as discover_candidates
-from ._diagnose import Diagnosis as Diagnosis
 from ._diagnose import diagnose as diagnose
+from ._diagnosis import Diagnosis as Diagnosis
 from ._loop import DiagnosisLoop as DiagnosisLoop
 from ._loop import diagnose_loop as diagnose_loop
 from ._loop import plot_loop as plot_loop

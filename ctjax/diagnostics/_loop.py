@@ -17,7 +17,8 @@ import dataclasses
 import time
 from pathlib import Path
 
-from ._diagnose import Diagnosis, Prepared, diagnose, next_base
+from ._diagnose import Prepared, diagnose, next_base
+from ._diagnosis import Diagnosis
 
 
 @dataclasses.dataclass
