@@ -1,5 +1,5 @@
 """What frames that disagree about the normals do to the BRDF fit, and what one normal per
-surface point (`ctjax._tracks.one_normal_per_point`) gives back.
+surface point (`ctjax._point_normals.one_normal_per_point`) gives back.
 
     .venv/bin/python benchmarks/normal_noise.py [--deg 0 2 5 10] [--out DIR]
 

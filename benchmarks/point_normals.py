@@ -39,7 +39,7 @@ import numpy as np
 from _results import emit
 
 from ctjax import BRDF, ColocatedLight, Lambertian, ShadingModel, named_parameters, paper_model
-from ctjax._tracks import _views_and_mean
+from ctjax._point_normals import views_and_mean
 from ctjax._vector import Vec3
 from ctjax.fitting._map_least_squares import (
     TrackSamples,
@@ -101,7 +101,7 @@ def _refiner(model, prior_rad: float, prior_levels: float, max_steps: int = 20):
 def point_normals(model, tracks, capture, use, prior_deg: float, prior_levels: float = 2.0):
     """`tracks` with each point's corner normals turned to fit its `use` views (P, M)."""
     model = strongly_typed(model)
-    _, turn, _, mean = _views_and_mean(tracks, capture)
+    _, turn, _, mean = views_and_mean(tracks, capture)
     ok = np.all(np.isfinite(mean), -1)
     mean = np.where(ok[:, None], mean, [0.0, 0.0, 1.0])
     helper = np.where(np.abs(mean[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])

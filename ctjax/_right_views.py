@@ -34,11 +34,11 @@ import numpy as np
 
 from ._camera import Camera
 from ._errors import CtjaxError
+from ._point_normals import point_normals
 from ._tracks import (
     DEFAULT_TOLERANCE,
     Tracks,
     observation_weight,
-    point_normals,
     sample_image,
     world_points,
 )

@@ -364,6 +364,7 @@ class Observations:
 
     def _follow(self, radius_px, max_points, neighbours, tolerance, seed, frames, anchor_frames):
         from . import _tracks
+        from ._point_normals import one_normal_per_point
         from .io._field_of_view import black_frames
 
         if black_frames(self.capture):  # not "no anchor pixel with depth and a normal"
@@ -388,9 +389,10 @@ class Observations:
             anchors = [_pixels(m.shape, _evenly(m, int(keep * m.sum()), rng)) for m in anchors]
         anchors = [np.nonzero(mask) for mask in anchors]
         options = {} if tolerance is None else {"tolerance": tolerance}
-        return _tracks.follow(
+        followed = _tracks.follow(
             self.capture, anchors, neighbours=neighbours, frames=frames, **options
         )
+        return one_normal_per_point(followed, self.capture)
 
     def ring(self, dtype=None) -> ShadingSamples:
         """Every frame's ring S~ under the paper's light (L = V, unit irradiance): the BnB's

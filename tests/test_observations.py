@@ -107,7 +107,7 @@ def test_a_surface_point_has_one_normal_in_every_frame(tmp_path):
         frames.append(dataclasses.replace(frame, normals=normals.astype(frame.normals.dtype)))
     tilted = dataclasses.replace(exact, frames=frames)
     # How much the frames disagree, measured against each frame's own normal map.
-    from ctjax._tracks import frames_disagree_deg
+    from ctjax._point_normals import frames_disagree_deg
 
     assert frames_disagree_deg(Observations.of(exact).tracks(), exact) < 0.05
     assert 1.5 < frames_disagree_deg(Observations.of(tilted).tracks(), tilted) < 5
@@ -121,7 +121,7 @@ def test_a_surface_point_has_one_normal_in_every_frame(tmp_path):
         spread = np.degrees(np.arccos(np.clip(np.sum(world * mean[:, None], -1), -1, 1)))
         assert np.max(spread[seen]) < 1e-3
     # Once one, they stay: a second pass leaves every corner where it is.
-    from ctjax._tracks import one_normal_per_point
+    from ctjax._point_normals import one_normal_per_point
 
     tracks = Observations.of(exact).tracks()
     again = one_normal_per_point(tracks, exact)

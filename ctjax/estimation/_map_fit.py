@@ -21,11 +21,12 @@ from .._convert import on_device
 from .._determined import MIN_LOBE_GAIN, Undetermined, add_undetermined
 from .._errors import CtjaxError
 from .._model import ShadingModel
+from .._point_normals import frames_disagree_deg
 from .._result import Estimate
 from .._right_views import with_right_views
 from .._status import Status
 from .._threads import started
-from .._tracks import DEFAULT_NEIGHBOURS, frames_disagree_deg, require_poses
+from .._tracks import DEFAULT_NEIGHBOURS, require_poses
 from ..lights import ColocatedLight, SpotFalloff
 from ..lobes import Lambertian
 from ..observations import Observations

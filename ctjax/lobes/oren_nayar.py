@@ -10,7 +10,7 @@ image effect, flattens the shading this way (a camera gamma compresses every val
 ambient term adds the same to each). Noisy normals look flatter too: a fit on normals that
 differ from frame to frame takes a roughness the surface does not have (5 degrees RMS:
 0.44 on a Lambertian synthetic capture), which is why the tracks give each surface point
-one normal (`ctjax._tracks.one_normal_per_point`).
+one normal (`ctjax._point_normals.one_normal_per_point`).
 
 This file is the whole lobe: the physics for one pixel, its parameter's domain and name,
 and its candidate for `ctjax diagnose` and `ctjax synth --oren-nayar`. Nothing else in
