@@ -42,6 +42,9 @@ FACET_F_TILDES = (
 # frames better (0.806x Lambert against 0.832x; `benchmarks/facet_truth.py`,
 # `benchmarks/facet_normals.py`).
 FACET_CANDIDATES = {"across the arc": FACET_ACROSS_RAD, "the views' H": (0.0,)}
+# The control's permutation of the points (`facet_heldout`'s `shuffle_seed`): every
+# point's candidate facets another point's, the lobe the same.
+CONTROL_SEED = 0
 
 
 def halves_json(halves: tuple | None, parts=("even_frames", "odd_frames")) -> dict | None:
@@ -138,11 +141,19 @@ class FacetLobe(eqx.Module):
     candidates: str = "across the arc"
     candidate_rmse: dict = eqx.field(default_factory=dict)
     views_step: tuple = (math.nan, math.nan, math.nan)
+    control_rmse: float = math.nan
 
     @property
     def ratio(self) -> float:
         """Held-out RMSE with facets over the Lambertian model's under the same light."""
         return self.rmse / self.lambertian_rmse
+
+    @property
+    def control_ratio(self) -> float:
+        """The control's `ratio`: the same lobe, its held-out views predicted with every
+        point's candidate facets another point's (`CONTROL_SEED`). Near `ratio`, the gain is
+        not the points' own highlights; near 1 or above, it is."""
+        return self.control_rmse / self.lambertian_rmse
 
     @property
     def peak(self) -> float:
@@ -168,6 +179,7 @@ class FacetLobe(eqx.Module):
             "lambertian_same_light_rgb_rmse": self.lambertian_rmse,
             "lambertian_turned_normals_rgb_rmse": self.lambertian_turned_rmse,
             "ratio": self.ratio,
+            "control_ratio": self.control_ratio if math.isfinite(self.control_ratio) else None,
             "views_with_a_facet": self.with_facet,
             "candidates": self.candidates,
             "calibration_rmse_by_candidates": dict(self.candidate_rmse),
@@ -478,6 +490,12 @@ def facet_lobe(
     )  # fmt: skip
     plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, across=(0.0,))
     status, reasons = _judged_status(status, reasons, lobe.rmse, plain.rmse)
+    control = math.nan  # the same lobe with every point's candidates another point's
+    if shuffle_seed is None:
+        control = facet_heldout(
+            facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
+            shuffle_seed=CONTROL_SEED, refine_steps=refine_steps, across=across,
+        ).rmse  # fmt: skip
     turned = facet_heldout(
         lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
         refine_steps=refine_steps, across=across,
@@ -499,6 +517,7 @@ def facet_lobe(
         name,
         candidate_rmse,
         step,
+        control,
     )
 
 
@@ -512,8 +531,13 @@ def facet_lobe_line(summary: dict) -> str:
         f"chosen on the calibration frames{bound}): held-out RMSE "
         f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
         f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
-        f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}); "
-        f"{100 * summary['views_with_a_facet']:.0f}% of the views took a facet (candidates: "
+        f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}"
+        + (
+            ""
+            if summary.get("control_ratio") is None
+            else f"; with another point's facets {summary['control_ratio']:.3f}x"
+        )
+        + f"); {100 * summary['views_with_a_facet']:.0f}% of the views took a facet (candidates: "
         f"{summary['candidates']}); status "
         f"{summary['status']}" + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
     )

@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._buckets import padded
+from .._convert import on_device
 from .._errors import ParameterError
 from .._model import ShadingModel
 from .._programs import persistent_jit
@@ -77,10 +78,11 @@ def _half_vectors(model, rotations, point, pixel, weight, frame):
 
 class _CandidateSet(eqx.Module):
     """Which candidate facets a point gets: its views' H turned by each of `across` (rad,
-    `_candidates`), or with `shuffle` (P,) another point's (the control); `sets`: the
+    `_candidates`), each point's own (`shuffle` (P,) the identity) or another point's (a
+    permutation: the control); `sets`: the
     choices made among them, each a mask over `across` (one pass for all)."""
 
-    shuffle: jax.Array | None
+    shuffle: jax.Array
     across: tuple = eqx.field(static=True)
     sets: tuple = eqx.field(static=True)
 
@@ -288,8 +290,7 @@ def _per_point(model, samples: TrackSamples, judged, rotations, candidates: _Can
         per_point[0], per_point[2], per_point[3], per_point[7]
     )
     facets = jax.vmap(lambda h, w: _candidates(h, w, candidates.across))(h, per_point[5])
-    if candidates.shuffle is not None:  # the control: every point's candidates another's
-        facets = facets[candidates.shuffle]
+    facets = facets[candidates.shuffle]  # the control: every point's candidates another's
     return (*per_point, facets)
 
 
@@ -408,10 +409,13 @@ def _prepared(
         gains = np.repeat(np.asarray(F_tildes, dtype)[:, None, None], weights.shape[0], 1)
         gains = np.repeat(gains, weights.shape[1], 2)
         gains[:, diffuse_lobe(model)] = weights[diffuse_lobe(model)]
-    shuffle = None
+    # Every point's own candidates, or (the control) another point's: a permutation either
+    # way, so that a judgement and its control are one compiled program.
+    points = samples.weight.shape[1]
+    order = np.arange(points)
     if shuffle_seed is not None:
-        points = samples.weight.shape[1]
-        shuffle = jnp.asarray(np.random.default_rng(shuffle_seed).permutation(points))
+        order = np.random.default_rng(shuffle_seed).permutation(points)
+    shuffle = on_device(order)
     return (
         model,
         jnp.asarray(judged, bool),
