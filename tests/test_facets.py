@@ -340,6 +340,13 @@ def test_the_facet_lobe_at_the_marginals_width_takes_each_estimators_reasons():
     assert "at the marginal's width: sigma 0.119 (halves 0.14 / 0.13)" in (
         at_the_marginal_width_line(found)
     )
+    # The facets' control (another point's candidates, the same lobe) rides along.
+    halves = ((0.119, 0.0205), (0.119, 0.021))
+    controlled = FacetLobe(0.119, 0.021, grid, False, 10.1, 15.6, 15.2, 0.34, halves=halves,
+                           control_rmse=14.04)  # fmt: skip
+    found = at_the_marginal_width(controlled, marginal())
+    assert found["control_ratio"] == pytest.approx(0.9)
+    assert "with another point's facets 0.900x" in at_the_marginal_width_line(found)
 
 
 def test_the_grids_choice_is_refined_between_its_points():

@@ -89,6 +89,12 @@ def at_the_marginal_width_line(summary: dict) -> str:
         f"{halves('sigma')}, F_tilde {summary['F_tilde']:.3g}{halves('F_tilde')} chosen on the "
         f"calibration frames: held-out RMSE {summary['heldout_rgb_rmse']:.2f} levels, "
         f"{summary['ratio']:.3f}x Lambert's under the same light "
-        f"({summary['lambertian_same_light_rgb_rmse']:.2f}); status {summary['status']}"
+        f"({summary['lambertian_same_light_rgb_rmse']:.2f}"
+        + (
+            ""
+            if summary.get("control_ratio") is None
+            else f"; with another point's facets {summary['control_ratio']:.3f}x"
+        )
+        + f"); status {summary['status']}"
         + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])
     )
