@@ -1,17 +1,12 @@
 """The facets' width along the sequence: the first and the second half of the calibration
-frames beside the even and the odd (`ctjax.fitting._drift`)."""
+frames beside the even and the odd (`ctjax.fitting._drift`). The marginal choosing them in
+one pass on a capture: tests/test_facets.py's marginal test."""
 
 import numpy as np
 
-from ctjax import ColocatedLight
-from ctjax.fitting import facet_marginal
 from ctjax.fitting._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
 from ctjax.fitting._facet_lobe import FACET_F_TILDES, FacetLobe
-from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS
 from ctjax.fitting._marginal_width import at_the_marginal_width, facet_marginal_line
-from ctjax.heldout import HeldOutTracks
-from ctjax.io import load_capture
-from ctjax.synth import SynthOptions, synthesize
 
 
 def test_the_halves_along_the_sequence_split_at_the_middle_calibration_frame():
@@ -41,34 +36,6 @@ def test_a_width_that_changes_along_the_sequence_is_unstable():
     (shifted,) = drift_reasons(0.150, ((0.110, 0.07), (0.105, 0.07)))
     assert "together 28% below it" in shifted["reason"]
     assert drift_reasons(0.150, None) == [] and drift_reasons(0.150, ((0.0, 0), (0.1, 0))) == []
-
-
-def test_the_marginal_reports_the_halves_along_the_sequence(tmp_path):
-    """On 10 frames (6 calibration frames: halves of 3) the marginal chooses sigma again on
-    the first and the second half in the same pass as the even and the odd, and a reason
-    names them exactly where `drift_reasons` does (none where sigma's halves already did)."""
-    options = SynthOptions(
-        width=128, height=96, frames=10, seed=1, rho_tilde=(0.8, 0.5, 0.4),
-        sparkles_attached=True, sparkle_px=6.0, F_tilde=(0.012,) * 3,
-    )  # fmt: skip
-    synthesize(tmp_path / "c", options)
-    capture = load_capture(tmp_path / "c")
-    tracks = HeldOutTracks.split(capture)
-    rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
-    sigmas = (0.04, 0.06, 0.09)
-    found = facet_marginal(
-        tracks.train, rotations, ColocatedLight(), sigmas=sigmas, F_tildes=FACET_F_TILDES[3:7],
-        nodes=(12, 5), refine=2, prior_sigmas=FACET_PRIOR_SIGMAS[:3],
-    )  # fmt: skip
-    block = found.to_json()["contiguous_halves"]
-    assert set(block) == {"first_half", "second_half"}
-    # Each half's choice is refined between the grid's points, as the whole's.
-    assert all(min(sigmas) <= block[part]["sigma"] <= max(sigmas) for part in block)
-    assert found.halves is not None and found.contiguous_halves is not None
-    said = [u for u in found.undetermined if "first and the second half" in u["reason"]]
-    by_halves = any("even" in u["reason"] and u["parameter"] == "sigma" for u in found.undetermined)
-    expected = [] if by_halves else drift_reasons(found.sigma, found.contiguous_halves)
-    assert said == expected
 
 
 def test_the_lobe_at_the_marginals_width_takes_the_drift_and_the_line_shows_it():

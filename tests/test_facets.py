@@ -21,6 +21,7 @@ from ctjax.fitting import (
     facets_suggestion,
     views_step,
 )
+from ctjax.fitting._drift import drift_reasons
 from ctjax.fitting._facet_lobe import (
     CONTROL_SEED,
     FACET_CANDIDATES,
@@ -160,21 +161,23 @@ def test_facets_about_the_views_h_predict_attached_sparkles(tmp_path):
 def test_the_facets_integrated_out_give_the_sparkles_width_and_spread(tmp_path):
     """Attached sparkles (micro-lobe 0.06, F_tilde 0.012, facets of Beckmann 0.2 about the
     surface): the marginal likelihood, each point's facet integrated over its prior, reads
-    the lobe's width and the facets' spread (measured on this 128x96 x 8 capture, 16 x 5
-    nodes refined 3 x 3: sigma 0.0594, F_tilde 0.0082, prior 0.2, `successful`; on a
-    sigma grid of 0.035-0.1 and the default quadrature sigma 0.0575 and F_tilde at its
-    grid's bottom, `at_bound`: F_tilde is not this test's; at 256x192 x 12,
-    `benchmarks/facet_truth.py --marginal`, it reads 0.016). The spreads 0.1-0.7, the
-    default grid's first five (all eight: 27 s instead of 17)."""
-    options = dict(SMALL, frames=8, sparkles_attached=True, sparkle_px=6.0, F_tilde=(0.012,) * 3)
+    the lobe's width and the facets' spread (measured on this 128x96 x 10 capture, 16 x 5
+    nodes refined 3 x 3: sigma 0.0573, prior 0.2, F_tilde at its grid's top, `at_bound`:
+    F_tilde is not this test's; at 256x192 x 12, `benchmarks/facet_truth.py --marginal`,
+    it reads 0.016). The spreads 0.1-0.7, the default grid's first five (all eight: 27 s
+    instead of 17). With 6 calibration frames (halves of 3) sigma is chosen again on the
+    even and the odd, and on the first and the second half of them, in the same pass
+    (measured 0.069 / 0.069 and 0.070 / 0.058), and a reason names the halves along the
+    sequence exactly where `drift_reasons` does (none where sigma's halves already did)."""
+    options = dict(SMALL, frames=10, sparkles_attached=True, sparkle_px=6.0, F_tilde=(0.012,) * 3)
     synthesize(tmp_path / "c", SynthOptions(**options))
     capture = load_capture(tmp_path / "c")
     tracks = HeldOutTracks.split(capture)
     rotations, light = _rotations(capture), ColocatedLight()
-    F_tildes = FACET_F_TILDES[3:7]
+    F_tildes, sigmas = FACET_F_TILDES[3:7], (0.04, 0.06, 0.09)
     found = facet_marginal(
-        tracks.train, rotations, light, sigmas=(0.04, 0.06, 0.09), F_tildes=F_tildes,
-        halves=False, nodes=(16, 5), refine=3, prior_sigmas=FACET_PRIOR_SIGMAS[:5],
+        tracks.train, rotations, light, sigmas=sigmas, F_tildes=F_tildes, nodes=(16, 5),
+        refine=3, prior_sigmas=FACET_PRIOR_SIGMAS[:5],
     )  # fmt: skip
     assert found.sigma == pytest.approx(0.06, rel=0.15)
     assert found.prior_sigma == 0.2 and found.gain_per_value > 0
@@ -182,11 +185,20 @@ def test_the_facets_integrated_out_give_the_sparkles_width_and_spread(tmp_path):
     assert (found.status == "successful") == (not reasons)
     if not F_tildes[0] < found.F_tilde < F_tildes[-1]:
         assert found.status == "at_bound" and any("F_tilde" in r for r in reasons)
+    # The halves along the sequence (`ctjax.fitting._drift`), each refined between the
+    # grid's points as the whole.
+    block = found.to_json()["contiguous_halves"]
+    assert set(block) == {"first_half", "second_half"}
+    assert all(min(sigmas) <= block[part]["sigma"] <= max(sigmas) for part in block)
+    assert found.halves is not None and found.contiguous_halves is not None
+    said = [u for u in found.undetermined if "first and the second half" in u["reason"]]
+    by_halves = any("even" in u["reason"] and u["parameter"] == "sigma" for u in found.undetermined)
+    assert said == ([] if by_halves else drift_reasons(found.sigma, found.contiguous_halves))
     assert found.to_json()["facet_prior_sigma"] == 0.2
     # Only the points with a view are integrated (the tracks' padding left out).
     seen = np.asarray(tracks.train.weight).sum(0) > 0
     compact = _observed_points(tracks.train)
-    assert seen.sum() <= compact.weight.shape[-1] < seen.size
+    assert seen.sum() < seen.size and seen.sum() <= compact.weight.shape[-1] <= seen.size
     for name in ("weight", "values"):
         before, after = np.asarray(getattr(tracks.train, name)), np.asarray(getattr(compact, name))
         np.testing.assert_array_equal(after[..., : seen.sum()], before[..., seen])
