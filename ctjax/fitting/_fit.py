@@ -19,7 +19,14 @@ from ..effects._effect import Site, undo_effects
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
 from ..solvers import DenseLM, Solver, least_squares
-from ._parameters import Parameter, constrained, free_parameters, strongly_typed, unconstrained
+from ._parameters import (
+    Parameter,
+    as_vector,
+    constrained,
+    free_parameters,
+    strongly_typed,
+    unconstrained,
+)
 
 # Predict one sample's RGB from a model: e.g. `lambda model, s: model(s.point, s.normal,
 # s.pixel)` for pixels of a capture, or a BRDF evaluated at (L, V) for measured BRDF data.
@@ -166,17 +173,10 @@ def _information(model, samples, mask, predict, names):
     parameters = free_parameters(model, lambda name: name in names)
     if not parameters:
         return 0.0, jnp.zeros((0, 0))
-    values = [jnp.asarray(p.get(model)) for p in parameters]
-    shapes = [v.shape for v in values]
-    flat = jnp.concatenate([v.reshape(-1) for v in values])
+    flat, rebuilt = as_vector(model, parameters)
 
     def residuals(theta):
-        parts, start = [], 0
-        for shape in shapes:
-            size = math.prod(shape)
-            parts.append(theta[start : start + size].reshape(shape))
-            start += size
-        fitted = eqx.tree_at(lambda m: [p.get(m) for p in parameters], model, parts)
+        fitted = rebuilt(theta)
         return _masked_residuals(fitted, samples, mask, predict).reshape(-1)
 
     jacobian = jax.jacfwd(residuals)(flat)

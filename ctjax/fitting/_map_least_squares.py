@@ -30,7 +30,7 @@ from ..estimation._variable_projection import projected_residuals
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
 from ._fit import LEVENBERG_MARQUARDT, named_errors
-from ._parameters import constrained, free_parameters, strongly_typed, unconstrained
+from ._parameters import as_vector, constrained, free_parameters, strongly_typed, unconstrained
 
 
 class TrackSamples(eqx.Module):
@@ -452,17 +452,10 @@ def _covariance(model, samples, names, per_point):
     parameters = free_parameters(model, freeze)
     if not parameters:
         return 0.0, jnp.zeros((0, 0))
-    values = [jnp.asarray(p.get(model)) for p in parameters]
-    shapes = [v.shape for v in values]
-    flat = jnp.concatenate([v.reshape(-1) for v in values])
+    flat, rebuilt = as_vector(model, parameters)
 
     def residuals(theta):
-        parts, start = [], 0
-        for shape in shapes:
-            size = math.prod(shape)
-            parts.append(theta[start : start + size].reshape(shape))
-            start += size
-        fitted = eqx.tree_at(lambda m: [p.get(m) for p in parameters], model, parts)
+        fitted = rebuilt(theta)
         _, _, residual = _projected(fitted, samples, per_point)
         return residual.reshape(-1)
 

@@ -109,3 +109,22 @@ def constrained(model, parameters: list[Parameter], values: list):
         model,
         [_from_unconstrained(v, p.domain) for v, p in zip(values, parameters, strict=True)],
     )
+
+
+def as_vector(model, parameters: list[Parameter]) -> tuple[jnp.ndarray, Callable]:
+    """The values of `parameters` in `model`, in their own units (not the fitters'
+    reparametrisation), as one vector, and the function that puts such a vector back into
+    `model`: what a Jacobian in the parameters' own units (a covariance) is taken over."""
+    values = [jnp.asarray(p.get(model)) for p in parameters]
+    shapes = [v.shape for v in values]
+    flat = jnp.concatenate([v.reshape(-1) for v in values])
+
+    def rebuilt(theta):
+        parts, start = [], 0
+        for shape in shapes:
+            size = math.prod(shape)
+            parts.append(theta[start : start + size].reshape(shape))
+            start += size
+        return eqx.tree_at(lambda m: [p.get(m) for p in parameters], model, parts)
+
+    return flat, rebuilt
