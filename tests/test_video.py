@@ -150,3 +150,12 @@ def test_a_video_without_calibration_gets_a_guessed_camera(tmp_path, capsys):
     camera = json.loads((tmp_path / "c" / "camera.json").read_text())
     assert camera["fx"] == pytest.approx(0.8 * 32)
     assert f"fx = fy = {0.8 * 32:.1f} px" in capsys.readouterr().err
+    # A bad option is the one line, before any note; a stereo import has no guessed camera.
+    assert main([*argv, "--every", "0"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "ctjax import: error: --every must be a positive integer, got 0"
+    ]
+    assert main([*argv, "--side-by-side"]) == 2
+    err = capsys.readouterr().err
+    assert "needs the stereo calibration" in err and "--camera guess has none" in err
+    assert "note" not in err

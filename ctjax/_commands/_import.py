@@ -80,10 +80,27 @@ def run_import(args: argparse.Namespace) -> int:
     import json
     import tempfile
 
+    from .._errors import ParameterError
     from ..io._atomic import atomic_write_json
     from ..io._video import ImportOptions, guessed_camera, import_video
 
+    # The options checked first: a bad one is the only line, before any note.
+    options = ImportOptions(
+        every=args.every,
+        start=args.start,
+        end=args.end,
+        max_frames=args.max_frames,
+        distinct=args.distinct,
+        width=args.width,
+        side_by_side=args.side_by_side,
+    )
     if str(args.camera) == "guess":
+        if args.side_by_side or args.right is not None:
+            raise ParameterError(
+                "a stereo import (--right, --side-by-side) needs the stereo calibration: "
+                'camera.json\'s "stereo" block (the right camera, R and T in mm); --camera '
+                "guess has none"
+            )
         guess = guessed_camera(args.video, args.side_by_side)
         folder = tempfile.TemporaryDirectory(prefix="ctjax-camera-")
         args.camera = Path(folder.name) / "camera.json"
@@ -97,15 +114,6 @@ def run_import(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
 
-    options = ImportOptions(
-        every=args.every,
-        start=args.start,
-        end=args.end,
-        max_frames=args.max_frames,
-        distinct=args.distinct,
-        width=args.width,
-        side_by_side=args.side_by_side,
-    )
     report = import_video(
         args.video,
         args.camera,
