@@ -28,9 +28,9 @@ from ctjax.fitting._facet_lobe import (
     FACET_F_TILDES,
     FACET_SIGMAS,
     _chosen,
-    _facet_status,
 )
 from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _F_tilde_reasons, _observed_points
+from ctjax.fitting._facet_status import facet_status, judged_status
 from ctjax.fitting._facets import FACET_REFINE_STEPS, _candidates, facet_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -266,27 +266,27 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     """`FacetLobe.status` (`ctjax._determined`'s statuses): halves apart, an end of the
     grid, no gain against Lambert with its own normal."""
     grid = (FACET_SIGMAS, FACET_F_TILDES)
-    assert _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.1, 0.02))) == ("successful", ())
-    status, reasons = _facet_status(0.15, 0.02, *grid, 0.06, ((0.3, 0.1), (0.45, 0.002)))
+    assert facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.1, 0.02))) == ("successful", ())
+    status, reasons = facet_status(0.15, 0.02, *grid, 0.06, ((0.3, 0.1), (0.45, 0.002)))
     assert (
         status == "unstable"
         and "0.3 on the even frames and 0.45 on the odd" in reasons[0]["reason"]
     )
-    status, reasons = _facet_status(0.15, 0.2, *grid, 0.06, None)
+    status, reasons = facet_status(0.15, 0.2, *grid, 0.06, None)
     assert status == "at_bound" and reasons[0]["parameter"] == "F_tilde"
-    status, reasons = _facet_status(FACET_SIGMAS[0], 0.01, *grid, 0.06, None)
+    status, reasons = facet_status(FACET_SIGMAS[0], 0.01, *grid, 0.06, None)
     assert status == "at_bound" and reasons[0]["parameter"] == "sigma"
-    assert _facet_status(0.1, 0.01, *grid, 0.001, None)[0] == "no_lobe"
-    status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, None, 0.005, unchecked=4)
+    assert facet_status(0.1, 0.01, *grid, 0.001, None)[0] == "no_lobe"
+    status, reasons = facet_status(0.1, 0.01, *grid, 0.06, None, 0.005, unchecked=4)
     assert status == "unstable" and "4 calibration frames: too few" in reasons[0]["reason"]
-    status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, None, 0.03)
+    status, reasons = facet_status(0.1, 0.01, *grid, 0.06, None, 0.03)
     assert status == "unstable" and "standard error of 30%" in reasons[0]["reason"]
-    status, reasons = _facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
+    status, reasons = facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
     # Halves that agree with each other on a width away from the whole's (SCARED's frames
     # 61-84: 0.139 / 0.141 against 0.086): the width depends on how many views choose each
     # point's facet (fewer: broader); within 20% of it, nothing is said.
-    status, reasons = _facet_status(0.086, 0.013, *grid, 0.06, ((0.139, 0.032), (0.141, 0.036)))
+    status, reasons = facet_status(0.086, 0.013, *grid, 0.06, ((0.139, 0.032), (0.141, 0.036)))
     assert status == "unstable" and reasons[0]["parameter"] == "sigma"
     assert "63% above its 0.086" in reasons[0]["reason"]
     assert "fewer views place each point's facet less precisely" in reasons[0]["reason"]
@@ -294,15 +294,15 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     # With the views' spacing (`views_step`) quoted beside it.
     step = (0.0157, 0.0313, 0.0305)
     halves = ((0.139, 0.032), (0.141, 0.036))
-    status, reasons = _facet_status(0.086, 0.013, *grid, 0.06, halves, step=step)
+    status, reasons = facet_status(0.086, 0.013, *grid, 0.06, halves, step=step)
     assert (
         "consecutive views 0.0157 rad apart on all of them, 0.0313 / 0.0305 on the halves"
         in (reasons[0]["reason"])
     )
-    status, reasons = _facet_status(0.2, 0.01, *grid, 0.06, ((0.15, 0.01), (0.15, 0.01)))
+    status, reasons = facet_status(0.2, 0.01, *grid, 0.06, ((0.15, 0.01), (0.15, 0.01)))
     assert status == "unstable" and "25% below its 0.2" in reasons[0]["reason"]
     assert "the frames that choose it move it" in reasons[0]["reason"]
-    assert _facet_status(0.049, 0.0107, *grid, 0.06, ((0.057, 0.01), (0.056, 0.01)))[0] == (
+    assert facet_status(0.049, 0.0107, *grid, 0.06, ((0.057, 0.01), (0.056, 0.01)))[0] == (
         "successful"
     )
 
@@ -400,15 +400,14 @@ def test_a_facet_lobe_that_mispredicts_the_held_out_views_is_no_lobe():
     frames and `successful`, the facet lobe predicted the held-out views 1.113x as far off as
     Lambert's model under the same light. Judged there, it is `no_lobe`, and its reason
     comes first; a lobe that predicts better keeps its status."""
-    from ctjax.fitting._facet_lobe import _judged_status
 
-    status, reasons = _judged_status("successful", (), 8.25, 7.41)
+    status, reasons = judged_status("successful", (), 8.25, 7.41)
     assert status == "no_lobe" and "1.113x" in reasons[0]["reason"]
     unstable = {"parameter": "sigma", "status": "unstable", "reason": "halves apart"}
-    status, reasons = _judged_status("unstable", (unstable,), 8.25, 7.41)
+    status, reasons = judged_status("unstable", (unstable,), 8.25, 7.41)
     assert status == "no_lobe" and reasons[0]["status"] == "no_lobe" and reasons[1] == unstable
-    assert _judged_status("unstable", (unstable,), 7.0, 7.41) == ("unstable", (unstable,))
-    assert _judged_status("successful", (), float("nan"), 7.41) == ("successful", ())
+    assert judged_status("unstable", (unstable,), 7.0, 7.41) == ("unstable", (unstable,))
+    assert judged_status("successful", (), float("nan"), 7.41) == ("successful", ())
 
 
 def test_the_views_step_is_the_angle_between_a_points_consecutive_views():

@@ -11,9 +11,12 @@ from collections.abc import Mapping, Sequence
 import equinox as eqx
 import numpy as np
 
-from .._determined import HALVES_AGREE, MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
 from .._errors import ParameterError
-from .._status import Status
+from ._facet_status import (
+    MIN_FRAMES_FOR_HALVES,
+    facet_status,
+    judged_status,
+)
 from ._facets import (
     FACET_ACROSS_RAD,
     FACET_PENALTY,
@@ -190,12 +193,6 @@ class FacetLobe(eqx.Module):
         }
 
 
-# The halves need three calibration frames each: each view judged from at least two
-# others. With two each, the sinus's 6-frame sub-captures' halves agreed on one (0.106 and
-# 0.112) while the two sub-captures gave 0.151 and 0.087.
-_MIN_FRAMES_FOR_HALVES = 6
-
-
 def _grid(
     train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets=(None,),
     candidates=None,
@@ -232,8 +229,6 @@ def _grid(
 
 # Resamples of the tracked points (with replacement) for the standard errors of the choice.
 BOOTSTRAP_RESAMPLES = 200
-# A choice whose bootstrap standard error is over this share of it is not determined.
-MAX_RELATIVE_STDERR = 0.25
 
 
 def _bootstrap(keys, per_point: np.ndarray, resamples: int, seed: int = 0):
@@ -278,153 +273,6 @@ def _chosen(grid: dict, squared: bool = True) -> tuple[float, float]:
     return _vertex(sigmas, profile), _vertex(F_tildes, square[int(np.argmin(profile))])
 
 
-def _shifted_by_the_halves(sigma, f, halves, step=None) -> Undetermined | None:
-    """Where the even and the odd calibration frames alone agree with each other but both
-    put sigma more than `HALVES_AGREE` off its value on all of them (geometric mean): each
-    half sees every point from views twice as far apart, and a width that moves with the
-    frames that choose it is not the tissue's alone. On SCARED's frames 61-84 the facet lobe
-    read 0.086 on all 15 calibration frames and 0.139 / 0.141 on the halves (0.059 on frames
-    61-72's 8), with consecutive views 0.016 rad apart: five steps within the width, well
-    sampled. On synthetic sparkles whose views are as far apart, a micro-lobe of 0.06 read
-    0.049 on 15 frames and 0.055 / 0.053 on their halves (10%), one of 0.025 (below what the
-    grid resolves) 0.036 and 0.047 / 0.052 (37%); the facets integrated out read 0.0631 and
-    0.0657 / 0.0653 (docs/real-video.md, "Facets"). What widens the halves is the views
-    that choose each facet, not the candidates: on SCARED's frames 151-162 every view judging
-    with the even frames' candidates only read 0.081 (0.078 with all), each half judging with
-    every frame's candidates 0.173 / 0.146 (0.153 / 0.168 with its own); on 61-72 0.082 (0.059)
-    and 0.207 / 0.154 (0.201 / 0.163). `step`:
-    `views_step`, quoted."""
-    if halves is None or not sigma > 0:
-        return None
-    (a, fa), (b, fb) = halves
-    if not (a > 0 and b > 0):
-        return None
-    shift = math.sqrt(a * b) / sigma - 1
-    if abs(shift) <= HALVES_AGREE:
-        return None
-    peaks = f"{f / sigma**2:.3g} on all of them, {fa / a**2:.3g} / {fb / b**2:.3g} on the halves"
-    spacing = ""
-    if step is not None and all(math.isfinite(x) for x in step):
-        spacing = (
-            f"; a point's consecutive views {step[0]:.3g} rad apart on all of them, "
-            f"{step[1]:.3g} / {step[2]:.3g} on the halves"
-        )
-    why = (
-        "fewer views place each point's facet less precisely, and the lobe that predicts a "
-        "view from a misplaced facet is a broader one"
-        if shift > 0
-        else "the frames that choose it move it"
-    )
-    return Undetermined(
-        "sigma",
-        Status.unstable,
-        f"the even and the odd calibration frames alone (each point's views twice as far "
-        f"apart) put sigma at {a:.3g} and {b:.3g}, {abs(shift):.0%} "
-        f"{'above' if shift > 0 else 'below'} its {sigma:.3g} on all of them (over "
-        f"{HALVES_AGREE:.0%}): the width depends on how many views each point has, not on "
-        f"the tissue alone ({why}; the peak F_tilde/sigma^2: {peaks}{spacing})",
-    )
-
-
-def _facet_status(
-    sigma, f, sigmas, F_tildes, gain, halves, sigma_stderr=math.nan, unchecked=None, step=None
-) -> tuple[str, tuple]:
-    """The facet lobe's status and reasons (`ctjax._determined`): sigma at an end of its
-    grid, a gain under `MIN_LOBE_GAIN`, halves apart or a half without the lobe (its
-    F_tilde at the grid's bottom), halves that agree on a sigma away from the whole's
-    (`_shifted_by_the_halves`), too few calibration frames for halves (`unchecked`:
-    their number), a bootstrap standard error over `MAX_RELATIVE_STDERR` of it; F_tilde at
-    an end of its grid."""
-    if gain < MIN_LOBE_GAIN:  # NaN (nothing to compare with) passes
-        return Status.no_lobe.name, (
-            Undetermined(
-                "F_tilde",
-                Status.no_lobe,
-                f"on the calibration frames the facet lobe lowers the RMSE by {gain:.2%} "
-                "against Lambert with its own normal chosen the same way (under "
-                f"{MIN_LOBE_GAIN:.1%}): no specular lobe is found, and sigma = {sigma:g} is "
-                "not determined by the data",
-            ).to_json(),
-        )
-    found = undetermined(
-        {"sigma": sigma},
-        {},
-        {"sigma": (min(sigmas), max(sigmas))} if len(sigmas) > 1 else {},
-        halves=None if halves is None else {"sigma": (halves[0][0], halves[1][0])},
-    )
-    lacking = [
-        part
-        for part, (_, half_f) in zip(("even", "odd"), halves or (), strict=False)
-        if len(F_tildes) > 1 and half_f <= min(F_tildes)
-    ]
-    if lacking and not any(u.parameter == "sigma" for u in found):
-        found.append(
-            Undetermined(
-                "sigma",
-                Status.unstable,
-                f"the {' and the '.join(lacking)} calibration frames alone put F_tilde at the "
-                f"bottom of its grid ({min(F_tildes):g}): the lobe is not found in "
-                f"{'either half' if len(lacking) == 2 else 'one half'} of the frames",
-            )
-        )
-    shifted = _shifted_by_the_halves(sigma, f, halves, step)
-    if shifted is not None and not any(u.parameter == "sigma" for u in found):
-        found.append(shifted)
-    if unchecked is not None and not any(u.parameter == "sigma" for u in found):
-        found.append(
-            Undetermined(
-                "sigma",
-                Status.unstable,
-                f"{unchecked} calibration frames: too few to choose sigma again on halves of "
-                f"at least {_MIN_FRAMES_FOR_HALVES // 2} (its stability across frames is not "
-                "measured)",
-            )
-        )
-    spread = sigma_stderr / sigma
-    if spread > MAX_RELATIVE_STDERR and not any(u.parameter == "sigma" for u in found):
-        found.append(
-            Undetermined(
-                "sigma",
-                Status.unstable,
-                f"sigma = {sigma:.3g} has a standard error of {spread:.0%} over the tracked "
-                f"points (bootstrap; over {MAX_RELATIVE_STDERR:.0%})",
-            )
-        )
-    if len(F_tildes) > 1 and not min(F_tildes) < f < max(F_tildes):
-        end = "top" if f >= max(F_tildes) else "bottom"
-        found.append(
-            Undetermined(
-                "F_tilde",
-                Status.at_bound,
-                f"F_tilde = {f:g} is at the {end} of its grid ({min(F_tildes):g}, "
-                f"{max(F_tildes):g}): no measurement of the lobe's weight",
-            )
-        )
-    if not found:
-        return Status.successful.name, ()
-    first = min((u.status for u in found), key=PRIORITY.index)
-    return first.name, tuple(u.to_json() for u in found)
-
-
-def _judged_status(status: str, reasons: tuple, rmse: float, lambertian: float):
-    """The status once the held-out views are judged: a lobe that predicts them no better
-    than Lambert's model under the same light is not seen in new frames (`no_lobe`), however
-    well the calibration frames chose it (on 24 frames of the shared sinus: 1.113x, said
-    `successful` before this)."""
-    if not (math.isfinite(rmse) and lambertian > 0 and rmse >= lambertian):
-        return status, reasons
-    found = Undetermined(
-        "F_tilde",
-        Status.no_lobe,
-        f"on the held-out frames the facet lobe predicts the views {rmse / lambertian:.3f}x "
-        "as far off as Lambert's model under the same light (no better): no specular lobe "
-        "is seen in new frames",
-    )
-    if status == Status.no_lobe.name:  # already: the calibration frames' reason first
-        return status, (*reasons, found.to_json())
-    return Status.no_lobe.name, (found.to_json(), *reasons)
-
-
 def facet_lobe(
     train: TrackSamples,
     test: TrackSamples,
@@ -459,7 +307,7 @@ def facet_lobe(
     if not candidates:
         raise ParameterError("facet_lobe needs at least one set of candidate facets")
     frames = len(np.unique(np.asarray(train.site.frame)[np.asarray(train.weight) > 0]))
-    checked = halves and frames >= _MIN_FRAMES_FOR_HALVES
+    checked = halves and frames >= MIN_FRAMES_FOR_HALVES
     subsets = (None, 0, 1) if checked else (None,)
     grids = _grid(
         train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets, candidates
@@ -481,7 +329,7 @@ def facet_lobe(
     best = min(calibration.values())  # the grid's least: the refined choice is between points
     gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
     step = views_step(train, rotations)
-    status, reasons = _facet_status(
+    status, reasons = facet_status(
         sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked, step
     )
     lobe = facet_heldout(
@@ -489,7 +337,7 @@ def facet_lobe(
         shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
     )  # fmt: skip
     plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, across=(0.0,))
-    status, reasons = _judged_status(status, reasons, lobe.rmse, plain.rmse)
+    status, reasons = judged_status(status, reasons, lobe.rmse, plain.rmse)
     control = math.nan  # the same lobe with every point's candidates another point's
     if shuffle_seed is None:
         control = facet_heldout(

@@ -40,15 +40,14 @@ from .._programs import persistent_jit
 from .._status import Status
 from ._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
 from ._facet_lobe import (
-    _MIN_FRAMES_FOR_HALVES,
     FACET_F_TILDES,
     FACET_SIGMAS,
     _chosen,
-    _facet_status,
     halves_json,
     views_step,
     views_step_json,
 )
+from ._facet_status import MIN_FRAMES_FOR_HALVES, facet_status
 from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
 from ._profiled_albedo import gaussian_nll, gaussian_ssr, view_sums
@@ -413,7 +412,7 @@ def _F_tilde_reasons(f: float, split, F_tildes: Sequence[float]) -> list[dict]:
     is measured here (`facet_lobe`'s is a lower bound). Halves apart from each other, a
     half at an end of the grid (its weight not measured there), or halves that agree on a
     weight more than `HALVES_AGREE` from the whole's (geometric mean; as sigma's,
-    `_shifted_by_the_halves`). SCARED's frames 61-84: F_tilde 0.0727 on all 15 calibration
+    `shifted_by_the_halves`). SCARED's frames 61-84: F_tilde 0.0727 on all 15 calibration
     frames, 0.2 (the grid's top) on each half."""
     if not split:
         return []
@@ -498,7 +497,7 @@ def facet_marginal(
         noise_levels = tuple(base * k for k in NOISE_MULTIPLES[nu is None])
     weight = np.asarray(train.weight)
     frames = len(np.unique(np.asarray(train.site.frame)[weight > 0]))
-    checked = halves and frames >= _MIN_FRAMES_FOR_HALVES
+    checked = halves and frames >= MIN_FRAMES_FOR_HALVES
     subsets = (None, 0, 1, FIRST, SECOND) if checked else (None,)
     boundary = boundary_of(np.unique(np.asarray(train.site.frame)[weight > 0]))
     boundary = on_device(np.asarray(boundary, np.int32))
@@ -534,7 +533,7 @@ def facet_marginal(
     contiguous = (choice(3), choice(4)) if checked else None
     unchecked = frames if halves and not checked else None
     step = views_step(train, rotations)
-    _, reasons = _facet_status(
+    _, reasons = facet_status(
         sigma, f, sigmas, F_tildes, math.nan, split, math.nan, unchecked, step
     )
     found = [
