@@ -27,7 +27,7 @@ from ctjax.fitting._facet_lobe import (
     FACET_CANDIDATES,
     FACET_F_TILDES,
     FACET_SIGMAS,
-    _chosen,
+    chosen_on_grid,
 )
 from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _F_tilde_reasons, _observed_points
 from ctjax.fitting._facet_status import facet_status, judged_status
@@ -362,7 +362,7 @@ def test_the_facet_lobe_at_the_marginals_width_takes_each_estimators_reasons():
 
 
 def test_the_grids_choice_is_refined_between_its_points():
-    """`_chosen`: a mean square quadratic in log sigma and log F_tilde has its least found
+    """`chosen_on_grid`: a mean square quadratic in log sigma and log F_tilde has its least found
     between the grid's points; one falling to an end of the grid stays there."""
 
     def grid(sigma, f):
@@ -372,8 +372,8 @@ def test_the_grids_choice_is_refined_between_its_points():
             for b in FACET_F_TILDES
         }
 
-    assert _chosen(grid(0.12, 0.015)) == pytest.approx((0.12, 0.015))
-    assert _chosen(grid(0.01, 0.015)) == pytest.approx((FACET_SIGMAS[0], 0.015))
+    assert chosen_on_grid(grid(0.12, 0.015)) == pytest.approx((0.12, 0.015))
+    assert chosen_on_grid(grid(0.01, 0.015)) == pytest.approx((FACET_SIGMAS[0], 0.015))
 
 
 def test_where_the_highlights_carry_the_residual_the_facets_are_suggested():

@@ -232,7 +232,7 @@ BOOTSTRAP_RESAMPLES = 200
 
 
 def _bootstrap(keys, per_point: np.ndarray, resamples: int, seed: int = 0):
-    """The standard errors of `_chosen`'s (sigma, F_tilde) over the tracked points: the
+    """The standard errors of `chosen_on_grid`'s (sigma, F_tilde) over the tracked points: the
     grid's RMSE recomputed on `resamples` draws of the points with replacement."""
     counted = per_point[0, 1] > 0
     per_point = per_point[:, :, counted]
@@ -242,7 +242,7 @@ def _bootstrap(keys, per_point: np.ndarray, resamples: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     draws = rng.multinomial(points, np.full(points, 1 / points), size=resamples)  # (B, P)
     rmse = np.sqrt((draws @ per_point[:, 0].T) / (draws @ per_point[:, 1].T))  # (B, G)
-    picks = np.array([_chosen(dict(zip(keys, r, strict=True))) for r in rmse])
+    picks = np.array([chosen_on_grid(dict(zip(keys, r, strict=True))) for r in rmse])
     return tuple(float(e) for e in np.std(picks, 0, ddof=1))
 
 
@@ -258,7 +258,7 @@ def _vertex(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.exp(np.clip(-b / (2 * a), t[0], t[2]))) if a > 0 else float(x[k])
 
 
-def _chosen(grid: dict, squared: bool = True) -> tuple[float, float]:
+def chosen_on_grid(grid: dict, squared: bool = True) -> tuple[float, float]:
     """(sigma, F_tilde) from a grid's calibration RMSE, refined between its neighbours:
     sigma at the vertex of the profile (each sigma's least mean square over F_tilde), then
     F_tilde at the vertex over F_tilde at the grid's sigma. The grid's steps (30-50%) are as
@@ -290,7 +290,7 @@ def facet_lobe(
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
-    views; refined between the grid's points, `_chosen`), then the `judged` views of
+    views; refined between the grid's points, `chosen_on_grid`), then the `judged` views of
     `test` (M, P) predicted, beside the Lambertian model under the same `light`, without
     and with its own normal chosen the same way.
     `shuffle_seed`: the control (`facet_heldout`), in the grid and the judging alike.
@@ -316,10 +316,10 @@ def facet_lobe(
     name = min(candidate_rmse, key=candidate_rmse.get)
     across = candidates[name]
     (calibration, per_point), *parts = grids[name]
-    sigma, f = _chosen(calibration)
+    sigma, f = chosen_on_grid(calibration)
     stderr = _bootstrap(list(calibration), per_point, BOOTSTRAP_RESAMPLES)
     at_bound = not (min(sigmas) < sigma < max(sigmas) and min(F_tildes) < f < max(F_tildes))
-    split = tuple(_chosen(grid) for grid, _ in parts) if checked else None
+    split = tuple(chosen_on_grid(grid) for grid, _ in parts) if checked else None
     unchecked = frames if halves and not checked else None
     lambertian = facet_model(light, sigma, 0.0)
     own_normal = facet_heldout(

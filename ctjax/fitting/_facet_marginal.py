@@ -17,7 +17,7 @@ a quadrature over the facets near the arc the point's H trace (`FACET_NODES`: al
 from 3 sigma before the first view's H to 3 sigma after the last, and 3 sigma across it), the
 rest of the prior's mass lighting none of the views. The product over the points is the
 likelihood of (sigma, F_tilde, sigma_M, s); sigma and F_tilde are its maximum on a grid, the
-nuisances sigma_M and s profiled, refined between the grid's points (`_chosen`), and again
+nuisances sigma_M and s profiled, refined between the grid's points (`chosen_on_grid`), and again
 on the even and on the odd calibration frames alone (the status, as `facet_lobe`'s).
 
 Measured against synthetic truth and on the real sequences: `FacetMarginal`,
@@ -42,7 +42,7 @@ from ._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
 from ._facet_lobe import (
     FACET_F_TILDES,
     FACET_SIGMAS,
-    _chosen,
+    chosen_on_grid,
     halves_json,
     views_step,
     views_step_json,
@@ -522,7 +522,9 @@ def facet_marginal(
     keys = [(float(s), float(f)) for s in sigmas for f in F_tildes]
 
     def choice(t):
-        return _chosen(dict(zip(keys, -profiled[:, :, t].ravel(), strict=True)), squared=False)
+        return chosen_on_grid(
+            dict(zip(keys, -profiled[:, :, t].ravel(), strict=True)), squared=False
+        )
 
     sigma, f = choice(0)
     best = np.unravel_index(np.argmax(likelihood[:, :, 0]), likelihood[:, :, 0].shape)
