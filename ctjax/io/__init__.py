@@ -2,10 +2,10 @@
 
 from ._alta import MeasuredBRDF as MeasuredBRDF
 from ._alta import load_alta as load_alta
+from ._camera_json import read_camera as read_camera
 from ._capture import Capture as Capture
 from ._capture import Frame as Frame
 from ._capture import load_capture as load_capture
-from ._capture import read_camera as read_camera
 from ._capture import write_capture as write_capture
 from ._field_of_view import field_of_view as field_of_view
 from ._field_of_view import overlay_mask as overlay_mask

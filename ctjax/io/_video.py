@@ -36,7 +36,7 @@ import numpy as np
 
 from .._errors import CaptureError, ParameterError
 from ._atomic import atomic_write_json
-from ._capture import read_camera, read_encoding, read_stereo
+from ._camera_json import read_camera, read_encoding, read_stereo
 from ._encoding import SRGB
 from ._field_of_view import field_of_view
 from ._images import write_quantised_rgb
