@@ -29,8 +29,8 @@ from ctjax.fitting._facet_lobe import (
     FACET_SIGMAS,
     chosen_on_grid,
 )
-from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _F_tilde_reasons, _observed_points
-from ctjax.fitting._facet_status import facet_status, judged_status
+from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _observed_points
+from ctjax.fitting._facet_status import F_tilde_reasons, facet_status, judged_status
 from ctjax.fitting._facets import FACET_REFINE_STEPS, _candidates, facet_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -313,17 +313,17 @@ def test_the_marginals_F_tilde_is_checked_on_the_halves_against_the_whole():
     frames, the grid's top 0.2 on each half, once reported `successful`), or agreeing on a
     weight more than 20% from the whole's; nothing said where they agree with it."""
     grid = FACET_F_TILDES
-    (reason,) = _F_tilde_reasons(0.0727, ((0.175, 0.2), (0.176, 0.2)), grid)
+    (reason,) = F_tilde_reasons(0.0727, ((0.175, 0.2), (0.176, 0.2)), grid)
     assert reason["parameter"] == "F_tilde" and reason["status"] == "unstable"
     assert (
         "the even and the odd calibration frames alone put F_tilde at the top" in (reason["reason"])
     )
-    (reason,) = _F_tilde_reasons(0.0727, ((0.175, 0.0727), (0.176, 0.002)), grid)
+    (reason,) = F_tilde_reasons(0.0727, ((0.175, 0.0727), (0.176, 0.002)), grid)
     assert "apart" in reason["reason"]
-    (reason,) = _F_tilde_reasons(0.02, ((0.1, 0.03), (0.1, 0.031)), grid)
+    (reason,) = F_tilde_reasons(0.02, ((0.1, 0.03), (0.1, 0.031)), grid)
     assert "52% above its 0.02" in reason["reason"]
-    assert _F_tilde_reasons(0.02, ((0.1, 0.021), (0.1, 0.019)), grid) == []
-    assert _F_tilde_reasons(0.02, None, grid) == []
+    assert F_tilde_reasons(0.02, ((0.1, 0.021), (0.1, 0.019)), grid) == []
+    assert F_tilde_reasons(0.02, None, grid) == []
 
 
 def test_the_facet_lobe_at_the_marginals_width_takes_each_estimators_reasons():

@@ -34,7 +34,7 @@ import numpy as np
 
 from .._buckets import bucket
 from .._convert import on_device
-from .._determined import HALVES_AGREE, PRIORITY, Undetermined, _unstable
+from .._determined import PRIORITY
 from .._errors import ParameterError
 from .._programs import persistent_jit
 from .._status import Status
@@ -47,7 +47,12 @@ from ._facet_lobe import (
     views_step,
     views_step_json,
 )
-from ._facet_status import MIN_FRAMES_FOR_HALVES, facet_status
+from ._facet_status import (
+    MIN_FRAMES_FOR_HALVES,
+    F_tilde_reasons,
+    facet_status,
+    nuisance_reasons,
+)
 from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
 from ._profiled_albedo import gaussian_nll, gaussian_ssr, view_sums
@@ -392,69 +397,6 @@ class FacetMarginal(eqx.Module):
         }
 
 
-def _nuisance_reasons(parameter: str, name: str, value: float, grid: Sequence[float]) -> list[dict]:
-    """A nuisance at an end of its grid, as `Undetermined.to_json()` (none inside)."""
-    if len(grid) < 2 or min(grid) < value < max(grid):
-        return []
-    end = "top" if value >= max(grid) else "bottom"
-    return [
-        Undetermined(
-            parameter,
-            Status.at_bound,
-            f"the {name} is at the {end} of its grid ({min(grid):g}, {max(grid):g}): the "
-            "likelihood's model of the facets or of the noise misdescribes these data",
-        ).to_json()
-    ]
-
-
-def _F_tilde_reasons(f: float, split, F_tildes: Sequence[float]) -> list[dict]:
-    """F_tilde's halves checked, as `Undetermined.to_json()` (empty where they agree): it
-    is measured here (`facet_lobe`'s is a lower bound). Halves apart from each other, a
-    half at an end of the grid (its weight not measured there), or halves that agree on a
-    weight more than `HALVES_AGREE` from the whole's (geometric mean; as sigma's,
-    `shifted_by_the_halves`). SCARED's frames 61-84: F_tilde 0.0727 on all 15 calibration
-    frames, 0.2 (the grid's top) on each half."""
-    if not split:
-        return []
-    a, b = split[0][1], split[1][1]
-    apart = _unstable({"F_tilde": f}, {"F_tilde": (a, b)}, set())
-    if apart:
-        return [u.to_json() for u in apart]
-    ends = [
-        (part, "top" if half >= max(F_tildes) else "bottom")
-        for part, half in (("even", a), ("odd", b))
-        if len(F_tildes) > 1 and not min(F_tildes) < half < max(F_tildes)
-    ]
-    if ends:
-        parts = " and the ".join(part for part, _ in ends)
-        end = ends[0][1]
-        return [
-            Undetermined(
-                "F_tilde",
-                Status.unstable,
-                f"the {parts} calibration frames alone put F_tilde at the {end} of its grid "
-                f"({min(F_tildes):g}, {max(F_tildes):g}) against {f:.3g} on all of them: the "
-                "lobe's weight is not measured on "
-                f"{'either half' if len(ends) == 2 else 'one half'} of the frames",
-            ).to_json()
-        ]
-    if not (f > 0 and a > 0 and b > 0):
-        return []
-    shift = math.sqrt(a * b) / f - 1
-    if abs(shift) <= HALVES_AGREE:
-        return []
-    return [
-        Undetermined(
-            "F_tilde",
-            Status.unstable,
-            f"the even and the odd calibration frames alone put F_tilde at {a:.3g} and "
-            f"{b:.3g}, {abs(shift):.0%} {'above' if shift > 0 else 'below'} its {f:.3g} on "
-            f"all of them (over {HALVES_AGREE:.0%}): the lobe's weight moves with the frames "
-            "that choose it",
-        ).to_json()
-    ]
-
-
 def facet_marginal(
     train: TrackSamples,
     rotations,
@@ -545,9 +487,9 @@ def facet_marginal(
             if any(u["parameter"] == "sigma" for u in reasons)
             else drift_reasons(sigma, contiguous)
         ),
-        *_F_tilde_reasons(f, split, F_tildes),
-        *_nuisance_reasons("sigma_M", "facets' prior width sigma_M", prior_sigma, prior_sigmas),
-        *_nuisance_reasons("noise_levels", "noise's scale", noise_at, noise_levels),
+        *F_tilde_reasons(f, split, F_tildes),
+        *nuisance_reasons("sigma_M", "facets' prior width sigma_M", prior_sigma, prior_sigmas),
+        *nuisance_reasons("noise_levels", "noise's scale", noise_at, noise_levels),
     ]
     statuses = [Status[u["status"]] for u in found]
     status = min(statuses, key=PRIORITY.index).name if found else Status.successful.name

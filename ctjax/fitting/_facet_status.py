@@ -1,13 +1,23 @@
 """Whether the data determine the lobe about every point's own facet (`facet_status`): the
 grid's ends, the gain against Lambert with its own normal chosen the same way, the even and
 the odd calibration frames chosen apart, a bootstrap over the tracked points; and, once
-the held-out views are judged, whether new frames see it at all (`judged_status`). Shared
-by the facet lobe (`ctjax.fitting._facet_lobe`) and the facets integrated out
-(`ctjax.fitting._facet_marginal`); the reasons are `ctjax._determined`'s."""
+the held-out views are judged, whether new frames see it at all (`judged_status`); with
+the facets integrated out, F_tilde's halves (`F_tilde_reasons`) and the nuisances at their
+grids' ends (`nuisance_reasons`). Shared by the facet lobe (`ctjax.fitting._facet_lobe`),
+the facets integrated out (`ctjax.fitting._facet_marginal`) and the lobe at their width
+(`ctjax.fitting._marginal_width`); the reasons are `ctjax._determined`'s."""
 
 import math
+from collections.abc import Sequence
 
-from .._determined import HALVES_AGREE, MIN_LOBE_GAIN, PRIORITY, Undetermined, undetermined
+from .._determined import (
+    HALVES_AGREE,
+    MIN_LOBE_GAIN,
+    PRIORITY,
+    Undetermined,
+    _unstable,
+    undetermined,
+)
 from .._status import Status
 
 # The halves need three calibration frames each: each view judged from at least two
@@ -163,3 +173,66 @@ def judged_status(status: str, reasons: tuple, rmse: float, lambertian: float):
     if status == Status.no_lobe.name:  # already: the calibration frames' reason first
         return status, (*reasons, found.to_json())
     return Status.no_lobe.name, (found.to_json(), *reasons)
+
+
+def nuisance_reasons(parameter: str, name: str, value: float, grid: Sequence[float]) -> list[dict]:
+    """A nuisance at an end of its grid, as `Undetermined.to_json()` (none inside)."""
+    if len(grid) < 2 or min(grid) < value < max(grid):
+        return []
+    end = "top" if value >= max(grid) else "bottom"
+    return [
+        Undetermined(
+            parameter,
+            Status.at_bound,
+            f"the {name} is at the {end} of its grid ({min(grid):g}, {max(grid):g}): the "
+            "likelihood's model of the facets or of the noise misdescribes these data",
+        ).to_json()
+    ]
+
+
+def F_tilde_reasons(f: float, split, F_tildes: Sequence[float]) -> list[dict]:
+    """F_tilde's halves checked, as `Undetermined.to_json()` (empty where they agree): it
+    is measured here (`facet_lobe`'s is a lower bound). Halves apart from each other, a
+    half at an end of the grid (its weight not measured there), or halves that agree on a
+    weight more than `HALVES_AGREE` from the whole's (geometric mean; as sigma's,
+    `shifted_by_the_halves`). SCARED's frames 61-84: F_tilde 0.0727 on all 15 calibration
+    frames, 0.2 (the grid's top) on each half."""
+    if not split:
+        return []
+    a, b = split[0][1], split[1][1]
+    apart = _unstable({"F_tilde": f}, {"F_tilde": (a, b)}, set())
+    if apart:
+        return [u.to_json() for u in apart]
+    ends = [
+        (part, "top" if half >= max(F_tildes) else "bottom")
+        for part, half in (("even", a), ("odd", b))
+        if len(F_tildes) > 1 and not min(F_tildes) < half < max(F_tildes)
+    ]
+    if ends:
+        parts = " and the ".join(part for part, _ in ends)
+        end = ends[0][1]
+        return [
+            Undetermined(
+                "F_tilde",
+                Status.unstable,
+                f"the {parts} calibration frames alone put F_tilde at the {end} of its grid "
+                f"({min(F_tildes):g}, {max(F_tildes):g}) against {f:.3g} on all of them: the "
+                "lobe's weight is not measured on "
+                f"{'either half' if len(ends) == 2 else 'one half'} of the frames",
+            ).to_json()
+        ]
+    if not (f > 0 and a > 0 and b > 0):
+        return []
+    shift = math.sqrt(a * b) / f - 1
+    if abs(shift) <= HALVES_AGREE:
+        return []
+    return [
+        Undetermined(
+            "F_tilde",
+            Status.unstable,
+            f"the even and the odd calibration frames alone put F_tilde at {a:.3g} and "
+            f"{b:.3g}, {abs(shift):.0%} {'above' if shift > 0 else 'below'} its {f:.3g} on "
+            f"all of them (over {HALVES_AGREE:.0%}): the lobe's weight moves with the frames "
+            "that choose it",
+        ).to_json()
+    ]

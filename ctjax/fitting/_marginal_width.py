@@ -4,7 +4,7 @@ commands' lines for the marginal (`facet_marginal_line`) and for it."""
 from .._determined import PRIORITY
 from .._status import Status
 from ._facet_lobe import FacetLobe
-from ._facet_marginal import _F_tilde_reasons
+from ._facet_status import F_tilde_reasons
 
 
 def facet_marginal_line(summary: dict) -> str:
@@ -53,13 +53,13 @@ def at_the_marginal_width(lobe: FacetLobe, marginal: dict) -> dict:
     and the facets from the protocol at that width. The status is the worst of the
     marginal's reasons about the width (sigma, the facets' spread, the noise), the
     fixed-width lobe's own (its grid, its gain against Lambert) and its F_tilde's halves,
-    checked as the marginal's (`_F_tilde_reasons`: F_tilde is what is measured here). On
+    checked as the marginal's (`F_tilde_reasons`: F_tilde is what is measured here). On
     SCARED's frames 61-84 (docs/real-video.md): sigma 0.150 (halves 0.175 / 0.176), F_tilde
     0.035 (halves 0.032 / 0.028), 0.751x Lambert's test error under the same light; on
     61-72 sigma 0.119, F_tilde 0.021, halves 0.010 / 0.016: `unstable`."""
     F_tildes = sorted({f for _, f in lobe.calibration_rmse})
     width = [u for u in marginal["undetermined"] if u["parameter"] in _WIDTH_REASONS]
-    reasons = [*width, *lobe.undetermined, *_F_tilde_reasons(lobe.F_tilde, lobe.halves, F_tildes)]
+    reasons = [*width, *lobe.undetermined, *F_tilde_reasons(lobe.F_tilde, lobe.halves, F_tildes)]
     statuses = [Status[u["status"]] for u in reasons]
     status = min(statuses, key=PRIORITY.index).name if statuses else Status.successful.name
     dropped = ("sigma_stderr", "at_bound", "calibration_rmse_by_candidates", "calibration_rgb_rmse")
