@@ -22,6 +22,7 @@ from ctjax.fitting import (
     views_step,
 )
 from ctjax.fitting._drift import drift_reasons
+from ctjax.fitting._facet_geometry import candidate_facets
 from ctjax.fitting._facet_lobe import (
     CONTROL_SEED,
     FACET_CANDIDATES,
@@ -31,7 +32,7 @@ from ctjax.fitting._facet_lobe import (
 )
 from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _observed_points
 from ctjax.fitting._facet_status import F_tilde_reasons, facet_status, judged_status
-from ctjax.fitting._facets import FACET_REFINE_STEPS, _candidates, facet_model
+from ctjax.fitting._facets import FACET_REFINE_STEPS, facet_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
 from ctjax.specular import highlight_persistence
@@ -220,7 +221,7 @@ def test_the_candidate_facets_are_each_views_h_turned_across_their_arc():
     h = np.stack([np.sin(angles), np.zeros(5), np.cos(angles)], -1)
     w = np.array([1.0, 1.0, 1.0, 1.0, 0.0])
     across = (-0.05, 0.0, 0.05)
-    candidates = np.asarray(_candidates(h, w, across))
+    candidates = np.asarray(candidate_facets(h, w, across))
     assert candidates.shape == (15, 3)
     np.testing.assert_allclose(np.linalg.norm(candidates, axis=-1), 1.0, atol=1e-12)
     for c, facet in enumerate(candidates):

@@ -12,13 +12,13 @@ import equinox as eqx
 import numpy as np
 
 from .._errors import ParameterError
+from ._facet_geometry import FACET_ACROSS_RAD
 from ._facet_status import (
     MIN_FRAMES_FOR_HALVES,
     facet_status,
     judged_status,
 )
 from ._facets import (
-    FACET_ACROSS_RAD,
     FACET_PENALTY,
     FACET_REFINE_STEPS,
     facet_heldout,

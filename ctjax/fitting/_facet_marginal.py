@@ -39,6 +39,7 @@ from .._errors import ParameterError
 from .._programs import persistent_jit
 from .._status import Status
 from ._drift import FIRST, SECOND, boundary_of, drift_reasons, in_subset
+from ._facet_geometry import grouped_per_point, half_vectors, lobe_columns, views_arc
 from ._facet_lobe import (
     FACET_F_TILDES,
     FACET_SIGMAS,
@@ -53,7 +54,7 @@ from ._facet_status import (
     facet_status,
     nuisance_reasons,
 )
-from ._facets import _arc, _half_vectors, _lobe_columns, _per_point, _prepared, facet_model
+from ._facets import _prepared, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
 from ._profiled_albedo import gaussian_nll, gaussian_ssr, view_sums
 
@@ -87,11 +88,11 @@ _POINTS_AT_ONCE = 128
 
 def _node_frame(h, w):
     """The quadrature's frame about one point's views' H (M, 3): their mean direction,
-    the arc they trace (`_arc`) and the direction across it."""
+    the arc they trace (`views_arc`) and the direction across it."""
     counted = (w > 0)[:, None]
     centre = jnp.sum(jnp.where(counted, h, 0), 0) + jnp.asarray([0, 0, 1e-9], h.dtype)
     centre = centre / jnp.linalg.norm(centre)
-    arc = _arc(h, w)
+    arc = views_arc(h, w)
     arc = arc - (arc @ centre) * centre
     arc = arc / jnp.maximum(jnp.linalg.norm(arc), 1e-12)
     return centre, arc, jnp.cross(centre, arc)
@@ -112,7 +113,7 @@ def _one_point(
     (`exact`), or a product of matrices, with whether it underflowed (third)."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
-    smooth, about = _lobe_columns(model, "lobe", rotations, point, normal, pixel, weight, frame)
+    smooth, about = lobe_columns(model, "lobe", rotations, point, normal, pixel, weight, frame)
     counted = w > 0
     seen = jnp.any(counted)
     h = jnp.where(counted[:, None], h, 0.0)  # a view not counted may have no H
@@ -237,12 +238,12 @@ def _over_the_nodes(log_weights, excess, best):
 def _lambertian_residuals(model, samples, judged, rotations, candidates):
     """Every counted value's residual (C, M, P) under the model without its lobe, each
     point's albedo fitted to its views, and the views' weights (M, P)."""
-    arrays = _per_point(model, samples, judged, rotations, candidates)
+    arrays = grouped_per_point(model, samples, judged, rotations, candidates)
     point, normal, pixel, weight, values, w, _, frame, _ = arrays
     diffuse = diffuse_lobe(model)
 
     def one(point, normal, pixel, weight, values, w, frame):
-        smooth, _ = _lobe_columns(model, "lobe", rotations, point, normal, pixel, weight, frame)
+        smooth, _ = lobe_columns(model, "lobe", rotations, point, normal, pixel, weight, frame)
         a = jnp.where(w > 0, smooth[diffuse], 0.0)
         albedo = jnp.sum(w * a * values, -1) / jnp.maximum(jnp.sum(w * a * a), 1e-30)
         return jnp.where(w > 0, values - jnp.maximum(albedo, 0.0)[:, None] * a, 0.0)
@@ -305,9 +306,9 @@ def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior
               noise, nu: float | None, subsets: tuple, boundary, nodes: tuple,
               refine: int):  # fmt: skip
     """Every tracked point's `_one_point`: (P, G, T, SM, NS) and (P, T, NS)."""
-    arrays = _per_point(model, samples, judged, rotations, candidates)
+    arrays = grouped_per_point(model, samples, judged, rotations, candidates)
     point, normal, pixel, weight, values, w, _, frame, _ = arrays
-    h = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(point, pixel, weight, frame)
+    h = jax.vmap(lambda *a: half_vectors(model, rotations, *a))(point, pixel, weight, frame)
 
     def points(exact, x):
         def one(*a):

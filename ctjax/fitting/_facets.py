@@ -36,9 +36,14 @@ from .._convert import on_device
 from .._errors import ParameterError
 from .._model import ShadingModel
 from .._programs import persistent_jit
-from .._vector import Vec3
 from ..lobes._paper import cook_torrance_brdf
 from ..solvers import DenseLM, least_squares
+from ._facet_geometry import (
+    FACET_ACROSS_RAD,
+    CandidateSet,
+    grouped_per_point,
+    lobe_columns,
+)
 from ._map_least_squares import OTHER_VIEWS_SHARE, TrackSamples, diffuse_lobe
 from ._parameters import strongly_typed
 
@@ -49,100 +54,7 @@ _LEVEL = 2.0 / 255
 # The held-out judgement's facets, each chosen H then turned by two angles (LM steps): the
 # views' own H are as coarse as a sharp lobe (1-4 degrees apart on the real sequences).
 FACET_REFINE_STEPS = 10
-# The candidate facets: each view's H turned across the arc that the point's views' H
-# trace, by each of these angles (radians). A scope's motion moves H along one arc; a
-# facet off it is never any view's peak, and a lobe about the nearest H overshoots its
-# views (so a weak lobe fitted best: on attached synthetic sparkles of roughness 0.06 and
-# F_tilde 0.012, 12 frames, sigma 0.04-0.05 at the grid's bottom with F_tilde 0.002-0.003
-# from the views' H alone; with these offsets and each view's own H 0.067 and 0.0084, with
-# seven from -0.12 to 0.12 0.056 and 0.0044, on another seed 0.049 and 0.0039: the width
-# within 20%, F_tilde a lower bound; `benchmarks/facet_truth.py`).
-FACET_ACROSS_RAD = (-0.08, -0.04, 0.0, 0.04, 0.08)
 _POINTS_AT_ONCE = 512  # points per batch of `lax.map`: (M + 2) x 4M lobe evaluations each
-
-
-def _half_vectors(model, rotations, point, pixel, weight, frame):
-    """H of each of one point's views (M, 3), world coordinates, at the view's (bilinear)
-    point: the facet that would make that view the point's peak."""
-    at = jnp.sum(point * weight[..., None], 0)  # (M, 3): each view's point, its camera frame
-    to_eye = -at / jnp.linalg.norm(at, axis=-1, keepdims=True)
-    uv = (jnp.sum(pixel[0] * weight, 0), jnp.sum(pixel[1] * weight, 0))
-
-    def half(x, v, u, vv):
-        light, _ = model.light.illuminate(Vec3.from_array(x), Vec3.from_array(v), (u, vv))
-        h = light.to_array() + v
-        return h / jnp.linalg.norm(h)
-
-    return jnp.einsum("mij,mj->mi", rotations[frame], jax.vmap(half)(at, to_eye, *uv))
-
-
-class _CandidateSet(eqx.Module):
-    """Which candidate facets a point gets: its views' H turned by each of `across` (rad,
-    `_candidates`), each point's own (`shuffle` (P,) the identity) or another point's (a
-    permutation: the control); `sets`: the
-    choices made among them, each a mask over `across` (one pass for all)."""
-
-    shuffle: jax.Array
-    across: tuple = eqx.field(static=True)
-    sets: tuple = eqx.field(static=True)
-
-
-def _arc(h, w):
-    """The principal direction (3,) of the counted views' (`w` > 0) H (M, 3): the arc the
-    scope's motion traces. By power iteration (no LAPACK), from the first to the last
-    counted view's H (nudged off zero for a point seen once)."""
-    counted = (w > 0)[:, None]
-    mean = jnp.sum(jnp.where(counted, h, 0), 0) / jnp.maximum(jnp.sum(counted), 1)
-    centred = jnp.where(counted, h - mean, 0)
-    scatter = centred.T @ centred
-    first, last = jnp.argmax(w > 0), h.shape[0] - 1 - jnp.argmax((w > 0)[::-1])
-    arc = h[last] - h[first] + jnp.asarray([1e-6, 2e-6, 3e-6], h.dtype)
-    for _ in range(8):
-        arc = scatter @ arc + 1e-12 * arc
-        arc = arc / jnp.linalg.norm(arc)
-    return arc
-
-
-def _candidates(h, w, across=FACET_ACROSS_RAD):
-    """(D * M, 3) candidate facets of one point, world coordinates: each view's H (M, 3)
-    turned by each angle of `across` about the arc of the counted views' H (`w` > 0,
-    `_arc`); candidate c is view c % M's."""
-    normal = jnp.cross(h, _arc(h, w))
-    normal = normal / jnp.maximum(jnp.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
-    return jnp.concatenate([math.cos(d) * h + math.sin(d) * normal for d in across], 0)
-
-
-def _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame):
-    """One tracked point's lobe columns (K, M) about its reconstruction's normals
-    (`smooth`) and `about(facet)`: the same with the turned lobes (`turned`) about one
-    world direction."""
-    diffuse = diffuse_lobe(model)
-    lobes = len(model.brdf.lobes)
-    others = [k for k in range(lobes) if k != diffuse]
-    moved = others if turned == "lobe" else [diffuse]
-    corners, views = weight.shape
-
-    def columns(normal_at):  # (4, M, 3) normals -> (K, M), bilinear over the corners
-        def one(p, n, u, v):
-            return model.columns(Vec3.from_array(p), Vec3.from_array(n), (u, v))
-
-        c = jax.vmap(one)(
-            point.reshape(-1, 3),
-            normal_at.reshape(-1, 3),
-            pixel[0].reshape(-1),
-            pixel[1].reshape(-1),
-        )
-        return jnp.sum(c.reshape(corners, views, lobes) * weight[..., None], 0).T
-
-    smooth = columns(normal)
-    rotation = rotations[frame]  # (M, 3, 3): camera-to-world
-
-    def about(facet):
-        local = jnp.einsum("mji,j->mi", rotation, facet)
-        c = columns(jnp.broadcast_to(local, point.shape))
-        return smooth.at[jnp.array(moved)].set(c[jnp.array(moved)])
-
-    return smooth, about
 
 
 def _one_point(
@@ -150,17 +62,17 @@ def _one_point(
     values, w, judged, frame, facets,
 ):  # fmt: skip
     """One tracked point (its M views), for each set of candidates it may choose among
-    (`sets`: masks over the turns of `_candidates`), each subset of its frames (`subsets`:
+    (`sets`: masks over the turns of `candidate_facets`), each subset of its frames (`subsets`:
     None all, 0 the even, 1 the odd frames) and each set of lobe weights `gains` (G, K,
     C): each judged view's residual (T, S, G, C, M) with the facet and the albedo chosen
     from the point's other views of the subset, the counted views (T, S, G, M) and the
     candidate taken per view (T, S, G, M: -1 not judged, 0 no lobe, 1 the reconstruction's
     normal, 2 + c candidate facet c); `facets` (J, 3): the candidate facets in world
-    coordinates (`_candidates`, c of view c % M). The lobes' columns depend neither on
+    coordinates (`candidate_facets`, c of view c % M). The lobes' columns depend neither on
     their weights, nor on the subset, nor on the set: every choice shares them."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
-    smooth, about = _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
+    smooth, about = lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
     off = smooth.at[jnp.array(others)].set(0.0) if others else smooth
     candidates = jnp.concatenate([off[None], smooth[None], jax.vmap(about)(facets)])  # (J+2, K, M)
     subset_weights = jnp.stack(
@@ -225,7 +137,7 @@ def _turned_view(
     turned by two angles to fit the point's other views (`_refined`)."""
     diffuse = diffuse_lobe(model)
     others = [k for k in range(len(model.brdf.lobes)) if k != diffuse]
-    _, about = _lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
+    _, about = lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame)
     return _refined(
         about, view, facets[start], values, w, diffuse, others, model.brdf.weights, steps
     )
@@ -264,43 +176,13 @@ def _refined(about, m, start, values, w, diffuse, others, gains, steps):
     return predict(x)[:, m]
 
 
-def _per_point(model, samples: TrackSamples, judged, rotations, candidates: _CandidateSet):
-    """`samples` regrouped per tracked point (leading axis P), with each point's candidate
-    facets (J, 3, `_candidates`) last."""
-    views, points = samples.weight.shape
-    shaped = lambda v: v.reshape(4, views, points)  # noqa: E731
-    point = jnp.stack(
-        [shaped(samples.point.x), shaped(samples.point.y), shaped(samples.point.z)], -1
-    )
-    normal = jnp.stack(
-        [shaped(c) for c in (samples.normal.x, samples.normal.y, samples.normal.z)], -1
-    )
-    pixel = jnp.stack([shaped(samples.pixel[0]), shaped(samples.pixel[1])], 0)  # (2, 4, M, P)
-    per_point = (
-        jnp.moveaxis(point, 2, 0),
-        jnp.moveaxis(normal, 2, 0),
-        jnp.moveaxis(pixel, 3, 0),
-        jnp.moveaxis(samples.corner_weight, 2, 0),
-        jnp.moveaxis(samples.values, 2, 0),
-        samples.weight.T,
-        judged.T,
-        jnp.maximum(samples.site.frame, 0).T,
-    )
-    h = jax.vmap(lambda *a: _half_vectors(model, rotations, *a))(
-        per_point[0], per_point[2], per_point[3], per_point[7]
-    )
-    facets = jax.vmap(lambda h, w: _candidates(h, w, candidates.across))(h, per_point[5])
-    facets = facets[candidates.shuffle]  # the control: every point's candidates another's
-    return (*per_point, facets)
-
-
 @persistent_jit
 def _facet_views(
     model, samples: TrackSamples, judged, rotations, penalty, turned: str, candidates, gains
 ):
     """For each set of lobe weights `gains` (G, K, C): every judged view's residual
     (G, C, M, P), counted weight (G, M, P) and candidate taken (G, M, P; `_one_point`)."""
-    per_point = _per_point(model, samples, judged, rotations, candidates)
+    per_point = grouped_per_point(model, samples, judged, rotations, candidates)
 
     every = ((True,) * len(candidates.across),)
 
@@ -322,7 +204,7 @@ def _facet_sums(
     """`_facet_views` per set of candidates chosen among (`candidates.sets`) and subset of
     the frames (`_one_point`) summed per tracked point: (T, S, G, 2, P), the judged views'
     sum of squares and count of values."""
-    per_point = _per_point(model, samples, judged, rotations, candidates)
+    per_point = grouped_per_point(model, samples, judged, rotations, candidates)
 
     def one(arrays):
         residual, w, _ = _one_point(
@@ -340,7 +222,7 @@ def _turned_views(
 ):
     """The residuals (N, C) of the views `pairs` (N, 3: point, view, the view whose H it
     took) with that H turned (`_turned_view`)."""
-    per_point = _per_point(model, samples, judged, rotations, candidates)
+    per_point = grouped_per_point(model, samples, judged, rotations, candidates)
 
     def one(pair):
         arrays = [x[pair[0]] for x in per_point]
@@ -426,14 +308,14 @@ def _prepared(
     )
 
 
-def _candidate_set(shuffle, across, choices) -> _CandidateSet:
+def _candidate_set(shuffle, across, choices) -> CandidateSet:
     """The candidates turned by `across` (rad), chosen among all of them or, per choice of
     `choices`, among those turned by its angles (each a subset of `across`)."""
     across = tuple(float(a) for a in across)
     choices = (across,) if choices is None else tuple(tuple(map(float, c)) for c in choices)
     if any(not set(c) <= set(across) for c in choices):
         raise ParameterError(f"candidate sets {choices} are not among the turns {across}")
-    return _CandidateSet(shuffle, across, tuple(tuple(a in c for a in across) for c in choices))
+    return CandidateSet(shuffle, across, tuple(tuple(a in c for a in across) for c in choices))
 
 
 def _judgements(
