@@ -41,9 +41,9 @@ import ctjax._tracks as tracks_module
 from ctjax._buckets import bucket
 from ctjax.estimation import PAPER
 from ctjax.estimation._branch_and_bound_map import (
-    _columns,
     _per_point_index,
     fit_brdf_map,
+    track_columns,
     track_shading,
 )
 from ctjax.io import load_capture
@@ -79,7 +79,7 @@ def _clipped(tracks, capture) -> np.ndarray:
 
 def _model(shading, fit, per_point):
     weights = np.asarray(fit.weights)
-    columns = _columns(PAPER, fit.params, shading)
+    columns = track_columns(PAPER, fit.params, shading)
     return sum(
         c * (fit.albedo.T[:, None, :] if k == per_point else weights[k][:, None, None])
         for k, c in enumerate(columns)

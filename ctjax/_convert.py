@@ -44,7 +44,7 @@ def as_rgb(x) -> Float[Array, "3"]:
     return jnp.broadcast_to(x, (3,)) if x.ndim == 0 else x
 
 
-def _concrete(x) -> np.ndarray | None:
+def concrete(x) -> np.ndarray | None:
     if isinstance(x, jax.core.Tracer):
         return None
     try:
@@ -59,14 +59,14 @@ def check_shape(owner: str, name: str, x, shape: tuple[int, ...]) -> None:
 
 
 def check_finite(owner: str, name: str, x) -> None:
-    value = _concrete(x)
+    value = concrete(x)
     if value is not None and not np.all(np.isfinite(value)):
         raise ParameterError(f"{owner}.{name} must be finite, got {value}")
 
 
 def check_positive(owner: str, name: str, x, *, allow_zero: bool = False) -> None:
     check_finite(owner, name, x)
-    value = _concrete(x)
+    value = concrete(x)
     if value is None:
         return
     bad = np.any(value < 0) if allow_zero else np.any(value <= 0)

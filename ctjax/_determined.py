@@ -241,7 +241,7 @@ def _at_bounds(values: dict, ranges: dict, absent: set[str]) -> list[Undetermine
     return out
 
 
-def _unstable(values: dict, halves: dict, flagged: set[str]) -> list[Undetermined]:
+def halves_apart(values: dict, halves: dict, flagged: set[str]) -> list[Undetermined]:
     out = []
     for name, parts in halves.items():
         if name in flagged or name not in values or len(parts) != 2:
@@ -331,7 +331,7 @@ def undetermined(
     flagged = {u.parameter for u in lobes + bounds}
     # A roughness whose lobe is absent: its standard error is not the news.
     flagged |= {_roughness_name(values, s) for s in absent}
-    unstable = _unstable(values, halves or {}, flagged)
+    unstable = halves_apart(values, halves or {}, flagged)
     flagged |= {u.parameter for u in unstable}
     imprecise = _imprecise(values, stderrs, flagged)
     flagged |= {u.parameter for u in imprecise}

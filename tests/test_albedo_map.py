@@ -293,10 +293,10 @@ def test_standard_errors_are_the_global_block_of_the_joint_covariance(textured):
     closed form, sigma's by autodiff), are those of the joint Gauss-Newton covariance with
     every free albedo a parameter (a Schur complement), on real tracks."""
     from ctjax.estimation._branch_and_bound_map import (
-        _columns,
         _information,
         _standard_errors,
         fit_brdf_map,
+        track_columns,
         track_shading,
     )
     from ctjax.estimation._variable_projection import weighted_sums
@@ -313,7 +313,7 @@ def test_standard_errors_are_the_global_block_of_the_joint_covariance(textured):
         rho = jnp.zeros(free.shape, theta.dtype).at[free].set(theta[:n_free])
         w = theta[n_free : n_free + 3].reshape(1, 3)  # F_tilde
         s = weighted_sums(
-            _columns(PAPER, theta[n_free + 3 :], shading), shading.values, shading.weight, 0
+            track_columns(PAPER, theta[n_free + 3 :], shading), shading.values, shading.weight, 0
         )
         return jnp.concatenate(
             [(v - s.a * rho[c] - s.others[0] * w[0, c]).reshape(-1) for c, v in enumerate(s.values)]

@@ -164,7 +164,7 @@ def _corner_geometry(family, shading: TrackShading):
     return design_geometry(family, shading.samples), corners * irradiance
 
 
-def _columns(family, params, shading: TrackShading, corners=None):
+def track_columns(family, params, shading: TrackShading, corners=None):
     """Each lobe's value for unit weight at every observation (M, P): at the corners,
     bilinearly combined like the image. `corners`: `_corner_geometry(family, shading)`
     (computed here otherwise)."""
@@ -226,7 +226,9 @@ def _information(family, params, weights, albedo, shading, per_point, cost):
     w = weights[jnp.array(globals_, int)]  # (G, C)
 
     def sums(p):
-        s = weighted_sums(_columns(family, p, shading), shading.values, shading.weight, per_point)
+        s = weighted_sums(
+            track_columns(family, p, shading), shading.values, shading.weight, per_point
+        )
         inverse = jnp.where(s.s_aa > 0, 1 / jnp.where(s.s_aa > 0, s.s_aa, 1), 0)
         return s, [jnp.where(f, inverse, 0) for f in free]
 
@@ -312,7 +314,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
     corners = _corner_geometry(family, shading)
 
     def cost(params, shading=shading, corners=corners):
-        columns = _columns(family, params, shading, corners)
+        columns = track_columns(family, params, shading, corners)
         return project_weights(columns, shading.values, shading.weight, per_point)[2]
 
     dtype = values.dtype
@@ -339,7 +341,7 @@ def _fit(shading, family, per_point, tolerance, grid, candidates, zoom, zoom_gri
     else:
         params = jnp.zeros((0,), dtype)
         half_width = params
-    columns = _columns(family, params, shading, corners)
+    columns = track_columns(family, params, shading, corners)
     albedo, weights, best = project_weights(columns, values, weight, per_point)
     information = _information(family, params, weights, albedo, shading, per_point, best)
     # The RMSE of every observation, unweighted: what a user compares with the noise.
@@ -454,7 +456,7 @@ def _where_lobes_show(family, params, shading: TrackShading, per_point: int):
     alone at the same `params` (its shape as fitted), every albedo and global weight
     projected out, over the observations where `family`'s lobes other than the per-point one
     predict at least `LOBE_SHOWS`; and their number."""
-    columns = _columns(family, params, shading)
+    columns = track_columns(family, params, shading)
     _, weights, residual = projected_residuals(columns, shading.values, shading.weight, per_point)
     lobes = sum(
         c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point

@@ -35,12 +35,12 @@ from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, diffuse_alone, diffuse_note
 from ._dense_maps import albedo_maps, albedo_samples
 from ._sensitivity import specular_change
 from ._uniform_fit import (
-    _WELL_DETERMINED,
     BROAD_LOBE,
     BROAD_WARNING,
+    WELL_DETERMINED,
     MaskOptions,
-    _require_geometry,
     flag_brdf_fit,
+    require_geometry,
     require_specular,
     thin_frames,
 )
@@ -73,16 +73,14 @@ def _poorly_determined(fit, per_point: int) -> list[str]:
     warnings = []
     for d, name in enumerate(fit.family.names):
         value, error = float(np.asarray(fit.params)[d]), float(np.asarray(fit.params_stderr)[d])
-        if not np.isfinite(error) or error > _WELL_DETERMINED * abs(value):
+        if not np.isfinite(error) or error > WELL_DETERMINED * abs(value):
             warnings.append(f"{name} = {value:.4g} +- {error:.2g}")
     weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
     for k, name in enumerate(fit.family.weight_names):
         if k == per_point:
             continue
         for c, channel in enumerate("RGB"):
-            if not np.isfinite(errors[k, c]) or errors[k, c] > _WELL_DETERMINED * abs(
-                weights[k, c]
-            ):
+            if not np.isfinite(errors[k, c]) or errors[k, c] > WELL_DETERMINED * abs(weights[k, c]):
                 warnings.append(f"{name}[{channel}] = {weights[k, c]:.4g} +- {errors[k, c]:.2g}")
     return warnings
 
@@ -279,7 +277,7 @@ def fit_albedo_map(
     masks = MaskOptions() if masks is None else masks
     obs = Observations.of(capture, masks)
     capture = obs.capture
-    _require_geometry(capture)
+    require_geometry(capture)
     require_poses(capture)
     sets = obs.sets
     require_specular(capture, sets, masks)

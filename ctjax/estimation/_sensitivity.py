@@ -21,7 +21,7 @@ from .._numerics import safe_normalize
 from .._programs import persistent_jit
 from .._vector import tangent_basis
 from ..observations import ShadingSamples
-from ._branch_and_bound_map import TrackShading, _columns
+from ._branch_and_bound_map import TrackShading, track_columns
 
 # Observations whose global lobes are at least this share of the model count (the specular
 # is measured there).
@@ -66,8 +66,8 @@ def _changes(family, params, shading: TrackShading, weights, albedo, per_point: 
         specular = sum(c * jnp.sum(weights[k]) for k, c in enumerate(columns) if k != per_point)
         return specular, columns[per_point] * jnp.sum(albedo, axis=-1)
 
-    specular, diffuse = split(_columns(family, params, shading))
-    tilted_specular, _ = split(_columns(family, params, turned))
+    specular, diffuse = split(track_columns(family, params, shading))
+    tilted_specular, _ = split(track_columns(family, params, turned))
     counts = shading.observed & (specular > SPECULAR_SHARE * (specular + diffuse))
     counts = counts & (specular > 0)
     change = jnp.abs(tilted_specular - specular) / jnp.where(counts, specular, 1)

@@ -22,7 +22,7 @@ from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, diffuse_alone, diffus
 DEFAULT_MASKS = MaskOptions()
 
 # Relative standard error above which an estimate is reported as poorly determined.
-_WELL_DETERMINED = 0.05
+WELL_DETERMINED = 0.05
 
 
 def require_specular(capture: Capture, sets: list[SpecularSets], masks: MaskOptions) -> None:
@@ -71,7 +71,7 @@ def empty_ring_reason(capture: Capture, sets: list[SpecularSets], masks: MaskOpt
     )
 
 
-def _require_geometry(capture: Capture) -> None:
+def require_geometry(capture: Capture) -> None:
     missing = [f.name for f in capture.frames if f.normals is None]
     if missing:
         raise CtjaxError(
@@ -107,14 +107,12 @@ def _poorly_determined(fit: BRDFFit) -> list[str]:
     warnings = []
     for d, name in enumerate(fit.family.names):
         value, error = float(np.asarray(fit.params)[d]), float(np.asarray(fit.params_stderr)[d])
-        if not np.isfinite(error) or error > _WELL_DETERMINED * abs(value):
+        if not np.isfinite(error) or error > WELL_DETERMINED * abs(value):
             warnings.append(f"{name} = {value:.4g} +- {error:.2g}")
     weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
     for k, name in enumerate(fit.family.weight_names):
         for c, channel in enumerate("RGB"):
-            if not np.isfinite(errors[k, c]) or errors[k, c] > _WELL_DETERMINED * abs(
-                weights[k, c]
-            ):
+            if not np.isfinite(errors[k, c]) or errors[k, c] > WELL_DETERMINED * abs(weights[k, c]):
                 warnings.append(f"{name}[{channel}] = {weights[k, c]:.4g} +- {errors[k, c]:.2g}")
     return warnings
 
@@ -183,7 +181,7 @@ def fit_uniform(
     """
     obs = Observations.of(capture, masks)
     capture = obs.capture
-    _require_geometry(capture)
+    require_geometry(capture)
     sets = obs.sets
     require_specular(capture, sets, masks)
     specular_count = sum(int(s.specular.sum()) for s in sets)

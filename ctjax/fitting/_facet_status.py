@@ -15,7 +15,7 @@ from .._determined import (
     MIN_LOBE_GAIN,
     PRIORITY,
     Undetermined,
-    _unstable,
+    halves_apart,
     undetermined,
 )
 from .._status import Status
@@ -200,7 +200,7 @@ def F_tilde_reasons(f: float, split, F_tildes: Sequence[float]) -> list[dict]:
     if not split:
         return []
     a, b = split[0][1], split[1][1]
-    apart = _unstable({"F_tilde": f}, {"F_tilde": (a, b)}, set())
+    apart = halves_apart({"F_tilde": f}, {"F_tilde": (a, b)}, set())
     if apart:
         return [u.to_json() for u in apart]
     ends = [

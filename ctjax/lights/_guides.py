@@ -10,7 +10,7 @@ from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
 from .._vector import Vec3
 from ._light import AbstractFalloff, AbstractLight
-from ._point import OFFSET_START_MM, OFFSET_START_RELATIVE, ColocatedLight, _irradiance
+from ._point import OFFSET_START_MM, OFFSET_START_RELATIVE, ColocatedLight, irradiance
 
 
 class LightGuides(AbstractLight):
@@ -67,7 +67,7 @@ class LightGuides(AbstractLight):
         for position in self.positions():
             light_to_point = point - position
             out.append(
-                (safe_normalize(-light_to_point), _irradiance(share, self.falloff, light_to_point))
+                (safe_normalize(-light_to_point), irradiance(share, self.falloff, light_to_point))
             )
         return tuple(out)
 

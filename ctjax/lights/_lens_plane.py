@@ -11,7 +11,7 @@ from .._numerics import safe_normalize
 from .._typing import Array, Float, Pixel, Scalar
 from .._vector import Vec3
 from ._light import AbstractFalloff, AbstractLight
-from ._point import ColocatedLight, PointLight, _irradiance, offset_starts
+from ._point import ColocatedLight, PointLight, irradiance, offset_starts
 
 
 class LensPlaneLight(AbstractLight):
@@ -60,7 +60,7 @@ class LensPlaneLight(AbstractLight):
     def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
         light_to_point = point - Vec3.from_array(self.position_mm)
         direction = safe_normalize(-light_to_point)
-        return direction, _irradiance(self.intensity, self.falloff, light_to_point)
+        return direction, irradiance(self.intensity, self.falloff, light_to_point)
 
 
 class LightOffsetCandidate(AbstractCandidate):

@@ -9,7 +9,7 @@ from .._vector import Vec3
 from ._light import AbstractFalloff, AbstractLight
 
 
-def _irradiance(intensity: Scalar, falloff: tuple, light_to_point: Vec3) -> Scalar:
+def irradiance(intensity: Scalar, falloff: tuple, light_to_point: Vec3) -> Scalar:
     factor = intensity
     for effect in falloff:
         factor = factor * effect(light_to_point)
@@ -38,7 +38,7 @@ class ColocatedLight(AbstractLight):
     def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
         # `view` itself, not a recomputed copy: lobes then know L = V exactly (`light is
         # view`), and the specular half vector is V without another normalisation.
-        return view, _irradiance(self.intensity, self.falloff, point)
+        return view, irradiance(self.intensity, self.falloff, point)
 
 
 class PointLight(AbstractLight):
@@ -69,7 +69,7 @@ class PointLight(AbstractLight):
     def illuminate(self, point: Vec3, view: Vec3, pixel: Pixel) -> tuple[Vec3, Scalar]:
         light_to_point = point - Vec3.from_array(self.position_mm)
         direction = safe_normalize(-light_to_point)
-        return direction, _irradiance(self.intensity, self.falloff, light_to_point)
+        return direction, irradiance(self.intensity, self.falloff, light_to_point)
 
 
 # The light guide sits a few mm off the lens: offset fits start this far along +-x, +-y ...

@@ -2,7 +2,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._candidate import AbstractCandidate, with_factor
-from .._convert import UNIT_INTERVAL, _concrete, as_float, check_positive, check_shape
+from .._convert import UNIT_INTERVAL, as_float, check_positive, check_shape, concrete
 from .._errors import ParameterError
 from .._typing import Array, Float, Scalar
 from .._vector import Vec3
@@ -31,7 +31,7 @@ class SchlickFresnel(AbstractSpecularFactor):
     def __check_init__(self):
         check_shape("SchlickFresnel", "f0", self.f0, ())
         check_positive("SchlickFresnel", "f0", self.f0)
-        value = _concrete(self.f0)
+        value = concrete(self.f0)
         if value is not None and value > 1:
             raise ParameterError(f"SchlickFresnel.f0 must be in (0, 1], got {float(value)}")
         if self.cosine not in ("half", "normal"):

@@ -55,7 +55,7 @@ class HeightSpline:
 
     def penalty(self, c):
         """The coefficients' second differences along y, along x and across."""
-        return _second_differences(self.shape, c)
+        return second_differences(self.shape, c)
 
     def penalty_matrix(self) -> sparse.csr_matrix:
         """`penalty` as a sparse matrix (it is linear in the coefficients)."""
@@ -71,7 +71,7 @@ class HeightSpline:
         ).tocsr()
 
 
-def _second_differences(shape: tuple[int, int], c):
+def second_differences(shape: tuple[int, int], c):
     grid = c.reshape(shape)
     return jnp.concatenate(
         [
@@ -87,12 +87,12 @@ def _slopes(world_normal):
     return -world_normal[..., :2] / world_normal[..., 2:]
 
 
-def _normals_from_slopes(hx, hy, xp=np):
+def normals_from_slopes(hx, hy, xp=np):
     n = xp.stack([hx, hy, -xp.ones_like(hx)], -1)
     return n / xp.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def _world_pixels(frame, camera, every: int = 1):
+def world_pixels(frame, camera, every: int = 1):
     """(rows, cols) of a frame's pixels with depth and normals, their rays (z = 1), depth
     and world positions."""
     valid = np.isfinite(frame.depth) & np.all(np.isfinite(frame.normals), -1)
@@ -114,7 +114,7 @@ def _world_pixels(frame, camera, every: int = 1):
 def base_surface(capture, spline: "HeightSpline", samples: int = 200_000) -> np.ndarray:
     """Coefficients of one world height field fitted (least squares, a light second-difference
     penalty) to every frame's depth: the frames' surfaces fused into one."""
-    worlds = [_world_pixels(f, capture.camera)[4] for f in capture.frames]
+    worlds = [world_pixels(f, capture.camera)[4] for f in capture.frames]
     world = np.concatenate(worlds)
     world = world[:: max(1, len(world) // samples)]
     index, value, _, _, inside = spline.basis(world[:, :2])

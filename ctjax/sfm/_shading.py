@@ -55,10 +55,10 @@ from scipy import sparse
 from .._errors import CaptureError
 from ._height_spline import (
     HeightSpline,
-    _normals_from_slopes,
-    _second_differences,
-    _world_pixels,
     base_surface,
+    normals_from_slopes,
+    second_differences,
+    world_pixels,
 )
 from ._shading_starts import GLOBAL_ITERATIONS, LIGHT_STARTS, distinct_starts, shading_starts
 
@@ -241,7 +241,7 @@ class _Problem(eqx.Module):
         from ..estimation._brdf import PAPER, design_columns
         from ..observations import ShadingSamples
 
-        camera = jnp.einsum("pmji,pj->pmi", self.rotation, _normals_from_slopes(hx, hy, jnp))
+        camera = jnp.einsum("pmji,pj->pmi", self.rotation, normals_from_slopes(hx, hy, jnp))
         flat = lambda a, k: a[..., k].T.ravel()  # noqa: E731  views first, flattened
         normal, view, point = (
             Vec3(*(flat(a, k) for k in range(3))) for a in (camera, self.view, self.point)
@@ -262,7 +262,7 @@ class _Problem(eqx.Module):
         c, g = self.split(theta)
         columns = self.columns(*self.slopes_of(c), g)
         _, weights, residual = projected_residuals(columns, self.values, self.weight, 0)
-        penalty = smoothing / 255 * _second_differences(self.grid, c)
+        penalty = smoothing / 255 * second_differences(self.grid, c)
         return jnp.concatenate([residual.ravel(), penalty, ridge * c]), weights[1]
 
     def gauss_newton_terms(self, theta):
@@ -518,12 +518,12 @@ def _corrected(frame, camera, spline: HeightSpline, surface, correction):
     """A frame whose normals are the world surface's (`surface` coefficients) where its
     pixels lie inside the spline's span, its depth moved by the `correction` along world z;
     and the angles (degrees) by which its normals turned."""
-    rows, cols, ray, z, world = _world_pixels(frame, camera)
+    rows, cols, ray, z, world = world_pixels(frame, camera)
     index, value, d_x, d_y, inside = spline.basis(world[:, :2])
     rotation = frame.pose[:3, :3]
     hx, hy = np.sum(surface[index] * d_x, -1), np.sum(surface[index] * d_y, -1)
     before = frame.normals[rows, cols].astype(np.float64)
-    turned = np.where(inside[:, None], _normals_from_slopes(hx, hy) @ rotation, before)
+    turned = np.where(inside[:, None], normals_from_slopes(hx, hy) @ rotation, before)
     dh = np.where(inside, np.sum(correction[index] * value, -1), 0)
     along = (ray @ rotation.T)[:, 2]  # the world z of a unit of depth
     safe = np.abs(along) > 1e-6
