@@ -54,7 +54,7 @@ from ._facet_status import (
     facet_status,
     nuisance_reasons,
 )
-from ._facets import _prepared, facet_model
+from ._facets import facet_arguments, facet_model
 from ._map_least_squares import TrackSamples, diffuse_lobe
 from ._profiled_albedo import gaussian_nll, gaussian_ssr, view_sums
 
@@ -268,7 +268,7 @@ def noise_scale(train: TrackSamples, rotations, light, nu: float | None = None) 
     under `light`, each point's albedo fitted to its views: their median absolute residual
     over that of the noise's law (Student-t with `nu` degrees of freedom; None: Gaussian),
     robust to the highlights the model lacks."""
-    model, judged, rotated, _, candidates, _ = _prepared(
+    model, judged, rotated, _, candidates, _ = facet_arguments(
         facet_model(light, 0.1, 0.0), train, np.asarray(train.weight) > 0, rotations, None,
         0.0, None, (0.0,),
     )  # fmt: skip
@@ -449,7 +449,7 @@ def facet_marginal(
     noise = jnp.asarray(np.asarray(noise_levels, float) / 255.0, dtype)
     likelihood, without = [], []
     for sigma in sigmas:
-        model, judged, rotated, _, candidates, gains = _prepared(
+        model, judged, rotated, _, candidates, gains = facet_arguments(
             facet_model(light, sigma, F_tildes[0]), train, weight > 0, rotations, F_tildes,
             0.0, None, (0.0,),
         )  # fmt: skip

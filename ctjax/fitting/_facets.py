@@ -276,7 +276,7 @@ def facet_heldout(
                        refine_steps, across)[0]  # fmt: skip
 
 
-def _prepared(
+def facet_arguments(
     model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across, choices=None
 ):
     """The arguments of `_facet_views` and `_facet_sums` but `samples` and `turned`:
@@ -324,7 +324,7 @@ def _judgements(
 ) -> list[FacetJudgement]:  # fmt: skip
     """`facet_heldout` for `model`'s lobe weights (`F_tildes` None) or for each grey
     F_tilde of `F_tildes` in turn (the lobes' columns shared; not turned)."""
-    model, judged, rotations, price, candidates, gains = _prepared(
+    model, judged, rotations, price, candidates, gains = facet_arguments(
         model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across
     )
     if F_tildes is not None:
@@ -348,7 +348,7 @@ def facet_sums(
     not turned), summed where they are computed: the grid's figures without its residual
     arrays. The sets and the subsets share the lobes' columns (one pass for all).
     `across`: the candidate facets (`facet_heldout`)."""
-    model, judged, rotations, price, candidates, gains = _prepared(
+    model, judged, rotations, price, candidates, gains = facet_arguments(
         model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across, choices
     )
     sums = _facet_sums(
