@@ -139,9 +139,13 @@ def no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:
     )
     result.warnings.append(
         f"no light offset detected: {why}; "
-        f"fitted offset {np.round(offset, 2).tolist()} +- {np.round(stderr, 2).tolist()} "
-        f"{unit}: {limit}"
+        f"fitted offset {_shown(offset)} +- {_shown(stderr)} {unit}: {limit}"
     )
+
+
+def _shown(values) -> str:
+    """Two significant digits each: a standard error of 0.0049 is not "0.0"."""
+    return "[" + ", ".join(f"{float(v):.2g}" for v in np.ravel(values)) + "]"
 
 
 # Held-out residuals above this multiple of their noise floor: the standard errors, which
