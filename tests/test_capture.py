@@ -306,3 +306,24 @@ def test_savgol_coefficients_are_scipys(window, deriv):
         savgol_coeffs(window, 3, deriv=deriv, use="dot"),
         atol=1e-13,
     )
+
+
+def test_near_white_the_camera_turned_grey_reads_as_clipped(tmp_path):
+    """In a frame of coloured tissue, bright pixels whose channels agree within one code
+    value are the camera's desaturation, not the light's colour: read as clipped (1.0),
+    with a note; a grey scene keeps its grey, and a dark grey pixel is kept."""
+    from ctjax.io._desaturated import desaturated
+
+    tissue = np.zeros((8, 8, 3), np.uint8)
+    tissue[...] = (200, 90, 60)  # bright red mucosa
+    tissue[0, :2] = (228, 228, 227)  # turned grey near white
+    tissue[1, 0] = (120, 120, 120)  # grey, but dark: kept
+    grey = desaturated(tissue)
+    assert grey[0, :2].all() and grey.sum() == 2
+    assert np.array_equal(desaturated(tissue.astype(np.uint16) * 257), grey)
+    assert not desaturated(np.full((8, 8, 3), 230, np.uint8)).any()  # a grey scene
+    write_capture(tmp_path / "c", Camera(8, 8, 8.0, 8.0, 3.5, 3.5), [Frame("a", tissue / 255.0)])
+    capture = load_capture(tmp_path / "c")
+    assert np.all(capture.frames[0].image[0, :2] == 1.0)
+    assert np.all(capture.frames[0].image[1, 0] < 1.0)
+    assert any("turned grey" in note for note in capture.notes)

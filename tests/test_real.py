@@ -12,6 +12,7 @@ import pytest
 
 from ctjax.estimation import fit_capture
 from ctjax.io import load_capture
+from ctjax.io._desaturated import desaturated
 from ctjax.io._encoding import srgb_to_linear
 from ctjax.sfm import reconstruct
 
@@ -42,11 +43,29 @@ def test_real_frames_are_decoded_as_srgb_with_a_note(tmp_path):
     root = _sinus(tmp_path / "sinus", 0.125, 2, 10)
     capture = load_capture(root)
     assert capture.encoding == "srgb" and "decoded as sRGB" in capture.notes[0]
-    recorded = cv2.imread(str(next((root / "images").iterdir())))[..., ::-1] / 255.0
-    np.testing.assert_allclose(capture.frames[0].image, srgb_to_linear(recorded), atol=1e-6)
+    recorded = cv2.imread(str(next((root / "images").iterdir())))[..., ::-1]
+    grey = desaturated(recorded)  # what the camera turned grey reads as clipped (below)
+    expected = np.where(grey[..., None], 1.0, srgb_to_linear(recorded / 255.0))
+    np.testing.assert_allclose(capture.frames[0].image, expected, atol=1e-6)
     # The black border is found on the recorded values: the oval field of view.
     visible = capture.frames[0].field_of_view
     assert visible is not None and 0.3 < visible.mean() < 0.7
+
+
+def test_near_white_the_sinus_camera_turned_grey_reads_as_clipped():
+    """The sinus camera writes bright mucosa grey near its white (channels within one code
+    value, 225-239 of 255) while coloured pixels reach 255: no rule at full scale calls
+    them clipped, so their reading as clipped is checked on the recorded frames."""
+    if not SINUS.is_dir():
+        pytest.skip(f"../shared/real not found: {SINUS} (real sinus frames)")
+    recorded = cv2.imread(str(sorted((SINUS / "images").iterdir())[-1]))[..., ::-1]
+    grey = desaturated(recorded)
+    spread = recorded.max(-1).astype(int) - recorded.min(-1)
+    assert 0.001 < grey.mean() < 0.02  # 0.38% over the 35 frames
+    assert np.all(spread[grey] <= 1) and 225 <= np.median(recorded[grey]) <= 239
+    bright = recorded.max(-1) >= 188
+    assert np.median(spread[bright]) > 50  # the frame's bright pixels are coloured
+    assert not desaturated(recorded[..., [1, 1, 1]]).any()  # a grey scene's grey is its own
 
 
 @pytest.fixture(scope="module")

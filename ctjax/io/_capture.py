@@ -14,7 +14,8 @@
 Frames are the images, sorted by name; depth, normals and poses are matched by NAME.
 Images are decoded with their encoding (`ctjax.io._encoding`): camera.json's `"encoding"`,
 or, where it does not say, sRGB for 8-bit images (with a note in `Capture.notes`) and linear
-for 16-bit ones.
+for 16-bit ones. Near-white that the camera turned grey reads as clipped (1.0;
+`ctjax.io._desaturated`, with a note).
 """
 
 import dataclasses
@@ -32,6 +33,7 @@ from .._geometry import normals_from_depth
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._camera_json import read_camera, read_encoding, read_stereo
+from ._desaturated import desaturated
 from ._encoding import LINEAR, SRGB, decode, default_encoding, encode
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
@@ -263,7 +265,7 @@ def load_capture(
     poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
     size = (camera.height, camera.width)
     declared = read_encoding(root / "camera.json")
-    encodings, frames, facing_notes = set(), [], []
+    encodings, frames, facing_notes, greyed = set(), [], [], 0
     for image_path in image_paths:
         name = image_path.stem
         raw = read_recorded(image_path)
@@ -274,6 +276,9 @@ def load_capture(
                 'are encoded: add "encoding": "srgb" or "linear" to it'
             )
         image = decode(raw, next(iter(encodings)))
+        grey = desaturated(raw)
+        image[grey] = 1.0  # what the camera turned grey near its white reads as clipped
+        greyed += int(grey.sum())
         if image.shape[:2] != size:
             raise CaptureError(
                 f"{image_path}: image is {image.shape[1]}x{image.shape[0]}, camera.json says "
@@ -325,6 +330,13 @@ def load_capture(
             f"{root / 'camera.json'} does not say how its images are encoded: 8-bit frames are "
             'decoded as sRGB (as video and JPEG frames are); add "encoding": "linear" to it if '
             'they are linear, or "encoding": "srgb" to silence this note',
+        )
+    if greyed:
+        share = greyed / (len(frames) * size[0] * size[1])
+        notes = (
+            *notes,
+            f"{share:.2%} of the frames' pixels are near-white that the camera turned grey (its "
+            "channels within one code value, in frames of coloured tissue): read as clipped",
         )
     if facing_notes:
         notes = (
