@@ -11,7 +11,8 @@ Lambert's model on the sinus's held-out frames (12 frames: 25.4 -> 17.8 levels R
 them; docs/real-video.md).
 
 So a frame's pixels whose channels agree within `GREY_CODES` code values at `BRIGHT` of
-full scale or above read as clipped (every channel 1.0), as a clipped pixel does for every
+full scale or above (and below it: at full scale a pixel is clipped already) read as
+clipped (every channel 1.0), as a clipped pixel does for every
 estimator, in a frame whose bright pixels are coloured (their median chroma, (max - min)
 / max, at least `COLOURED`): a grey scene's grey is its colour, not the camera's.
 """
@@ -38,4 +39,4 @@ def desaturated(raw: np.ndarray) -> np.ndarray:
     chroma = spread[bright] / brightest[bright]
     if np.median(chroma) < COLOURED:
         return np.zeros(bright.shape, bool)
-    return bright & (spread <= GREY_CODES * step)
+    return bright & (spread <= GREY_CODES * step) & (brightest < top)  # full scale: clipped
