@@ -34,9 +34,8 @@ def desaturated(raw: np.ndarray) -> np.ndarray:
     brightest = raw.max(axis=-1).astype(np.int64)
     spread = brightest - raw.min(axis=-1)
     bright = brightest >= BRIGHT * top
-    if not bright.any():
-        return bright
+    grey = bright & (spread <= GREY_CODES * step) & (brightest < top)  # full scale: clipped
+    if not grey.any():
+        return grey
     chroma = spread[bright] / brightest[bright]
-    if np.median(chroma) < COLOURED:
-        return np.zeros(bright.shape, bool)
-    return bright & (spread <= GREY_CODES * step) & (brightest < top)  # full scale: clipped
+    return grey if np.median(chroma) >= COLOURED else np.zeros(grey.shape, bool)
