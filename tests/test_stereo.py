@@ -157,6 +157,24 @@ def test_a_right_image_of_another_size_is_named_where_it_is_read(stereo_capture,
         capture.right_image("frame_001")
 
 
+def test_near_white_turned_grey_reads_as_clipped_in_the_right_images(stereo_capture, tmp_path):
+    # The same camera processing as the left frames (`ctjax.io._desaturated`): a grey
+    # pixel near white in a frame of coloured tissue is clipped, a dark grey one is kept.
+    copy = tmp_path / "c"
+    shutil.copytree(stereo_capture, copy)
+    path = copy / "right" / "frame_000.png"
+    recorded = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    recorded[...] = (60, 90, 200)  # BGR: bright red mucosa
+    recorded[0, :2] = (228, 228, 227)  # turned grey near white
+    recorded[1, 0] = (120, 120, 120)  # grey, but dark
+    cv2.imwrite(str(path), recorded)
+    right = load_capture(copy).right_image("frame_000")
+    assert np.all(right[0, :2] == 1.0)
+    assert np.allclose(right[1, 0], 120 / 255) and np.allclose(
+        right[2, 0], (200 / 255, 90 / 255, 60 / 255)
+    )
+
+
 def test_synth_command_stereo(tmp_path):
     out = tmp_path / "s"
     argv = ["synth", str(out), "--frames", "1", "--width", "64", "--height", "48"]

@@ -108,7 +108,8 @@ class Capture:
 
     def right_image(self, name: str) -> np.ndarray | None:
         """Frame `name`'s right image as recorded (encoded, float in [0, 1], the right
-        camera's own grid, not undistorted), None where the capture has none."""
+        camera's own grid, not undistorted), None where the capture has none; near-white
+        the camera turned grey reads as clipped (1.0), as in the left frames."""
         path = right_image_path(self.root, name) if self.stereo is not None else None
         if path is None:
             return None
@@ -120,7 +121,9 @@ class Capture:
                 f"stereo camera (camera.json's stereo.right) says {right.width}x{right.height}"
             )
         top = 255.0 if raw.dtype == np.uint8 else 65535.0
-        return raw.astype(np.float32) / top
+        image = raw.astype(np.float32) / top
+        image[desaturated(raw)] = 1.0
+        return image
 
     def __len__(self) -> int:
         return len(self.frames)

@@ -14,7 +14,9 @@ So a frame's pixels whose channels agree within `GREY_CODES` code values at `BRI
 full scale or above (and below it: at full scale a pixel is clipped already) read as
 clipped (every channel 1.0), as a clipped pixel does for every
 estimator, in a frame whose bright pixels are coloured (their median chroma, (max - min)
-/ max, at least `COLOURED`): a grey scene's grey is its colour, not the camera's.
+/ max, at least `COLOURED`): a grey scene's grey is its colour, not the camera's. The
+left frames get the rule in `load_capture`, a stereo capture's right images in
+`Capture.right_image`.
 """
 
 import numpy as np
