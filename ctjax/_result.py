@@ -65,9 +65,9 @@ class Estimate:
         `warnings`, `seconds`, and the whole model under `shading_model`."""
         out = dict(named_parameters(self.model))
         for split, value in self.rmse.items():
-            out[f"rgb_rmse_{split}"] = _number(value)
+            out[f"rgb_rmse_{split}"] = finite_or_none(value)
         if self.noise_floor is not None:
-            out["noise_floor"] = _number(self.noise_floor)
+            out["noise_floor"] = finite_or_none(self.noise_floor)
         out["status"] = Status(self.status).name
         for split, frames in self.frames.items():
             out[f"{split}_frames"] = list(frames)
@@ -79,6 +79,7 @@ class Estimate:
         return out
 
 
-def _number(value) -> float | None:
+def finite_or_none(value) -> float | None:
+    """`value` as a JSON number, None where it is not finite (JSON has no NaN)."""
     value = float(value)
     return value if math.isfinite(value) else None

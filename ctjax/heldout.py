@@ -18,7 +18,7 @@ from ._errors import CtjaxError
 from ._noise_floor import noise_floor_levels as noise_floor_levels
 from ._noise_floor import noise_floor_map_levels as noise_floor_map_levels
 from ._paired import SampleErrors
-from ._result import Estimate
+from ._result import Estimate, finite_or_none
 from ._right_views import require_stereo, with_right_views
 from .fitting._facet_lobe import facet_lobe
 from .fitting._facet_marginal import facet_marginal
@@ -392,12 +392,12 @@ def frame_consistency(tracks: HeldOutTracks, models: dict) -> dict:
     first = next(iter(rmse.values()))
     outliers, median = frames_not_predicted(first, tracks.calibration)
 
-    def plain(value):  # JSON: null for a frame without a judged view
-        return value if math.isfinite(value) else None
-
     return {
-        **{name: {names[f]: plain(v) for f, v in sorted(r.items())} for name, r in rmse.items()},
-        "calibration_median_levels": plain(median),
+        **{
+            name: {names[f]: finite_or_none(v) for f, v in sorted(r.items())}
+            for name, r in rmse.items()
+        },
+        "calibration_median_levels": finite_or_none(median),
         "not_predicted": [names[f] for f in outliers],
         "not_judged": [names[f] for f, v in sorted(first.items()) if not math.isfinite(v)],
         "note": (

@@ -22,7 +22,7 @@ from .._determined import MIN_LOBE_GAIN, Undetermined, add_undetermined
 from .._errors import CtjaxError
 from .._model import ShadingModel
 from .._point_normals import frames_disagree_deg
-from .._result import Estimate
+from .._result import Estimate, finite_or_none
 from .._right_views import with_right_views
 from .._status import Status
 from .._threads import started
@@ -37,53 +37,14 @@ from ._sensitivity import specular_change
 from ._uniform_fit import (
     BROAD_LOBE,
     BROAD_WARNING,
-    WELL_DETERMINED,
     MaskOptions,
+    fit_to_json,
     flag_brdf_fit,
+    poorly_determined,
     require_geometry,
     require_specular,
     thin_frames,
 )
-
-
-def _number(value):
-    value = float(value)
-    return value if np.isfinite(value) else None
-
-
-def _map_fit_json(fit, per_point: int) -> dict:
-    out = {}
-    weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
-    for k, name in enumerate(fit.family.weight_names):
-        out[name] = weights[k].tolist()
-        if k != per_point:
-            out[f"{name}_stderr"] = [_number(e) for e in errors[k]]
-    params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
-    half_width = np.asarray(fit.search_half_width)
-    for d, name in enumerate(fit.family.names):
-        out[name] = float(params[d])
-        out[f"{name}_stderr"] = _number(params_stderr[d])
-        out[f"{name}_search_half_width"] = float(half_width[d])
-    out["rgb_rmse"] = float(fit.rgb_rmse)
-    out["cost"] = float(fit.cost)
-    return out
-
-
-def _poorly_determined(fit, per_point: int) -> list[str]:
-    warnings = []
-    for d, name in enumerate(fit.family.names):
-        value, error = float(np.asarray(fit.params)[d]), float(np.asarray(fit.params_stderr)[d])
-        if not np.isfinite(error) or error > WELL_DETERMINED * abs(value):
-            warnings.append(f"{name} = {value:.4g} +- {error:.2g}")
-    weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
-    for k, name in enumerate(fit.family.weight_names):
-        if k == per_point:
-            continue
-        for c, channel in enumerate("RGB"):
-            if not np.isfinite(errors[k, c]) or errors[k, c] > WELL_DETERMINED * abs(weights[k, c]):
-                warnings.append(f"{name}[{channel}] = {weights[k, c]:.4g} +- {errors[k, c]:.2g}")
-    return warnings
-
 
 # The fit summarises the maps (rho_tilde their median, their coverage per frame) on a grid
 # of pixels, every `summary_stride`-th of every such row: about `SUMMARY_PIXELS` per frame
@@ -173,7 +134,7 @@ def _normal_sensitivity(capture, fit, shading, per_point: int) -> dict:
         fit.family, fit.params, shading, fit.weights, fit.albedo, per_point, SENSITIVITY_STEP
     )
     return {
-        "specular_change_per_degree": _number(change),
+        "specular_change_per_degree": finite_or_none(change),
         "observations": int(count),
         **normals_provenance(capture),
         "note": "median relative change of the fitted global lobes when every normal is "
@@ -196,7 +157,7 @@ def _warnings(capture, fit, per_point: int, points: int, coverage, sensitivity) 
             "per degree (the lobe is read on its tails where the core is clipped): sigma and "
             "F_tilde may be off by tens of percent (docs: reconstruct, 'Shape from images')"
         )
-    poorly = _poorly_determined(fit, per_point)
+    poorly = poorly_determined(fit, per_point)
     if poorly:
         warnings.append(
             f"{points} tracked points cannot determine: {'; '.join(poorly)} (relative "
@@ -324,7 +285,7 @@ def fit_albedo_map(
     weights[per_point] = median
     brdf = fit.brdf.with_weights(weights.astype(np.asarray(fit.weights).dtype))
     details = {
-        **_map_fit_json(fit, per_point),
+        **fit_to_json(fit, per_point),
         "rho_tilde": median.tolist(),
         "albedo": "map",
         "albedo_note": "rho_tilde is the median of the albedo maps per channel (over every "
@@ -351,15 +312,15 @@ def fit_albedo_map(
             "" if right is None else " (the right camera's views: V towards it, L to the left lens)"
         ),
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
-        "lambertian": {**_map_fit_json(lambertian, 0), "albedo": "map"},
+        "lambertian": {**fit_to_json(lambertian, 0), "albedo": "map"},
         **(
             {}
             if plain is lambertian
-            else {"diffuse_alone": {**_map_fit_json(plain, 0), "albedo": "map"}}
+            else {"diffuse_alone": {**fit_to_json(plain, 0), "albedo": "map"}}
         ),
         "normals": {
             **_normal_sensitivity(capture, fit, shading, per_point),
-            "frames_disagree_deg": _number(disagree.result()),
+            "frames_disagree_deg": finite_or_none(disagree.result()),
             "frames_disagree_note": "RMS angle between each view's normal in its own frame "
             "and the point's one normal (the mean of its views', which the fit uses)",
         },
@@ -386,7 +347,7 @@ def fit_albedo_map(
         halves = {}
     if halves:
         estimate.details["halves"] = {
-            part: _map_fit_json(half, per_point) for part, half in halves.items()
+            part: fit_to_json(half, per_point) for part, half in halves.items()
         }
     # The lobes' gain where they show (a laparoscope's highlights are few and mostly
     # clipped: over every observation a determined lobe can bring under 0.5%).
@@ -429,7 +390,7 @@ def _checked_against_the_lights_cone(estimate: Estimate, fit, tracks, tolerance)
         "exponent": exponent,
         "lobe_gain": gain,
         "lobe_shows_observations": shows,
-        **_map_fit_json(spotted, per_point),
+        **fit_to_json(spotted, per_point),
         "note": "the same fit under the paper's light with a spot falloff cos^k about the "
         f"optical axis (k of {list(SPOT_EXPONENTS)}, the best): a broad lobe that the light's "
         "cone explains brings under 0.5% there",

@@ -9,7 +9,7 @@ import numpy as np
 from .._determined import flag
 from .._errors import CtjaxError
 from .._model import ShadingModel
-from .._result import Estimate
+from .._result import Estimate, finite_or_none
 from ..io import Capture
 from ..io._field_of_view import black_frames
 from ..lights import ColocatedLight
@@ -85,25 +85,32 @@ def require_geometry(capture: Capture) -> None:
         )
 
 
-def _fit_to_json(fit: BRDFFit) -> dict:
+def fit_to_json(fit, per_point: int | None = None) -> dict:
+    """A BRDF fit's global parameters and weights with their standard errors (None where
+    not finite), its RGB RMSE and cost: for the uniform fit (`BRDFFit`) and the albedo
+    map's (`AlbedoMapFit`), whose weight `per_point` (rho_tilde, one per tracked point: its
+    value here is a placeholder the caller replaces) has no standard error of its own."""
     out = {}
-    weights = np.asarray(fit.weights)
-    weights_err = np.asarray(fit.weights_stderr)
+    weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
     for k, name in enumerate(fit.family.weight_names):
         out[name] = weights[k].tolist()
-        out[f"{name}_stderr"] = weights_err[k].tolist()
+        if k != per_point:
+            out[f"{name}_stderr"] = [finite_or_none(e) for e in errors[k]]
     params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
     half_width = np.asarray(fit.search_half_width)
     for d, name in enumerate(fit.family.names):
         out[name] = float(params[d])
-        out[f"{name}_stderr"] = float(params_stderr[d])
+        out[f"{name}_stderr"] = finite_or_none(params_stderr[d])
         out[f"{name}_search_half_width"] = float(half_width[d])
     out["rgb_rmse"] = float(fit.rgb_rmse)
     out["cost"] = float(fit.cost)
     return out
 
 
-def _poorly_determined(fit: BRDFFit) -> list[str]:
+def poorly_determined(fit, per_point: int | None = None) -> list[str]:
+    """'name = value +- stderr' of each global parameter and weight channel whose standard
+    error is above `WELL_DETERMINED` of its value (or not finite); an albedo map's weight
+    `per_point` is not global and not judged here."""
     warnings = []
     for d, name in enumerate(fit.family.names):
         value, error = float(np.asarray(fit.params)[d]), float(np.asarray(fit.params_stderr)[d])
@@ -111,6 +118,8 @@ def _poorly_determined(fit: BRDFFit) -> list[str]:
             warnings.append(f"{name} = {value:.4g} +- {error:.2g}")
     weights, errors = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
     for k, name in enumerate(fit.family.weight_names):
+        if k == per_point:
+            continue
         for c, channel in enumerate("RGB"):
             if not np.isfinite(errors[k, c]) or errors[k, c] > WELL_DETERMINED * abs(weights[k, c]):
                 warnings.append(f"{name}[{channel}] = {weights[k, c]:.4g} +- {errors[k, c]:.2g}")
@@ -199,7 +208,7 @@ def fit_uniform(
         ):
             raise CtjaxError("the BRDF fit did not produce finite estimates")
     details = {
-        **_fit_to_json(fit),
+        **fit_to_json(fit),
         "n_ring_pixels": ring_count,
         "n_specular_pixels": specular_count,
         "frames": [
@@ -214,13 +223,13 @@ def fit_uniform(
         "model": "paper eq. (4): rho_tilde N.L/pi + F_tilde D(sigma)/(pi N.L N.V), L = V"
         + diffuse_note(family),
         "units": "weights linear (1.0 = 8-bit level 255); rgb_rmse in 8-bit levels",
-        "lambertian": _fit_to_json(lambertian),
-        **({} if plain is lambertian else {"diffuse_alone": _fit_to_json(plain)}),
+        "lambertian": fit_to_json(lambertian),
+        **({} if plain is lambertian else {"diffuse_alone": fit_to_json(plain)}),
         "masks": dataclasses.asdict(masks),
         "albedo": "uniform",
     }
     warnings = _at_zero(fit) + thin_frames(capture)
-    poorly = [w for w in _poorly_determined(fit) if w.split(" = ")[0] not in _zero_names(fit)]
+    poorly = [w for w in poorly_determined(fit) if w.split(" = ")[0] not in _zero_names(fit)]
     if poorly:
         warnings.append(
             f"the ring ({ring_count} pixels) is too thin to determine: {'; '.join(poorly)} "
