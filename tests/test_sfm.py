@@ -5,6 +5,7 @@ images and camera.json, through the command line; the tests compare with the ori
 depth and normals.
 """
 
+import dataclasses
 import json
 import shutil
 
@@ -101,6 +102,9 @@ def test_the_texture_refines_the_normals_where_the_lobe_is_measured(reconstructe
     truth, refined, report = reconstructed
     photometric = report["surface"]["photometric"]
     assert photometric["refined"]
+    # The frames' surfaces agree as well refined as SfM left them (`ctjax.sfm._agreement`).
+    agreement = photometric["frames_agreement"]
+    assert agreement["kept"] and agreement["refined"] > 0.99 and agreement["sfm"] > 0.99
     for name, loss in photometric["texture_loss_per_frame"].items():
         # A frame's surface is replaced only where the refinement lowered the loss; else
         # SfM's is kept and the report says so.
@@ -124,6 +128,56 @@ def test_the_texture_refines_the_normals_where_the_lobe_is_measured(reconstructe
     assert np.median(rim) < 0.6 * np.median(rim_0)
     # On this capture the rim's tail gains least (2.5 against 2.7 degrees at 90%).
     assert np.percentile(rim, 90) < np.percentile(rim_0, 90)
+
+
+def _deeper_every_other(views: dict, factor: float) -> dict:
+    """Every other view's surface `factor` times deeper (the others as they are)."""
+    return {
+        name: dataclasses.replace(
+            view,
+            surface=dataclasses.replace(
+                view.surface, coefficients=view.surface.coefficients * factor
+            ),
+        )
+        if k % 2
+        else view
+        for k, (name, view) in enumerate(views.items())
+    }
+
+
+def test_a_texture_refinement_that_parts_the_frames_surfaces_is_not_kept(
+    reconstructed, points_only, monkeypatch, capsys
+):
+    """A rigid scene has one surface: a refinement that moves some frames' depth and not
+    the others' (as on the shared real videos: 1-7% in 6 of 12 sinus frames) parts the
+    frames' surfaces, the tracks lose views, and `reconstruct` keeps SfM's surfaces, saying
+    so in its report and its progress."""
+    from ctjax.sfm import _reconstruct
+    from ctjax.sfm._agreement import frames_agreement
+    from ctjax.sfm._photometric import PARTNERS, Refinement
+
+    truth, images, _ = reconstructed
+    camera = points_only.camera
+    assert frames_agreement(camera, points_only.views, PARTNERS) > 0.99
+    # Every other frame's surface 5% deeper: few points land within 1% of the others'.
+    assert frames_agreement(camera, _deeper_every_other(points_only.views, 1.05), PARTNERS) < 0.7
+
+    def parting(camera, views, frames, say, smoothing):
+        details = {n: Refinement(v.surface, 1.0, 0.9, 0.05, 100) for n, v in views.items()}
+        return _deeper_every_other(views, 1.05), details
+
+    monkeypatch.setattr(_reconstruct, "refine_views", parting)
+    scale_mm = float(np.nanmedian(truth.frames[0].depth[truth.frames[0].geometry_mask]))
+    kept = _reconstruct.reconstruct_capture(images, scale_mm=scale_mm, progress=print)
+    photometric = kept.report["surface"]["photometric"]
+    assert not photometric["refined"] and photometric["kept_frames"] == 0
+    assert not any(photometric["kept_per_frame"].values())
+    agreement = photometric["frames_agreement"]
+    assert not agreement["kept"] and agreement["refined"] < agreement["sfm"] - 0.02
+    assert "texture refinement not kept" in capsys.readouterr().out
+    for name, view in kept.views.items():  # SfM's surfaces, as without the refinement
+        expected = points_only.views[name].surface.coefficients
+        np.testing.assert_allclose(view.surface.coefficients, expected, rtol=1e-9)
 
 
 def test_the_texture_refinements_smoothing_is_the_users(reconstructed, points_only, capsys):

@@ -307,13 +307,16 @@ def refine_views(
     return refined, details
 
 
-def photometric_report(refinements, smoothing: float) -> dict:
-    """The texture refinement in `ctjax reconstruct`'s report (`surface.photometric`)."""
+def photometric_report(refinements, smoothing: float, agreement: dict | None = None) -> dict:
+    """The texture refinement in `ctjax reconstruct`'s report (`surface.photometric`);
+    `agreement`: whether the frames' surfaces still agree with it (`_agreement.py`)."""
     if refinements is None:
         return {"refined": False}
     number = lambda x: float(x) if np.isfinite(x) else None  # noqa: E731
+    kept = agreement is None or agreement["kept"]
     return {
-        "refined": True,
+        "refined": kept,
+        "frames_agreement": agreement,
         "model": PHOTOMETRIC_MODEL,
         "smoothing": smoothing,
         "points_weight": POINTS_WEIGHT,
@@ -321,9 +324,10 @@ def photometric_report(refinements, smoothing: float) -> dict:
             n: {"before": number(r.residual_before), "after": number(r.residual_after)}
             for n, r in refinements.items()
         },
-        # A frame's surface is replaced only where the refinement lowered its loss.
-        "kept_per_frame": {n: r.kept for n, r in refinements.items()},
-        "kept_frames": sum(r.kept for r in refinements.values()),
+        # A frame's surface is replaced only where the refinement lowered its loss, and
+        # none where the refinement costs the frames' agreement.
+        "kept_per_frame": {n: r.kept and kept for n, r in refinements.items()},
+        "kept_frames": sum(r.kept for r in refinements.values()) if kept else 0,
         "median_depth_change_per_frame": {n: r.depth_change for n, r in refinements.items()},
         "pixels_per_frame": {n: r.pixels for n, r in refinements.items()},
     }

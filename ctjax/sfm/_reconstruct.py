@@ -25,11 +25,12 @@ from .._errors import CaptureError, CtjaxError, ParameterError, ReconstructionEr
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
+from ._agreement import refinement_agreement
 from ._checks import check_knots, check_scale
 from ._colmap import MAPPING_ENOUGH, SparseModel
 from ._focal import sparse_with_focal, with_focal
 from ._pairs import pairs_reconstruction
-from ._photometric import SMOOTHING, photometric_report, refine_views
+from ._photometric import PARTNERS, SMOOTHING, photometric_report, refine_views
 from ._report import reconstruction_report
 from ._stereo import stereo_points, stereo_report, stereo_scale
 from ._surface import DepthSurface, fit_depth_surface
@@ -229,16 +230,25 @@ def reconstruct_capture(
             points=(u, v, z * scale, weight),
         )
         views[name] = ViewSurface(name, scaled, hulls[name], pose, counts[name])
-    refinements = None
+    refinements = agreement = None
     if photometric and len(views) > 1:
-        views, refinements = refine_views(camera, views, capture.frames, say, smoothing)
+        refined, refinements = refine_views(camera, views, capture.frames, say, smoothing)
+        # Kept only where the frames' surfaces still agree (`_agreement.py`).
+        agreement = refinement_agreement(camera, views, refined, PARTNERS)
+        if agreement["kept"]:
+            views = refined
+        else:
+            say(
+                f"texture refinement not kept: the frames' surfaces agree within 1% at "
+                f"{agreement['refined']:.2f} of their points, {agreement['sfm']:.2f} without it"
+            )
 
     report = reconstruction_report(
         sparse, views, reference, points, scale_info, counts, knot_spacing_px
     )
     if pairs:
         report["stereo"] = stereo_report(pairs, capture.stereo, stereo)
-    report["surface"]["photometric"] = photometric_report(refinements, smoothing)
+    report["surface"]["photometric"] = photometric_report(refinements, smoothing, agreement)
     report["focal"] = focal_report
     return Reconstruction(camera, views, sparse, report)
 
