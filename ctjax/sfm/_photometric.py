@@ -32,7 +32,9 @@ the error of the BRDF from images stays 5-30% in F_tilde: with the highlight's c
 the lobe is read on its tails, where a degree of normal error changes the specular by about
 20%, and the texture does not pin the slopes below a degree. A texture smooth at the pixel
 scale (tests/independent.py) does not pin them at all: its high-pass is noise, and the
-refinement leaves SfM's surface where it is.
+refinement leaves SfM's surface where it is. Each view is refined alone, so `reconstruct`
+keeps the refined views only where the frames' surfaces still agree (`_agreement.py`: on
+the shared real videos they did not).
 """
 
 import dataclasses
