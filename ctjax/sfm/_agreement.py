@@ -14,7 +14,9 @@ cholecystectomy videos, the texture refinement, kept by its own loss in 6-16 fra
 0.29, 0.44 to 0.31, 0.86 to 0.69 and 0.91 to 0.68; the tracks then followed the same
 points in 21-59% fewer views and the frames' normals of one point disagreed by 0.3-3.0
 degrees more. On the synthetic 320x256 x 5 captures it refines (normals 2x nearer the
-truth) the share stays at 0.999-1.000.
+truth) the share stays at 0.999-1.000. Lambert's prediction of each real frame from the
+others, on the pixels both surfaces cover, does not choose: two stretches favour the
+refined surfaces, two SfM's, within 8%.
 """
 
 import numpy as np
