@@ -153,7 +153,7 @@ def test_a_texture_refinement_that_parts_the_frames_surfaces_is_not_kept(
     frames' surfaces, the tracks lose views, and `reconstruct` keeps SfM's surfaces, saying
     so in its report and its progress."""
     from ctjax.sfm import _reconstruct
-    from ctjax.sfm._agreement import frames_agreement
+    from ctjax.sfm._agreement import frames_agreement, refinement_agreement
     from ctjax.sfm._photometric import PARTNERS, Refinement
 
     truth, images, _ = reconstructed
@@ -161,6 +161,11 @@ def test_a_texture_refinement_that_parts_the_frames_surfaces_is_not_kept(
     assert frames_agreement(camera, points_only.views, PARTNERS) > 0.99
     # Every other frame's surface 5% deeper: few points land within 1% of the others'.
     assert frames_agreement(camera, _deeper_every_other(points_only.views, 1.05), PARTNERS) < 0.7
+    # One view alone: no other frame to agree with, NaN, and a refinement of it is kept.
+    one = dict(list(points_only.views.items())[:1])
+    assert np.isnan(frames_agreement(camera, one, PARTNERS))
+    alone = refinement_agreement(camera, one, _deeper_every_other(one, 1.05), PARTNERS)
+    assert alone["kept"] and alone["sfm"] is None
 
     def parting(camera, views, frames, say, smoothing):
         details = {n: Refinement(v.surface, 1.0, 0.9, 0.05, 100) for n, v in views.items()}

@@ -10,7 +10,7 @@ cost that agreement (`refinement_agreement`).
 
 Measured (docs: real video, 2026-12-03): on four stretches of the shared sinus and
 cholecystectomy videos, the texture refinement, kept by its own loss in 6-16 frames of 12-16
-(0.1-3.4% lower, moving the median depth by 1-7%), took the share within 1% from 0.43 to
+(0.1-3.4% lower, moving the median depth by 0.7-7%), took the share within 1% from 0.43 to
 0.29, 0.44 to 0.31, 0.86 to 0.69 and 0.91 to 0.68; the tracks then followed the same
 points in 21-59% fewer views and the frames' normals of one point disagreed by 0.3-3.0
 degrees more. On the synthetic 320x256 x 5 captures it refines (normals 2x nearer the
