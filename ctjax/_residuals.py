@@ -42,7 +42,7 @@ def residual_map(capture: Capture, index: int, model, albedo: str = "uniform") -
         return -measured_minus_model.mean(axis=-1) * 255
     rendered = np.asarray(model.render(capture.camera, frame.normals, frame.depth, index))
     residual = (rendered - frame.image).mean(axis=-1) * 255
-    return np.where(usable_mask(frame), residual, np.nan)
+    return np.where(usable_mask(frame, np.asarray(capture.saturation)), residual, np.nan)
 
 
 def display(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:

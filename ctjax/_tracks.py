@@ -197,7 +197,9 @@ class FrameData:
     world_to_camera: np.ndarray
 
     @classmethod
-    def of(cls, frame, saturation_level: float = 1.0) -> "FrameData":
+    def of(cls, frame, saturation_level=1.0) -> "FrameData":
+        """`frame`'s data, its values at or above `saturation_level` (one level, or one per
+        channel: `Capture.saturation`) clipped."""
         depth = np.where(frame.geometry_mask, frame.depth, np.nan).astype(np.float32)
         finite = np.isfinite(frame.depth) & _all_last(np.isfinite(frame.normals))
         clipped = frame.image >= saturation_level  # (H, W, 3) bool
@@ -340,11 +342,12 @@ def sight(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float) 
     )
 
 
-def sight_own(data: FrameData, rows, cols, saturation_level: float = 1.0) -> Sighting:
+def sight_own(data: FrameData, rows, cols) -> Sighting:
     """The anchors' own sightings: their pixels, exactly (one corner of weight 1)."""
     width = data.depth.shape[1]
     values = data.image[rows, cols].astype(np.float64)
-    channel_seen = data.finite[rows, cols][:, None] & (values < saturation_level)
+    clipped = data.clipped_bits[rows, cols][:, None] >> np.arange(values.shape[-1]) & 1
+    channel_seen = data.finite[rows, cols][:, None] & (clipped == 0)
     corner_weight = np.zeros((len(rows), 4))
     corner_weight[:, 0] = 1
     index = np.repeat((rows * width + cols)[:, None], 4, axis=1)
@@ -385,9 +388,9 @@ def observe(camera: Camera, data: FrameData, world: np.ndarray, tolerance: float
     return _observation(camera, data, sight(camera, data, world, tolerance))
 
 
-def observe_own(camera: Camera, data: FrameData, rows, cols, saturation_level=1.0):
+def observe_own(camera: Camera, data: FrameData, rows, cols):
     """The anchors' own observations: their pixels, exactly (one corner of weight 1)."""
-    return _observation(camera, data, sight_own(data, rows, cols, saturation_level))
+    return _observation(camera, data, sight_own(data, rows, cols))
 
 
 def _masked(obs: Observation) -> Observation:
@@ -420,7 +423,7 @@ def follow(
     *,
     neighbours: int | None = DEFAULT_NEIGHBOURS,
     tolerance: float = DEFAULT_TOLERANCE,
-    saturation_level: float = 1.0,
+    saturation_level=None,
     frames=None,
 ) -> Tracks:
     """Tracks of the anchor pixels `anchors[f] = (rows, cols)` of every frame f (pixels with
@@ -428,9 +431,13 @@ def follow(
     None). With `frames` (indices), only those frames' anchors, followed into those frames
     only (a held-out split). Every frame needs depth, normals and a pose (`require_poses`).
     The views keep their frames' own normals (`ctjax._point_normals.one_normal_per_point`
-    makes them one, as `Observations.tracks` does)."""
+    makes them one, as `Observations.tracks` does). A channel's values at or above
+    `saturation_level` (one, or one per channel; default: `capture.saturation`, full scale
+    or the camera's ceiling) are clipped."""
     require_poses(capture)
     camera = capture.camera
+    if saturation_level is None:  # the capture's: its channels' ceilings
+        saturation_level = np.asarray(capture.saturation, np.float32)
     frames = list(range(len(capture))) if frames is None else sorted(frames)
     count = len(frames) - 1 if neighbours is None else min(neighbours, len(frames) - 1)
     data = {i: FrameData.of(capture.frames[i], saturation_level) for i in frames}
@@ -460,9 +467,7 @@ def follow(
             if other not in seen_in:
                 continue
             if index == other:
-                slots[seen_in.index(other)] = observe_own(
-                    camera, data[other], rows, cols, saturation_level
-                )
+                slots[seen_in.index(other)] = observe_own(camera, data[other], rows, cols)
             else:
                 away.append((j, seen_in.index(other)))
         if not away:

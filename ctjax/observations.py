@@ -123,8 +123,9 @@ def concatenate(samples: list[ShadingSamples]) -> ShadingSamples:
     return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *samples)
 
 
-def usable_mask(frame, saturation_level: float = 1.0) -> np.ndarray:
-    """Pixels with geometry (finite positive depth and normal) and no clipped channel."""
+def usable_mask(frame, saturation_level=1.0) -> np.ndarray:
+    """Pixels with geometry (finite positive depth and normal) and no clipped channel: none
+    at or above `saturation_level` (one level, or one per channel: `Capture.saturation`)."""
     if frame.depth is None or frame.normals is None:
         raise CtjaxError(
             f"frame {frame.name}: needs depth (and normals) to compare the model"
@@ -204,7 +205,7 @@ class Observations:
         return cls(capture, masks)
 
     # The capture's own attributes, so that observations stand in for it where only those
-    # are read (the root in messages, the camera, the frames, the count).
+    # are read (the root in messages, the camera, the frames, their clipping, the count).
     @property
     def root(self):
         return self.capture.root
@@ -217,13 +218,18 @@ class Observations:
     def frames(self):
         return self.capture.frames
 
+    @property
+    def saturation(self):
+        return self.capture.saturation
+
     def __len__(self) -> int:
         return len(self.capture)
 
     @functools.cached_property
     def usable(self) -> list[np.ndarray]:
         """Per frame (H, W): geometry and no clipped channel (see `usable_mask`)."""
-        return [usable_mask(frame) for frame in self.capture.frames]
+        level = np.asarray(self.capture.saturation)
+        return [usable_mask(frame, level) for frame in self.capture.frames]
 
     @functools.cached_property
     def view(self) -> np.ndarray:

@@ -327,3 +327,66 @@ def test_near_white_the_camera_turned_grey_reads_as_clipped(tmp_path):
     assert np.all(capture.frames[0].image[0, :2] == 1.0)
     assert np.all(capture.frames[0].image[1, 0] < 1.0)
     assert any("turned grey" in note for note in capture.notes)
+
+
+def _tissue_samples(rng, n, ceiling=None):
+    """(n, 3) codes of red tissue lit from dim to bright: every channel proportional to the
+    light, red at most `ceiling` (the camera's), full scale clipped."""
+    light = rng.uniform(0.05, 1.4, n)
+    colour = np.array([1.0, 0.75, 0.7]) * rng.uniform(0.9, 1.1, (n, 3))
+    codes = light[:, None] * colour * 250 + rng.normal(0, 2, (n, 3))
+    if ceiling is not None:
+        codes[:, 0] = np.minimum(codes[:, 0], ceiling + rng.normal(0, 3, n))
+    return np.clip(np.round(codes), 0, 255).astype(np.uint8)
+
+
+def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
+    """A channel that tops out below full scale while the others still rise (a white
+    balance gain or colour matrix after the sensor clipped) is clipped there: its ceiling is
+    found from the frames (`Capture.saturation`, with a note) and the observations read its
+    values at or above it as clipped in that channel alone; channels that follow the light
+    to full scale have none."""
+    from ctjax.io._channel_ceiling import channel_ceilings
+    from ctjax.observations import Observations
+
+    rng = np.random.default_rng(0)
+    knee = channel_ceilings(_tissue_samples(rng, 100_000, ceiling=170), 255)
+    assert knee[1:] == [None, None] and 160 <= knee[0] <= 175
+    assert channel_ceilings(_tissue_samples(rng, 100_000), 255) == [None, None, None]
+    # 16-bit frames: the same ceiling in their codes.
+    wide = _tissue_samples(rng, 100_000, ceiling=170).astype(np.uint16) * 257
+    assert 160 * 257 <= channel_ceilings(wide, 65535)[0] <= 175 * 257
+    # Too few samples in the bright bins to say: none.
+    assert channel_ceilings(_tissue_samples(rng, 500, ceiling=170), 255) == [None, None, None]
+
+    camera = Camera(160, 160, 150.0, 150.0, 79.5, 79.5)
+    frames = [_tissue_samples(rng, 160 * 160, 170).reshape(160, 160, 3) for _ in range(6)]
+    write_capture(
+        tmp_path / "c",
+        camera,
+        [
+            Frame(f"f{k}", f / 255.0, np.full((160, 160), 50.0, np.float32))
+            for k, f in enumerate(frames)
+        ],
+    )
+    capture = load_capture(tmp_path / "c")
+    (note,) = [note for note in capture.notes if "ceiling" in note]
+    code = int(note.split("R from ")[1].split(" ")[0])
+    assert 160 <= code <= 175
+    # The level in the decoded images (linear 8-bit here); green and blue at full scale.
+    assert capture.saturation == pytest.approx((code / 255, 1.0, 1.0), rel=1e-6)
+    for recorded, frame in zip(frames, capture.frames, strict=True):
+        # The images as recorded; the observations read red clipped from the ceiling on.
+        np.testing.assert_allclose(frame.image, recorded / 255, atol=1e-6)
+    for recorded, usable in zip(frames, Observations(capture).usable, strict=True):
+        clipped = (recorded[..., 0] >= code) | np.any(recorded[..., 1:] == 255, axis=-1)
+        assert np.array_equal(usable[1:-1, 1:-1], ~clipped[1:-1, 1:-1])  # normals: not the rim
+    plain = [_tissue_samples(rng, 160 * 160).reshape(160, 160, 3) for _ in range(6)]
+    write_capture(
+        tmp_path / "p",
+        camera,
+        [Frame(f"f{k}", f / 255.0) for k, f in enumerate(plain)],
+    )
+    plain = load_capture(tmp_path / "p")
+    assert not any("ceiling" in note for note in plain.notes)
+    assert plain.saturation == (1.0, 1.0, 1.0)

@@ -229,7 +229,8 @@ def _frames_of(
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     camera = capture.camera
-    data = [FrameData.of(f) for f in capture.frames]
+    level = np.asarray(capture.saturation, np.float32)  # the channels' ceilings
+    data = [FrameData.of(f, level) for f in capture.frames]
     available = len(capture) if among is None else len(among)
     count = available - 1 if neighbours is None else min(neighbours, available - 1)
     chunk = min(_MAP_CHUNK, camera.width * camera.height)

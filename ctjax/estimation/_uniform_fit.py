@@ -133,7 +133,8 @@ MIN_USABLE_SHARE = 0.05
 def thin_frames(capture: Capture) -> list[str]:
     """A warning naming the frames with under `MIN_USABLE_SHARE` of their pixels usable
     (a normal, in view, no clipped channel)."""
-    shares = {f.name: usable_mask(f).mean() for f in capture.frames if f.normals is not None}
+    level = np.asarray(capture.saturation)
+    shares = {f.name: usable_mask(f, level).mean() for f in capture.frames if f.normals is not None}
     thin = [f"{name} ({share:.1%})" for name, share in shares.items() if share < MIN_USABLE_SHARE]
     if not thin:
         return []

@@ -33,6 +33,7 @@ from .._geometry import normals_from_depth
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._camera_json import read_camera, read_encoding, read_stereo
+from ._channel_ceiling import channel_ceilings, samples_of
 from ._desaturated import desaturated
 from ._encoding import LINEAR, SRGB, decode, default_encoding, encode
 from ._field_of_view import visible_masks
@@ -105,6 +106,11 @@ class Capture:
     notes: tuple[str, ...] = ()
     # A stereo laparoscope's right camera (camera.json's "stereo"; `ctjax.io._stereo`).
     stereo: StereoRig | None = None
+    # Per channel, the level (decoded, as `Frame.image`) from which a value reads as clipped:
+    # 1.0, or below it where the channel stops following the others (the camera's ceiling,
+    # `ctjax.io._channel_ceiling`). The estimators' observations (`ctjax._tracks`, the ring)
+    # leave out values at or above it; the images keep them, as recorded.
+    saturation: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def right_image(self, name: str) -> np.ndarray | None:
         """Frame `name`'s right image as recorded (encoded, float in [0, 1], the right
@@ -268,7 +274,7 @@ def load_capture(
     poses = _read_poses(root / "poses.json") if (root / "poses.json").is_file() else {}
     size = (camera.height, camera.width)
     declared = read_encoding(root / "camera.json")
-    encodings, frames, facing_notes, greyed = set(), [], [], 0
+    encodings, frames, facing_notes, greyed, samples = set(), [], [], 0, []
     for image_path in image_paths:
         name = image_path.stem
         raw = read_recorded(image_path)
@@ -282,6 +288,7 @@ def load_capture(
         grey = desaturated(raw)
         image[grey] = 1.0  # what the camera turned grey near its white reads as clipped
         greyed += int(grey.sum())
+        samples.append(samples_of(raw, grey))
         if image.shape[:2] != size:
             raise CaptureError(
                 f"{image_path}: image is {image.shape[1]}x{image.shape[0]}, camera.json says "
@@ -341,6 +348,9 @@ def load_capture(
             f"{share:.2%} of the frames' pixels are near-white that the camera turned grey (its "
             "channels within one code value, in frames of coloured tissue): read as clipped",
         )
+    saturation, ceilings = _saturation(frames, samples, encoding)
+    if ceilings:
+        notes = (*notes, ceilings)
     if facing_notes:
         notes = (
             *notes,
@@ -364,7 +374,33 @@ def load_capture(
             )
         if not BASELINE_MM[0] <= stereo.baseline_mm <= BASELINE_MM[1]:
             notes = (*notes, _unlikely_baseline(root, stereo.baseline_mm))
-    return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo)
+    return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation)
+
+
+def _saturation(frames, samples, encoding) -> tuple[tuple[float, ...], str | None]:
+    """Per channel, the decoded level from which its values read as clipped: its ceiling
+    (`ctjax.io._channel_ceiling`), or 1.0 (full scale); and a note naming the ceilings,
+    None where no channel has one (or where the frames mix bit depths)."""
+    full = (1.0,) * 3
+    if len({part.dtype for part in samples}) != 1:
+        return full, None
+    dtype = samples[0].dtype
+    top = np.iinfo(dtype).max
+    ceilings = channel_ceilings(np.concatenate(samples), top)
+    if all(code is None for code in ceilings):
+        return full, None
+    levels = decode(np.array([[[top if c is None else c for c in ceilings]]], dtype), encoding)
+    levels = tuple(float(level) for level in levels[0, 0])
+    values = len(frames) * frames[0].image[..., 0].size
+    described = []
+    for c, code in enumerate(ceilings):
+        if code is not None:
+            read = sum(int(np.count_nonzero(f.image[..., c] >= levels[c])) for f in frames)
+            described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
+    return levels, (
+        "a channel of the frames stops following the others below full scale (the camera's "
+        f"ceiling): read as clipped there, {'; '.join(described)}"
+    )
 
 
 # A stereo endoscope's baseline (mm): a da Vinci's 4-5.5, the smallest 3D scopes' about 2.

@@ -50,6 +50,7 @@ def capture_sets(capture: Capture, options: MaskOptions = MaskOptions()) -> list
             highlights=options.highlights,
             ring_px=options.ring_px,
             min_speck_px=options.min_speck_px,
+            saturation_level=np.asarray(capture.saturation),
             visible=frame.visible,
         )
 

@@ -72,14 +72,15 @@ def specular_sets(
     highlights: HighlightRule = DEFAULT_HIGHLIGHTS,
     ring_px: float = DEFAULT_RING_PX,
     min_speck_px: int = DEFAULT_MIN_SPECK_PX,
-    saturation_level: float = 1.0,
+    saturation_level=1.0,
     visible: np.ndarray | None = None,
 ) -> SpecularSets:
     """S, S~ and the clipped channels of one frame.
 
     `valid` (H, W) marks pixels with a valid normal (default: all). The ring holds the
     non-specular, valid pixels whose distance to the nearest specular pixel is at most
-    `ring_px` (Euclidean, in pixels) with every channel below `saturation_level`.
+    `ring_px` (Euclidean, in pixels) with every channel below `saturation_level` (one level,
+    or one per channel: `Capture.saturation`, the camera's ceilings).
     `visible` (H, W): the scene (the endoscope's field of view, off overlays; default:
     all): nothing outside it is in any set.
     """
