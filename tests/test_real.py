@@ -68,6 +68,25 @@ def test_near_white_the_sinus_camera_turned_grey_reads_as_clipped():
     assert not desaturated(recorded[..., [1, 1, 1]]).any()  # a grey scene's grey is its own
 
 
+def test_the_sinus_cameras_red_stops_below_full_scale_and_reads_as_clipped_there(tmp_path):
+    """The sinus camera's red stops following green and blue at about 200 of 255 while they
+    rise another hundred codes (docs/real-video.md): its ceiling is found on load, red's
+    values from there on are clipped for the observations, green's and blue's are not."""
+    from ctjax.io._channel_ceiling import channel_ceilings, samples_of
+
+    capture = load_capture(_sinus(tmp_path / "sinus", 0.25, 8, 4))
+    (note,) = [note for note in capture.notes if "ceiling" in note]
+    assert "R from " in note and capture.saturation[1:] == (1.0, 1.0)
+    code = int(note.split("R from ")[1].split(" ")[0])
+    assert 190 <= code <= 215
+    assert capture.saturation[0] == pytest.approx(float(srgb_to_linear(code / 255)), rel=1e-6)
+    # Of the recorded frames at full size: the same ceiling within a few codes.
+    recorded = [cv2.imread(str(p))[..., ::-1] for p in sorted((SINUS / "images").iterdir())[::6]]
+    samples = np.concatenate([samples_of(r, desaturated(r)) for r in recorded])
+    full = channel_ceilings(samples, 255)
+    assert full[1:] == [None, None] and abs(full[0] - code) <= 6
+
+
 @pytest.fixture(scope="module")
 def sinus_fit(tmp_path_factory):
     root = _sinus(tmp_path_factory.mktemp("real") / "sinus", 0.25, 8, 2)
