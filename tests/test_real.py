@@ -113,3 +113,5 @@ def test_a_fit_on_real_sinus_frames_reports_no_lobe_it_cannot_measure(sinus_fit)
     assert any(w.startswith("undetermined: ") for w in fit["warnings"])
     # The stability check ran on the two halves of the frames.
     assert {"even_frames", "odd_frames"} <= set(fit["halves"])
+    # Its observations' clipping: red from the camera's ceiling, green and blue at 1.0.
+    assert 0.4 < fit["saturation"][0] < 0.75 and fit["saturation"][1:] == [1.0, 1.0]

@@ -38,6 +38,7 @@ from ._uniform_fit import (
     BROAD_LOBE,
     BROAD_WARNING,
     MaskOptions,
+    clipping_to_json,
     fit_to_json,
     flag_brdf_fit,
     poorly_determined,
@@ -325,6 +326,7 @@ def fit_albedo_map(
             "and the point's one normal (the mean of its views', which the fit uses)",
         },
         "masks": dataclasses.asdict(masks),
+        **clipping_to_json(capture),
     }
     warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
     arrays = _AlbedoMaps(capture, fit.brdf, per_point, neighbours)

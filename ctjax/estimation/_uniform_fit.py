@@ -107,6 +107,17 @@ def fit_to_json(fit, per_point: int | None = None) -> dict:
     return out
 
 
+def clipping_to_json(capture) -> dict:
+    """Where the fit's observations read as clipped: per channel, the level (linear, as the
+    weights) at or above which a value is left out (`Capture.saturation`)."""
+    return {
+        "saturation": [float(level) for level in capture.saturation],
+        "saturation_note": "per channel (R, G, B), the linear level from which an observation "
+        "reads as clipped and is left out: 1.0 at full scale, lower where the channel stops "
+        "following the others (the camera's ceiling)",
+    }
+
+
 def poorly_determined(fit, per_point: int | None = None) -> list[str]:
     """'name = value +- stderr' of each global parameter and weight channel whose standard
     error is above `WELL_DETERMINED` of its value (or not finite); an albedo map's weight
@@ -227,6 +238,7 @@ def fit_uniform(
         "lambertian": fit_to_json(lambertian),
         **({} if plain is lambertian else {"diffuse_alone": fit_to_json(plain)}),
         "masks": dataclasses.asdict(masks),
+        **clipping_to_json(capture),
         "albedo": "uniform",
     }
     warnings = _at_zero(fit) + thin_frames(capture)
