@@ -178,7 +178,9 @@ def test_central_differences_explain_the_true_surface(capture):
     truth = capture.truth
     model = paper_model(truth["rho_tilde"], truth["F_tilde"], truth["sigma"])
     start = np.log(frame.depth.astype(float))
-    residuals = ReflectanceResiduals(model, capture.camera, jnp.asarray(1.0), jnp.asarray(1 / 255))
+    residuals = ReflectanceResiduals(
+        model, capture.camera, jnp.asarray(1.0), jnp.asarray(1 / 255), jnp.ones(3)
+    )
     rows, cols = np.nonzero(mask)
     rms = {
         scheme: solve_log_depth(
@@ -204,7 +206,9 @@ def test_central_differences_explain_the_true_surface(capture):
 
 def test_cook_torrance_refinement_explains_the_pixels_better(capture):
     """Started from normals 8 degrees off, eq. (9) brings every pixel's predicted RGB closer
-    to the measurement, and the normals closer to the truth."""
+    to the measurement, and the normals closer to the truth; where a channel stops at a
+    camera's ceiling below full scale, told so (`saturation`), it still does, and closer
+    than read as light."""
     frame = capture.frames[0]
     truth = capture.truth
     model = paper_model(truth["rho_tilde"], truth["F_tilde"], truth["sigma"])
@@ -217,18 +221,39 @@ def test_cook_torrance_refinement_explains_the_pixels_better(capture):
     tilt = np.radians(8.0)
     perturbed = true_normals + np.tan(tilt) * np.cross(true_normals, [0.0, 0.0, 1.0])
     perturbed /= np.linalg.norm(perturbed, axis=-1, keepdims=True)
-    refined = refine_normals(
-        model,
-        points,
-        Vec3.from_array(jnp.asarray(perturbed)),
-        pixel,
-        jnp.asarray(frame.image[rows, cols], float),
-    )
+    values = frame.image[rows, cols].astype(float)
+
+    def refined_with(values, saturation):
+        return refine_normals(
+            model,
+            points,
+            Vec3.from_array(jnp.asarray(perturbed)),
+            pixel,
+            jnp.asarray(values),
+            jnp.asarray(saturation, float),
+        )
+
+    refined = refined_with(values, (1.0, 1.0, 1.0))
     assert np.all(np.asarray(refined.rmse_after) <= np.asarray(refined.rmse_before) + 1e-9)
     assert np.median(np.asarray(refined.rmse_after)) < 2.0
     angle = lambda n: np.degrees(np.arccos(np.clip(np.sum(n * true_normals, -1), -1, 1)))  # noqa: E731
     assert np.median(angle(np.asarray(refined.normals))) < np.median(angle(perturbed))
     assert np.all(np.isfinite(np.asarray(refined.normals)))
+    # Red stopped at its median (a ceiling): told, the refinement reads it as "at least".
+    ceiling = float(np.median(values[:, 0]))
+    stopped = values.copy()
+    stopped[:, 0] = np.minimum(stopped[:, 0], ceiling)
+    told = refined_with(stopped, (ceiling, 1.0, 1.0))
+    read_as_light = refined_with(stopped, (1.0, 1.0, 1.0))
+    assert np.median(np.asarray(told.rmse_after)) < 2.0
+    error = {
+        k: np.median(angle(np.asarray(r.normals)))
+        for k, r in (("told", told), ("light", read_as_light))
+    }
+    # Told: as near the truth as with red unclipped (3.39 against 3.34 degrees); read as
+    # light, the stopped red pulls the normals further off than they started (4.34 vs 3.40).
+    assert error["told"] < np.median(angle(np.asarray(refined.normals))) + 0.2, error
+    assert error["light"] > max(error["told"], np.median(angle(perturbed))) + 0.5, error
 
 
 def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coarse_facets):

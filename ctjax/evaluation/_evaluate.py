@@ -138,7 +138,8 @@ def frame_shapes(
     per_pixel: bool = False,
 ) -> FrameShape:
     """Both SfS of one frame against its depth (or `reference`'s), at reduced resolution."""
-    frame = (reference or capture).frames[index]
+    source = reference or capture  # its frame's image and depth
+    frame = source.frames[index]
     if frame.depth is None:
         raise CtjaxError(f"frame {frame.name}: SfS is compared with depth; the frame has none")
     factor = max(1, math.ceil(capture.camera.width / max_width))
@@ -153,10 +154,13 @@ def frame_shapes(
     volume = bounding_box_volume(reference, mask, camera)
     rho = np.asarray(named_parameters(lambertian.brdf)["rho_tilde"])
     tsai_shah, log_depth = sfs_tsai_shah(image, mask, camera, rho, volume)
-    joint, _ = sfs_cook_torrance(image, mask, camera, cook_torrance, volume)
+    clipped = {"saturation": source.saturation}  # the camera's ceilings, as the fits'
+    joint, _ = sfs_cook_torrance(image, mask, camera, cook_torrance, volume, **clipped)
     paper = None
     if per_pixel:
-        paper = sfs_refined(image, mask, camera, cook_torrance, log_depth, volume, rounds=1)
+        paper = sfs_refined(
+            image, mask, camera, cook_torrance, log_depth, volume, rounds=1, **clipped
+        )
     return FrameShape(frame.name, image, reference, tsai_shah, joint, mask, near, paper)
 
 

@@ -34,15 +34,19 @@ class NormalRefinement(eqx.Module):
     rmse_after: Float[Array, " N"]
 
 
-def refine_normal(model, point: Vec3, normal: Vec3, pixel, values, max_steps: int, prior: float):
-    """One pixel: the normal near `normal` whose predicted RGB (clipped at 1, the sensor's
-    saturation, so that a saturated pixel asks only for "at least this bright") best
-    matches `values` (linear RGB)."""
+def refine_normal(
+    model, point: Vec3, normal: Vec3, pixel, values, saturation, max_steps: int, prior: float
+):
+    """One pixel: the normal near `normal` whose predicted RGB best matches `values` (linear
+    RGB), both clipped at each channel's `saturation` (1, the sensor's, or the camera's
+    ceiling: a clipped value asks only for "at least this bright")."""
+    measured = jnp.minimum(values, saturation)
 
     @jax.jit  # traced once for the solver and the two calls below (pjit's cache)
     def residuals(delta, _):
-        predicted = jnp.minimum(model(point, tangent_direction(normal, delta), pixel), 1.0)
-        return jnp.concatenate([255.0 * (predicted - values), prior * delta])
+        predicted = model(point, tangent_direction(normal, delta), pixel)
+        predicted = jnp.minimum(predicted, saturation)
+        return jnp.concatenate([255.0 * (predicted - measured), prior * delta])
 
     start = jnp.zeros(2, values.dtype)
     solution = optx.least_squares(
@@ -67,14 +71,16 @@ def refine_normals(
     normals: Vec3,
     pixels,
     values: Float[Array, "N 3"],
+    saturation: Float[Array, " 3"],
     *,
     max_steps: int = 20,
     prior: float = PRIOR_LEVELS_PER_RADIAN,
 ) -> NormalRefinement:
     """Refine N pixels' normals (eq. 9) under `model` (a `ShadingModel`: BRDF, light and
     effects), vmapped and jitted. `points` (mm) and `normals` are camera-frame `Vec3`s of
-    (N,) arrays, `pixels` a (u, v) pair of (N,) arrays, `values` linear RGB (N, 3)."""
+    (N,) arrays, `pixels` a (u, v) pair of (N,) arrays, `values` linear RGB (N, 3),
+    `saturation` (3,) the level from which each channel is clipped (`Capture.saturation`)."""
     refined, status, steps, before, after = jax.vmap(
-        lambda p, n, px, v: refine_normal(model, p, n, px, v, max_steps, prior)
+        lambda p, n, px, v: refine_normal(model, p, n, px, v, saturation, max_steps, prior)
     )(points, normals, pixels, values)
     return NormalRefinement(refined.to_array(), status, steps, before, after)

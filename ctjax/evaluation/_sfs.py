@@ -87,15 +87,18 @@ def sfs_refined(
     *,
     rounds: int = 3,
     max_steps: int = 20,
+    saturation=(1.0, 1.0, 1.0),
 ) -> ShapeFromShading:
     """The paper's Cook-Torrance SfS: from a starting surface (Tsai-Shah's), refine every
     pixel's normal under `model` (eq. 9, `refine_normals`), integrate the normals to log depth
     (least squares), and repeat `rounds` times from the integrated surface (each round makes
     the normals integrable again). The model's light may depend on the surface point (a near
-    light): points come from the current surface at the known volume's scale."""
+    light): points come from the current surface at the known volume's scale. `saturation`:
+    per channel, the level from which a value is clipped (`Capture.saturation`)."""
     rows, cols = np.nonzero(mask)
     pixels = (jnp.asarray(cols, np.float64), jnp.asarray(rows, np.float64))
     values = jnp.asarray(image[rows, cols], np.float64)
+    saturation = jnp.broadcast_to(jnp.asarray(saturation, np.float64), values.shape[-1:])
     log_depth = start_log_depth
     not_converged = 0
     for _ in range(rounds):
@@ -103,7 +106,9 @@ def sfs_refined(
         normals = _normals(log_depth, mask, camera)
         start = Vec3(*(jnp.asarray(c)[rows, cols] for c in (normals.x, normals.y, normals.z)))
         points = camera.backproject(pixels, jnp.asarray(depth[rows, cols]))
-        refined = refine_normals(model, points, start, pixels, values, max_steps=max_steps)
+        refined = refine_normals(
+            model, points, start, pixels, values, saturation, max_steps=max_steps
+        )
         not_converged = int(np.sum(np.asarray(refined.status) != 0))
         p, q = gradients_from_normal(Vec3.from_array(refined.normals), pixels, camera)
         p_map, q_map = np.zeros(mask.shape), np.zeros(mask.shape)
@@ -134,12 +139,13 @@ REFERENCE_FOCAL_PX = 144.0
 MIN_LEVEL_PIXELS = 64
 
 
-def frame_brightness(image: np.ndarray, mask: np.ndarray) -> float:
+def frame_brightness(image: np.ndarray, mask: np.ndarray, saturation=1.0) -> float:
     """A frame's brightness scale: the 99th percentile over the surface's unsaturated pixels
-    of the channel sum. Residuals are divided by it so that the curvature weight, tuned in
-    Tsai-Shah's N.L units, means the same whatever the exposure."""
+    (every channel under its `saturation`) of the channel sum. Residuals are divided by it so
+    that the curvature weight, tuned in Tsai-Shah's N.L units, means the same whatever the
+    exposure."""
     values = image[mask]
-    values = values[np.all(values < 1.0, axis=-1)]
+    values = values[np.all(values < saturation, axis=-1)]
     if len(values) == 0:
         raise CtjaxError("shape from shading: every pixel of the surface is saturated")
     brightness = float(np.percentile(values.sum(axis=-1), 99))
@@ -151,25 +157,29 @@ def frame_brightness(image: np.ndarray, mask: np.ndarray) -> float:
 class ReflectanceResiduals(eqx.Module):
     """One pixel's shading residuals (C,) under `model` in Tsai-Shah's formulation: the
     normal from the log-depth gradients (p, q), the point at depth `depth_scale * exp(z)` (a
-    near light sees the distance), the prediction clipped at 1 (a saturated pixel only says
-    "at least this bright"), in units of `unit` per channel."""
+    near light sees the distance), the prediction and the value clipped at each channel's
+    `saturation` (1, or the camera's ceiling: a clipped value only says "at least this
+    bright"), in units of `unit` per channel."""
 
     model: eqx.Module
     camera: Camera
     depth_scale: Float[Array, ""]
     unit: Float[Array, ""]
+    saturation: Float[Array, " C"]
 
     def __call__(self, z, p, q, u, v, values):
         normal = normal_from_gradients(p, q, (u, v), self.camera)
         point = self.camera.backproject((u, v), self.depth_scale * jnp.exp(z))
-        predicted = jnp.minimum(self.model(point, normal, (u, v)), 1.0)
-        return (predicted - values) / self.unit
+        predicted = jnp.minimum(self.model(point, normal, (u, v)), self.saturation)
+        return (predicted - jnp.minimum(values, self.saturation)) / self.unit
 
 
-def _solve_level(model, camera, mask, values, unit, curvature_weight, scale, start, iterations):
+def _solve_level(
+    model, camera, mask, values, unit, saturation, curvature_weight, scale, start, iterations
+):
     """One pyramid level of `sfs_cook_torrance`: (log depth, RMS)."""
     return solve_log_depth(
-        ReflectanceResiduals(model, camera, jnp.asarray(scale), unit),
+        ReflectanceResiduals(model, camera, jnp.asarray(scale), unit, saturation),
         mask,
         camera,
         start,
@@ -206,14 +216,16 @@ def sfs_cook_torrance(
     levels: int = PYRAMID_LEVELS,
     iterations: int = 20,
     curvature_weight: float | None = None,
+    saturation=(1.0, 1.0, 1.0),
 ) -> tuple[ShapeFromShading, np.ndarray]:
     """Shape from shading under `model` (a `ShadingModel`: Cook-Torrance, its light and
     effects): Tsai-Shah's linearisation with the model's reflectance map, all pixels jointly
     (central differences, so that each pixel's normal is the one at its centre), coarse to
     fine over `levels` pyramid levels from `start` (log depth (H, W); default Tsai-Shah's
     dome), at the scale of the known bounding-box volume `volume_mm3`. `curvature_weight`:
-    default COOK_TORRANCE_CURVATURE_WEIGHT at the camera's focal length. Returns the result
-    and the log depth."""
+    default COOK_TORRANCE_CURVATURE_WEIGHT at the camera's focal length. `saturation`: per
+    channel, the level from which a value is clipped (`Capture.saturation`). Returns the
+    result and the log depth."""
     image = np.asarray(image, np.float64)
     mask = np.asarray(mask, bool)
     if image.ndim != 3:
@@ -224,7 +236,8 @@ def sfs_cook_torrance(
     check_sfs_inputs(image, mask, camera, "Cook-Torrance shape from shading")
     if levels < 1:
         raise CtjaxError(f"Cook-Torrance shape from shading: levels must be >= 1, got {levels}")
-    unit = jnp.asarray(frame_brightness(image, mask) / math.sqrt(image.shape[-1]))
+    saturation = np.broadcast_to(np.asarray(saturation, np.float64), image.shape[-1:])
+    unit = jnp.asarray(frame_brightness(image, mask, saturation) / math.sqrt(image.shape[-1]))
     if curvature_weight is None:
         focal = math.sqrt(float(camera.fx) * float(camera.fy))
         curvature_weight = COOK_TORRANCE_CURVATURE_WEIGHT * (focal / REFERENCE_FOCAL_PX) ** 2
@@ -244,7 +257,14 @@ def sfs_cook_torrance(
         values = block_reduce(image, factor)[rows, cols]
 
         solve = functools.partial(
-            _solve_level, model, level_camera, level_mask, values, unit, curvature_weight
+            _solve_level,
+            model,
+            level_camera,
+            level_mask,
+            values,
+            unit,
+            jnp.asarray(saturation),
+            curvature_weight,
         )
         if scale is None:
             scale = _depth_scale(level_start, level_mask, level_camera, volume_mm3, solve)
