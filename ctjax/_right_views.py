@@ -177,12 +177,16 @@ def with_right_views(
     frames=None,
     *,
     tolerance: float = DEFAULT_TOLERANCE,
-    saturation_level: float = 1.0,
+    saturation_level=None,
 ) -> tuple[Tracks, np.ndarray]:
     """`tracks` with one more view per frame of `frames` (default: every frame the tracks
     were followed in): that frame's right image. Returns the tracks and which of their
-    observations are right views (P, M + len(frames), bool; observed ones only)."""
+    observations are right views (P, M + len(frames), bool; observed ones only). A right
+    value at or above `saturation_level` (one, or one per channel; default: the right
+    camera's, `Capture.right_saturation`) is clipped."""
     require_stereo(capture)
+    if saturation_level is None:
+        saturation_level = np.asarray(capture.right_saturation, np.float32)
     if frames is None:
         frames = sorted({int(f) for f in np.unique(tracks.frame) if f >= 0})
     world, normal = _anchors(capture, tracks)

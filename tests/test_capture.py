@@ -347,6 +347,7 @@ def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
     values at or above it as clipped in that channel alone; channels that follow the light
     to full scale have none."""
     from ctjax.io._channel_ceiling import channel_ceilings
+    from ctjax.io._stereo import StereoRig
     from ctjax.observations import Observations
 
     rng = np.random.default_rng(0)
@@ -374,7 +375,8 @@ def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
     code = int(note.split("R from ")[1].split(" ")[0])
     assert 160 <= code <= 175
     # The level in the decoded images (linear 8-bit here); green and blue at full scale.
-    assert capture.saturation == pytest.approx((code / 255, 1.0, 1.0), rel=1e-6)
+    # Half a code below the ceiling's: every decoding of that code is at or above it.
+    assert capture.saturation == pytest.approx(((code - 0.5) / 255, 1.0, 1.0), rel=1e-6)
     for recorded, frame in zip(frames, capture.frames, strict=True):
         # The images as recorded; the observations read red clipped from the ceiling on.
         np.testing.assert_allclose(frame.image, recorded / 255, atol=1e-6)
@@ -382,11 +384,15 @@ def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
         clipped = (recorded[..., 0] >= code) | np.any(recorded[..., 1:] == 255, axis=-1)
         assert np.array_equal(usable[1:-1, 1:-1], ~clipped[1:-1, 1:-1])  # normals: not the rim
     plain = [_tissue_samples(rng, 160 * 160).reshape(160, 160, 3) for _ in range(6)]
-    write_capture(
-        tmp_path / "p",
-        camera,
-        [Frame(f"f{k}", f / 255.0) for k, f in enumerate(plain)],
-    )
+    plain_frames = [Frame(f"f{k}", f / 255.0) for k, f in enumerate(plain)]
+    write_capture(tmp_path / "p", camera, plain_frames)
     plain = load_capture(tmp_path / "p")
     assert not any("ceiling" in note for note in plain.notes)
-    assert plain.saturation == (1.0, 1.0, 1.0)
+    assert plain.saturation == (1.0, 1.0, 1.0) == plain.right_saturation
+    # A stereo capture's right camera has its own: found on its images.
+    rig = StereoRig(camera, np.eye(3), np.array([-5.0, 0.0, 0.0]))
+    right = {f"f{k}": f / 255.0 for k, f in enumerate(frames)}
+    write_capture(tmp_path / "s", camera, plain_frames, stereo=rig, right=right)
+    stereo = load_capture(tmp_path / "s")
+    assert stereo.saturation == (1.0, 1.0, 1.0)
+    assert stereo.right_saturation == pytest.approx(capture.saturation)

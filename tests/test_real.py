@@ -79,7 +79,7 @@ def test_the_sinus_cameras_red_stops_below_full_scale_and_reads_as_clipped_there
     assert "R from " in note and capture.saturation[1:] == (1.0, 1.0)
     code = int(note.split("R from ")[1].split(" ")[0])
     assert 190 <= code <= 215
-    assert capture.saturation[0] == pytest.approx(float(srgb_to_linear(code / 255)), rel=1e-6)
+    assert capture.saturation[0] == pytest.approx(float(srgb_to_linear((code - 0.5) / 255)))
     # Of the recorded frames at full size: the same ceiling within a few codes.
     recorded = [cv2.imread(str(p))[..., ::-1] for p in sorted((SINUS / "images").iterdir())[::6]]
     samples = np.concatenate([samples_of(r, desaturated(r)) for r in recorded])

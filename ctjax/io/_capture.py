@@ -35,7 +35,7 @@ from ._atomic import atomic_write_json, atomic_write_npy
 from ._camera_json import read_camera, read_encoding, read_stereo
 from ._channel_ceiling import channel_ceilings, samples_of
 from ._desaturated import desaturated
-from ._encoding import LINEAR, SRGB, decode, default_encoding, encode
+from ._encoding import LINEAR, SRGB, decode, default_encoding, encode, srgb_to_linear
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
 from ._stereo import RIGHT, StereoRig, right_image_path
@@ -130,6 +130,20 @@ class Capture:
         image = raw.astype(np.float32) / top
         image[desaturated(raw)] = 1.0
         return image
+
+    @functools.cached_property
+    def right_saturation(self) -> tuple[float, float, float]:
+        """`saturation` of a stereo capture's right camera, found on its own images (its
+        channels' ceilings, `ctjax.io._channel_ceiling`); full scale without a right camera."""
+        if self.stereo is None:
+            return (1.0, 1.0, 1.0)
+        samples = []
+        for frame in self.frames:
+            path = right_image_path(self.root, frame.name)
+            if path is not None:
+                raw = read_recorded(path)
+                samples.append(samples_of(raw, desaturated(raw)))
+        return _ceiling_levels(samples, self.encoding)[0] if samples else (1.0, 1.0, 1.0)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -377,20 +391,30 @@ def load_capture(
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation)
 
 
-def _saturation(frames, samples, encoding) -> tuple[tuple[float, ...], str | None]:
-    """Per channel, the decoded level from which its values read as clipped: its ceiling
-    (`ctjax.io._channel_ceiling`), or 1.0 (full scale); and a note naming the ceilings,
-    None where no channel has one (or where the frames mix bit depths)."""
-    full = (1.0,) * 3
+def _ceiling_levels(samples, encoding) -> tuple[tuple[float, ...], list[int | None], int]:
+    """Per channel, the decoded level from which its values read as clipped (half a code
+    below its ceiling's code, `ctjax.io._channel_ceiling`, so that every decoding of that
+    code is at or above it; 1.0 where it has none), the ceilings' codes and full scale;
+    none where the images mix bit depths."""
     if len({part.dtype for part in samples}) != 1:
-        return full, None
-    dtype = samples[0].dtype
-    top = np.iinfo(dtype).max
+        return (1.0,) * 3, [None] * 3, 0
+    top = int(np.iinfo(samples[0].dtype).max)
     ceilings = channel_ceilings(np.concatenate(samples), top)
+    levels = tuple(
+        1.0 if code is None else float(_decoded((code - 0.5) / top, encoding)) for code in ceilings
+    )
+    return levels, ceilings, top
+
+
+def _decoded(recorded: float, encoding: str) -> float:
+    return float(srgb_to_linear(np.float64(recorded))) if encoding == SRGB else recorded
+
+
+def _saturation(frames, samples, encoding) -> tuple[tuple[float, ...], str | None]:
+    """`Capture.saturation` of the frames, and a note naming the ceilings (None without)."""
+    levels, ceilings, top = _ceiling_levels(samples, encoding)
     if all(code is None for code in ceilings):
-        return full, None
-    levels = decode(np.array([[[top if c is None else c for c in ceilings]]], dtype), encoding)
-    levels = tuple(float(level) for level in levels[0, 0])
+        return levels, None
     values = len(frames) * frames[0].image[..., 0].size
     described = []
     for c, code in enumerate(ceilings):
