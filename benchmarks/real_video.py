@@ -16,7 +16,8 @@ is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate`
   channel >= 230 recorded, away from the rim of the field of view) with S's area over
   those cores dilated by 7x7 pixels (the goal: recall >= 95%, area <= 3x);
 - SfM: registered frames, points, reprojection error, coverage, frames whose texture
-  refinement was kept;
+  refinement was kept; and from which level each channel reads as clipped (below 1: the
+  camera's ceiling, `Capture.saturation`);
 - fit: sigma, F_tilde, their standard errors and the status, on all, even and odd frames
   (and, on a stereo capture, with the right camera's views: `fit --right-views`);
 - the near light: falloff, offset (with its unit), status;
@@ -236,6 +237,9 @@ def _table(source, out, capture, seconds, failed) -> dict:
             "texture_refinement_kept": photometric.get("kept_frames"),
             "length_unit": recon.get("length_unit"),
         },
+        # Per channel, from which level the observations read as clipped (the camera's
+        # ceiling where below 1).
+        "saturation": _json(out / "fit.json").get("saturation"),
         "fit": _lobe(_json(out / "fit.json")),
         "fit_even": _lobe(_json(out / "fit_even.json")),
         "fit_odd": _lobe(_json(out / "fit_odd.json")),
@@ -299,7 +303,8 @@ def _print(row: dict) -> None:
         f"reprojection {_fmt(s['reprojection_px'])} px, coverage {_fmt(s['coverage'])}, "
         f"texture refinement kept in {s['texture_refinement_kept']} frames, unit "
         f"{s['length_unit']}; the frames' normals of one point disagree by "
-        f"{_fmt(row['fit']['frames_disagree_deg'])} deg RMS"
+        f"{_fmt(row['fit']['frames_disagree_deg'])} deg RMS; clipped from (linear R, G, B) "
+        f"{_fmt(row['saturation'])}"
     )
     for key in ("fit", "fit_even", "fit_odd", "fit_right"):
         f = row[key]
