@@ -389,6 +389,17 @@ def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
     plain = load_capture(tmp_path / "p")
     assert not any("ceiling" in note for note in plain.notes)
     assert plain.saturation == (1.0, 1.0, 1.0) == plain.right_saturation
+    # camera.json's "ceilings": none, or given (codes of the images; null: full scale).
+    described = json.loads((tmp_path / "c" / "camera.json").read_text())
+    for declared, expected in (("none", (1.0, 1.0, 1.0)), ([180, None, 255], (179.5 / 255, 1, 1))):
+        (tmp_path / "c" / "camera.json").write_text(json.dumps(described | {"ceilings": declared}))
+        told = load_capture(tmp_path / "c")
+        assert told.saturation == pytest.approx(expected, rel=1e-6)
+        assert any("camera.json's ceilings" in n for n in told.notes) == (declared != "none")
+    for wrong in ("sometimes", [180, None], [0, None, None], [180.5, None, None], True):
+        (tmp_path / "c" / "camera.json").write_text(json.dumps(described | {"ceilings": wrong}))
+        with pytest.raises(ctjax.CaptureError, match='"ceilings" must be'):
+            load_capture(tmp_path / "c")
     # A stereo capture's right camera has its own: found on its images.
     rig = StereoRig(camera, np.eye(3), np.array([-5.0, 0.0, 0.0]))
     right = {f"f{k}": f / 255.0 for k, f in enumerate(frames)}

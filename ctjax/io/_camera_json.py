@@ -1,7 +1,7 @@
 """camera.json: the camera's intrinsics and distortion (`read_camera`, `camera_from_json`),
 a stereo laparoscope's right camera (`read_stereo`, its `"stereo"` block:
-`ctjax.io._stereo`) and the images' encoding (`read_encoding`), each checked with an error
-that names the file and the key."""
+`ctjax.io._stereo`), the images' encoding (`read_encoding`) and the channels' ceilings
+(`read_ceilings`), each checked with an error that names the file and the key."""
 
 import json
 import math
@@ -131,3 +131,36 @@ def read_encoding(path: Path) -> str | None:
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         return None  # `read_camera` names the problem
     return declared_encoding(data, str(path)) if isinstance(data, dict) else None
+
+
+# camera.json's "ceilings": found on the frames (the default), none, or given.
+AUTO_CEILINGS = "auto"
+NO_CEILINGS = "none"
+
+
+def read_ceilings(path: Path) -> str | list[int | None]:
+    """`camera.json`'s `"ceilings"`: "auto" (the default: each channel's ceiling found on the
+    frames, `ctjax.io._channel_ceiling`), "none" (every channel clips at full scale) or
+    [R, G, B], each a code value of the images (from which that channel reads as clipped)
+    or null (full scale)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return AUTO_CEILINGS  # `read_camera` names the problem
+    value = data.get("ceilings", AUTO_CEILINGS) if isinstance(data, dict) else AUTO_CEILINGS
+    if value in (AUTO_CEILINGS, NO_CEILINGS):
+        return value
+    if (
+        isinstance(value, list)
+        and len(value) == 3
+        and all(
+            code is None or (isinstance(code, int) and not isinstance(code, bool) and code > 0)
+            for code in value
+        )
+    ):
+        return value
+    raise CaptureError(
+        f'{path}: "ceilings" must be "auto", "none" or [R, G, B] (each a positive code value '
+        f"of the images, or null for full scale), got {value!r}"
+    )

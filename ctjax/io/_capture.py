@@ -32,7 +32,7 @@ from .._errors import CaptureError
 from .._geometry import normals_from_depth
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
-from ._camera_json import read_camera, read_encoding, read_stereo
+from ._camera_json import AUTO_CEILINGS, read_camera, read_ceilings, read_encoding, read_stereo
 from ._channel_ceiling import channel_ceilings, samples_of
 from ._desaturated import desaturated
 from ._encoding import LINEAR, SRGB, decode, default_encoding, encode, srgb_to_linear
@@ -135,8 +135,9 @@ class Capture:
     def right_saturation(self) -> tuple[float, float, float]:
         """`saturation` of a stereo capture's right camera, found on its own images (its
         channels' ceilings, `ctjax.io._channel_ceiling`); full scale without a right camera."""
-        if self.stereo is None:
-            return (1.0, 1.0, 1.0)
+        declared = read_ceilings(self.root / "camera.json")
+        if self.stereo is None or declared != AUTO_CEILINGS:  # given: the left camera's
+            return self.saturation if self.stereo is not None else (1.0, 1.0, 1.0)
         samples = []
         for frame in self.frames:
             path = right_image_path(self.root, frame.name)
@@ -362,7 +363,8 @@ def load_capture(
             f"{share:.2%} of the frames' pixels are near-white that the camera turned grey (its "
             "channels within one code value, in frames of coloured tissue): read as clipped",
         )
-    saturation, ceilings = _saturation(frames, samples, encoding)
+    declared_ceilings = read_ceilings(root / "camera.json")
+    saturation, ceilings = _saturation(frames, samples, encoding, declared_ceilings)
     if ceilings:
         notes = (*notes, ceilings)
     if facing_notes:
@@ -391,15 +393,22 @@ def load_capture(
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation)
 
 
-def _ceiling_levels(samples, encoding) -> tuple[tuple[float, ...], list[int | None], int]:
+def _ceiling_levels(
+    samples, encoding, declared=AUTO_CEILINGS
+) -> tuple[tuple[float, ...], list[int | None], int]:
     """Per channel, the decoded level from which its values read as clipped (half a code
-    below its ceiling's code, `ctjax.io._channel_ceiling`, so that every decoding of that
-    code is at or above it; 1.0 where it has none), the ceilings' codes and full scale;
-    none where the images mix bit depths."""
+    below its ceiling's code, so that every decoding of that code is at or above it; 1.0
+    where it has none), the ceilings' codes and full scale. The ceilings are camera.json's
+    `declared` ones (`read_ceilings`: "none", or codes) or found on the `samples`
+    (`ctjax.io._channel_ceiling`); none found where the images mix bit depths."""
     if len({part.dtype for part in samples}) != 1:
         return (1.0,) * 3, [None] * 3, 0
     top = int(np.iinfo(samples[0].dtype).max)
-    ceilings = channel_ceilings(np.concatenate(samples), top)
+    if declared == AUTO_CEILINGS:
+        ceilings = channel_ceilings(np.concatenate(samples), top)
+    else:
+        ceilings = [None] * 3 if isinstance(declared, str) else list(declared)
+        ceilings = [None if code is None or code >= top else code for code in ceilings]
     levels = tuple(
         1.0 if code is None else float(_decoded((code - 0.5) / top, encoding)) for code in ceilings
     )
@@ -410,9 +419,9 @@ def _decoded(recorded: float, encoding: str) -> float:
     return float(srgb_to_linear(np.float64(recorded))) if encoding == SRGB else recorded
 
 
-def _saturation(frames, samples, encoding) -> tuple[tuple[float, ...], str | None]:
+def _saturation(frames, samples, encoding, declared) -> tuple[tuple[float, ...], str | None]:
     """`Capture.saturation` of the frames, and a note naming the ceilings (None without)."""
-    levels, ceilings, top = _ceiling_levels(samples, encoding)
+    levels, ceilings, top = _ceiling_levels(samples, encoding, declared)
     if all(code is None for code in ceilings):
         return levels, None
     values = len(frames) * frames[0].image[..., 0].size
@@ -421,9 +430,11 @@ def _saturation(frames, samples, encoding) -> tuple[tuple[float, ...], str | Non
         if code is not None:
             read = sum(int(np.count_nonzero(f.image[..., c] >= levels[c])) for f in frames)
             described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
+    found = "found on the frames" if declared == AUTO_CEILINGS else "camera.json's ceilings"
     return levels, (
         "a channel of the frames stops following the others below full scale (the camera's "
-        f"ceiling): read as clipped there, {'; '.join(described)}"
+        f"ceiling, {found}): read as clipped there, {'; '.join(described)}; camera.json's "
+        '"ceilings": "none" reads every channel to full scale'
     )
 
 
