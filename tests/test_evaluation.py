@@ -32,7 +32,7 @@ from ctjax.evaluation._perspective import (
     normal_from_gradients,
     normals_from_log_depth,
 )
-from ctjax.evaluation._sfs import ReflectanceResiduals, sfs_cook_torrance
+from ctjax.evaluation._sfs import ReflectanceResiduals, lambertian_shading, sfs_cook_torrance
 from ctjax.evaluation._tsai_shah import initial_log_depth, solve_log_depth
 from ctjax.fitting import paper_model
 from ctjax.heldout import HeldOutTracks
@@ -202,6 +202,24 @@ def test_central_differences_explain_the_true_surface(capture):
     )
     assert np.mean(np.abs(result.depth - frame.depth)[mask]) < 0.5
     assert result.rms_levels < 1.5
+
+
+def test_lambertian_shading_leaves_out_a_channel_at_its_ceiling():
+    """Tsai-Shah's N.L from the channels read as light: a red at its ceiling below full
+    scale is left out (N.L from green and blue, exact), a red at full scale still counts (as
+    before: Tsai-Shah clips the shading above 1), and without a ceiling nothing changes."""
+    rho = np.array([1.2, 0.6, 0.5])
+    shading = np.array([[0.8, 0.4]])  # N.L of two pixels
+    image = shading[..., None] * rho / np.pi
+    stopped = image.copy()
+    stopped[..., 0] = np.minimum(stopped[..., 0], 0.2)  # red stops at 0.2 (the first pixel)
+    read_as_light = lambertian_shading(stopped, rho)
+    assert read_as_light[0, 0] < 0.75 and read_as_light[0, 1] == pytest.approx(0.4)
+    np.testing.assert_allclose(lambertian_shading(stopped, rho, (0.2, 1.0, 1.0)), shading)
+    np.testing.assert_array_equal(lambertian_shading(stopped, rho, (1.0, 1.0, 1.0)), read_as_light)
+    every = np.full((1, 1, 3), 0.2)  # every channel at a ceiling: the sum, as before
+    at_ceilings = lambertian_shading(every, rho, (0.2, 0.2, 0.2))
+    np.testing.assert_allclose(at_ceilings, lambertian_shading(every, rho))
 
 
 def test_cook_torrance_refinement_explains_the_pixels_better(capture):

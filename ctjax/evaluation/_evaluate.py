@@ -153,8 +153,8 @@ def frame_shapes(
         raise CtjaxError(f"frame {frame.name}: too few pixels with depth for SfS")
     volume = bounding_box_volume(reference, mask, camera)
     rho = np.asarray(named_parameters(lambertian.brdf)["rho_tilde"])
-    tsai_shah, log_depth = sfs_tsai_shah(image, mask, camera, rho, volume)
     clipped = {"saturation": source.saturation}  # the camera's ceilings, as the fits'
+    tsai_shah, log_depth = sfs_tsai_shah(image, mask, camera, rho, volume, **clipped)
     joint, _ = sfs_cook_torrance(image, mask, camera, cook_torrance, volume, **clipped)
     paper = None
     if per_pixel:

@@ -46,13 +46,24 @@ class ShapeFromShading:
     rms_levels: float | None = None  # final RMS of the shading residuals, 8-bit levels
 
 
-def lambertian_shading(image: np.ndarray, rho_tilde) -> np.ndarray:
+def lambertian_shading(image: np.ndarray, rho_tilde, saturation=(1.0, 1.0, 1.0)) -> np.ndarray:
     """N.L of a Lambertian surface lit from the camera: the radiance summed over channels
-    over the albedo summed over channels (rho_tilde / pi per channel)."""
-    albedo = np.sum(np.asarray(rho_tilde, np.float64)) / np.pi
-    if not albedo > 0:
+    over the albedo summed over channels (rho_tilde / pi per channel). A channel at or above
+    a ceiling below full scale (`saturation` under 1: `Capture.saturation`) is left out of
+    both sums where another channel is not (at full scale a clipped channel counts, as
+    Tsai-Shah clips the shading above 1)."""
+    albedo = np.asarray(rho_tilde, np.float64) / np.pi
+    if not np.sum(albedo) > 0:
         raise CtjaxError(f"Lambertian albedo must be positive, got rho_tilde {rho_tilde}")
-    return np.sum(image, axis=-1) / albedo
+    shading = np.sum(image, axis=-1) / np.sum(albedo)
+    level = np.broadcast_to(np.asarray(saturation, np.float64), image.shape[-1:])
+    if np.all(level >= 1.0):
+        return shading
+    light = (image < level) | (level >= 1.0)  # the channels read as light
+    counted = np.sum(np.where(light, albedo, 0.0), axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        under = np.sum(np.where(light, image, 0.0), axis=-1) / counted
+    return np.where(counted > 0, under, shading)
 
 
 def _normals(log_depth, mask, camera):
@@ -67,11 +78,19 @@ def _depth(log_depth, mask, camera, volume_mm3):
 
 
 def sfs_tsai_shah(
-    image: np.ndarray, mask: np.ndarray, camera: Camera, rho_tilde, volume_mm3: float, **kwargs
+    image: np.ndarray,
+    mask: np.ndarray,
+    camera: Camera,
+    rho_tilde,
+    volume_mm3: float,
+    saturation=(1.0, 1.0, 1.0),
+    **kwargs,
 ) -> tuple[ShapeFromShading, np.ndarray]:
     """Tsai-Shah SfS of a frame under the Lambertian model with albedo `rho_tilde`, at the
-    scale of the known bounding-box volume. Returns the result and the log depth."""
-    log_depth = tsai_shah(lambertian_shading(image, rho_tilde), mask, camera, **kwargs)
+    scale of the known bounding-box volume (`saturation`: `lambertian_shading`). Returns
+    the result and the log depth."""
+    shading = lambertian_shading(image, rho_tilde, saturation)
+    log_depth = tsai_shah(shading, mask, camera, **kwargs)
     normals = np.array(_normals(log_depth, mask, camera).to_array())
     normals[~mask] = np.nan
     return ShapeFromShading(_depth(log_depth, mask, camera, volume_mm3), normals), log_depth
