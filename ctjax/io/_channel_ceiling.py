@@ -66,31 +66,35 @@ def samples_of(raw: np.ndarray, clipped: np.ndarray) -> np.ndarray:
     return part[keep]
 
 
+def channel_profile(samples: np.ndarray, top: int, channel: int):
+    """One channel's medians against the other channels' mean: the bins' centres (codes of
+    the others' mean), the channel's median in each and each bin's weight (the root of its
+    samples), over the bins with at least `MIN_SAMPLES` (an even stride through at most
+    `MAX_SAMPLES` of `samples`, (N, 3) codes)."""
+    codes = samples[:: max(1, -(-len(samples) // MAX_SAMPLES))].astype(np.float64)
+    width = BIN * top
+    others = np.delete(codes, channel, axis=-1).mean(axis=-1)
+    index = np.floor(others / width).astype(int)
+    order = np.lexsort((codes[:, channel], index))  # by bin, then by the channel's value
+    bins, starts, counts = np.unique(index[order], return_index=True, return_counts=True)
+    full = counts >= MIN_SAMPLES
+    ordered = codes[order, channel]
+    medians = [
+        np.median(ordered[a : a + n]) for a, n in zip(starts[full], counts[full], strict=True)
+    ]
+    return (bins[full] + 0.5) * width, np.array(medians), np.sqrt(counts[full])
+
+
 def channel_ceilings(samples: np.ndarray, top: int) -> list[int | None]:
     """Per channel, the code value from which it reads as clipped, or None where it follows
     the others up to the brightest samples (the module doc). `samples`: (N, 3) codes."""
-    codes = samples[:: max(1, -(-len(samples) // MAX_SAMPLES))].astype(np.float64)
-    width = BIN * top
-    ceilings = []
-    for c in range(codes.shape[-1]):
-        others = np.delete(codes, c, axis=-1).mean(axis=-1)
-        index = np.floor(others / width).astype(int)
-        order = np.lexsort((codes[:, c], index))  # by bin, then by the channel's value
-        bins, starts, counts = np.unique(index[order], return_index=True, return_counts=True)
-        full = counts >= MIN_SAMPLES
-        ordered = codes[order, c]
-        medians = [
-            np.median(ordered[a : a + n]) for a, n in zip(starts[full], counts[full], strict=True)
-        ]
-        centres, weights = (bins[full] + 0.5) * width, np.sqrt(counts[full])
-        ceilings.append(_ceiling(centres, np.array(medians), weights, top))
-    return ceilings
+    return [_ceiling(*channel_profile(samples, top, c), top) for c in range(samples.shape[-1])]
 
 
-def _ceiling(centres, medians, weights, top: int) -> int | None:
-    """The level of the hinge (two lines meeting at a knot, fitted by least squares to the
-    bins' medians weighted by `weights`, the knot at the best bin) where the second line is
-    a plateau, or None."""
+def hinge(centres, medians, weights) -> tuple[int, float, float, float] | None:
+    """Two lines meeting at a knot, fitted by least squares to the bins' medians weighted by
+    `weights`, the knot at the bin that fits best: (the knot's bin, its level, the first
+    line's slope, the second's), or None with under 5 bins."""
     best = None
     for k in range(2, len(centres) - 2):
         design = np.stack(
@@ -105,8 +109,15 @@ def _ceiling(centres, medians, weights, top: int) -> int | None:
     if best is None:
         return None
     _, k, (offset, slope, change) = best
-    level = offset + slope * centres[k]
-    plateau = slope + change
+    return k, float(offset + slope * centres[k]), float(slope), float(slope + change)
+
+
+def _ceiling(centres, medians, weights, top: int) -> int | None:
+    """The hinge's level where its second line is a plateau (the module doc), or None."""
+    fitted = hinge(centres, medians, weights)
+    if fitted is None:
+        return None
+    k, level, slope, plateau = fitted
     if (
         BRIGHT * top <= level < BELOW_FULL_SCALE * top
         and centres[-1] - centres[k] >= PLATEAU_SPAN * top
