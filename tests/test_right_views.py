@@ -189,3 +189,32 @@ def test_a_right_view_near_the_highlights_goes_with_its_left_view(stereo):
         at = right & (tracks.frame == index) & (tracks.weight > 0)
         points = np.nonzero(at)[0]
         np.testing.assert_array_equal(dropped[at], (close | ~seen)[points])
+
+
+def test_the_right_views_read_the_right_cameras_ceilings_as_clipped(stereo, tmp_path):
+    """A right view whose channel is at or above the right camera's ceiling
+    (`Capture.right_saturation`; here camera.json's "ceilings", which both cameras take) is
+    not observed, as a left one at the left camera's; the other right views are the same."""
+    from ctjax._right_views import right_image, with_right_views
+    from ctjax.observations import Observations
+
+    capture, _ = stereo
+    assert capture.right_saturation == (1.0, 1.0, 1.0)  # found on its images: none in synth's
+    tracks = Observations.of(capture).tracks(max_points=2000)
+    plain, right = with_right_views(capture, tracks)
+    # Red clipped from its median over the right images' tissue (8-bit linear codes).
+    red = np.concatenate([right_image(capture, f.name)[..., 0].ravel() for f in capture.frames])
+    code = int(np.median(red[red > 0.02]) * 255)
+    root = shutil.copytree(capture.root, tmp_path / "told")
+    described = json.loads((root / "camera.json").read_text()) | {"ceilings": [code, None, None]}
+    (root / "camera.json").write_text(json.dumps(described))
+    told = load_capture(root)
+    assert told.right_saturation == told.saturation == pytest.approx(((code - 0.5) / 255, 1, 1))
+    clipped, right_told = with_right_views(told, tracks)
+    np.testing.assert_array_equal(right_told, right & clipped.observed)
+    lost = right & plain.observed & ~clipped.observed
+    assert 0 < lost.sum() < (right & plain.observed).sum()
+    # Bright in red where they went (a neighbour of the sample at or above the ceiling).
+    assert np.median(plain.values[lost][:, 0]) >= (code - 0.5) / 255
+    kept = right & clipped.observed
+    np.testing.assert_array_equal(plain.values[kept], clipped.values[kept])
