@@ -95,9 +95,11 @@ def sinus_fit(tmp_path_factory):
 
 
 def test_a_fit_on_real_sinus_frames_reports_no_lobe_it_cannot_measure(sinus_fit):
-    """On these frames (8 at 480x270) the lobe barely lowers the RMSE, its F_tilde is 0 in
-    two channels and sigma sits near the top of its range: whatever the details, the
-    fit may not call that "successful"."""
+    """On these frames (8 at 480x270) the lobe barely lowers the RMSE (0.3%: 4.89 against
+    Lambert's 4.90 levels since the red ceiling reads as clipped) and is red, not the
+    light's colour (F_tilde [0.040, 0.009, 0.007]); before, its F_tilde was 0 in two
+    channels and sigma near the top of its range: whatever the details, the fit may not
+    call that "successful"."""
     fit = sinus_fit
     lambertian = fit["lambertian"]["rgb_rmse"]
     gain = 1 - fit["rgb_rmse"] / lambertian
