@@ -194,27 +194,127 @@ def _video(path, images, held=3):
     return path
 
 
-@pytest.mark.parametrize("layout", ["two videos", "side by side"])
-def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path, layout):
+def _opencv_calibration(path, described: dict, names=("M1", "D1", "M2", "D2", "R", "T")):
+    """camera.json's content as an OpenCV calibration file (`cv::FileStorage`), under the
+    names SCARED's endoscope_calibration.yaml gives them."""
+
+    def matrix(camera):
+        return np.array(
+            [[camera["fx"], 0, camera["cx"]], [0, camera["fy"], camera["cy"]], [0, 0, 1]]
+        )
+
+    def distortion(camera):
+        return np.array([[camera.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")]])
+
+    stereo = described["stereo"]
+    values = (
+        matrix(described),
+        distortion(described),
+        matrix(stereo["right"]),
+        distortion(stereo["right"]),
+        np.array(stereo["R"], np.float64),
+        np.array(stereo["T"], np.float64).reshape(3, 1),
+    )
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, value in zip(names, values, strict=True):
+        if name is not None:
+            storage.write(name, value)
+    storage.release()
+    return path
+
+
+@pytest.mark.parametrize(
+    "layout", ["two videos", "side by side", "top bottom", "top bottom, OpenCV's calibration"]
+)
+def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path, capsys, layout):
     capture = load_capture(stereo_capture)
     left = [frame.image for frame in capture.frames]
     right = [capture.right_image(frame.name) for frame in capture.frames]  # as recorded
     out = tmp_path / "imported"
-    argv = ["import", "--camera", str(stereo_capture / "camera.json"), "--out", str(out)]
+    camera = stereo_capture / "camera.json"
+    if layout.endswith("OpenCV's calibration"):
+        described = json.loads(camera.read_text())
+        camera = _opencv_calibration(tmp_path / "endoscope_calibration.yaml", described)
+    argv = ["import", "--camera", str(camera), "--out", str(out)]
     if layout == "two videos":
         argv += [str(_video(tmp_path / "l.mp4", left)), "--right"]
         argv += [str(_video(tmp_path / "r.mp4", right))]
-    else:
+    elif layout == "side by side":
         pairs = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=True)]
         argv += [str(_video(tmp_path / "lr.mp4", pairs)), "--side-by-side"]
-    assert main([*argv, "--width", "128"]) == 0
+    else:  # SCARED's rgb.mp4: the left camera's image above the right one's
+        pairs = [np.concatenate([a, b], axis=0) for a, b in zip(left, right, strict=True)]
+        argv += [str(_video(tmp_path / "lr.mp4", pairs)), "--top-bottom"]
+    json_report = tmp_path / "import.json"
+    assert main([*argv, "--width", "128", "--json", str(json_report)]) == 0
+    if layout.endswith("OpenCV's calibration"):
+        said = capsys.readouterr().err
+        assert "the camera from OpenCV's calibration" in said and "a baseline of 5 mm" in said
     imported = load_capture(out)
     assert len(imported) == 3 and imported.stereo.right.width == 128
     assert imported.stereo.baseline_mm == pytest.approx(BASELINE_MM)
+    assert json.loads(json_report.read_text())["baseline_mm"] == pytest.approx(BASELINE_MM)
     scale = 128 / capture.camera.width
     assert float(imported.stereo.right.fx) == pytest.approx(float(capture.camera.fx) * scale)
+    assert np.allclose(imported.stereo.R, capture.stereo.R)
+    assert float(imported.camera.cy) == pytest.approx(
+        (float(capture.camera.cy) + 0.5) * scale - 0.5
+    )
     image = imported.right_image(imported.frames[0].name)
     assert image.shape == (round(capture.camera.height * scale), 128, 3)
+    # The right camera's image, not the left one's (they differ by the baseline's parallax).
+    expected = cv2.resize(right[0], image.shape[1::-1], interpolation=cv2.INTER_AREA)
+    other = cv2.resize(left[0], image.shape[1::-1], interpolation=cv2.INTER_AREA)
+    assert np.mean(np.abs(image - expected)) < 0.5 * np.mean(np.abs(image - other))
+
+
+def test_opencv_calibration_files_read_as_camera_json(stereo_capture, tmp_path):
+    """What `import --camera FILE.yaml` reads: the same camera.json whatever the names, and
+    one error naming the file and the matrix for what it cannot use."""
+    from ctjax.io._opencv_calibration import camera_json_from_opencv
+
+    described = json.loads((stereo_capture / "camera.json").read_text())
+    size = (described["width"], described["height"])
+    for suffix, names in ((".yaml", ("M1", "D1", "M2", "D2", "R", "T")),
+                          (".xml", ("K1", "D1", "K2", "D2", "R", "T"))):  # fmt: skip
+        path = _opencv_calibration(tmp_path / f"c{suffix}", described, names)
+        read = camera_json_from_opencv(path, *size)
+        assert read["fx"] == pytest.approx(described["fx"])
+        assert read["stereo"]["right"]["cx"] == pytest.approx(described["stereo"]["right"]["cx"])
+        assert np.allclose(read["stereo"]["T"], described["stereo"]["T"])
+    # A plain YAML list of lists (not an !!opencv-matrix) reads too.
+    (tmp_path / "plain.yaml").write_text("M1: [[300, 0, 95.5], [0, 310, 79], [0, 0, 1]]\n")
+    plain = camera_json_from_opencv(tmp_path / "plain.yaml", *size)
+    assert (plain["fx"], plain["fy"], plain["cx"], plain["cy"]) == (300, 310, 95.5, 79)
+    # One camera: no stereo block.
+    mono = _opencv_calibration(
+        tmp_path / "mono.yaml", described, ("M1", "D1", None, None, None, None)
+    )
+    assert "stereo" not in camera_json_from_opencv(mono, *size)
+
+    def error(path) -> str:
+        with pytest.raises(CaptureError) as raised:
+            camera_json_from_opencv(path, *size)
+        return str(raised.value)
+
+    assert "calibration file not found" in error(tmp_path / "missing.yaml")
+    (tmp_path / "bad.yaml").write_text("%YAML:1.0\n---\nM1: [1, 2\n")
+    assert "bad.yaml" in error(tmp_path / "bad.yaml")
+    (tmp_path / "words.yaml").write_text("M1:\n  rows: 3\n")
+    assert "words.yaml: M1 is not a matrix of numbers" in error(tmp_path / "words.yaml")
+    no_matrix = _opencv_calibration(
+        tmp_path / "nom.yaml", described, ("A", "D1", None, None, None, None)
+    )
+    assert "no camera matrix (one of M1" in error(no_matrix)
+    no_rt = _opencv_calibration(
+        tmp_path / "nort.yaml", described, ("M1", "D1", "M2", "D2", None, None)
+    )
+    assert "without R and T" in error(no_rt)
+    storage = cv2.FileStorage(str(tmp_path / "rational.yaml"), cv2.FILE_STORAGE_WRITE)
+    storage.write("M1", np.array([[100.0, 0, 90], [0, 100, 80], [0, 0, 1]]))
+    storage.write("D1", np.array([[0.1, 0.01, 0, 0, 0, 0.2, 0, 0]]))  # k4 = 0.2
+    storage.release()
+    assert "unsupported distortion key(s) k4" in error(tmp_path / "rational.yaml")
 
 
 def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys):
@@ -227,6 +327,21 @@ def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys
     argv = ["import", str(video), "--camera", str(camera), "--out", str(tmp_path / "o")]
     assert main([*argv, "--side-by-side"]) == 2
     assert "stereo" in capsys.readouterr().err
+    assert main([*argv, "--side-by-side", "--top-bottom"]) == 2
+    assert "--side-by-side or --top-bottom, not both" in capsys.readouterr().err
+    # T in metres: imported, with the warning that camera.json's T is in millimetres.
+    described["stereo"] = json.loads((stereo_capture / "camera.json").read_text())["stereo"]
+    described["stereo"]["T"] = [t / 1000 for t in described["stereo"]["T"]]
+    camera.write_text(json.dumps(described))
+    assert main([*argv, "--right", str(video), "--out", str(tmp_path / "m")]) == 0
+    assert "stereo.T is 0.005 mm long" in capsys.readouterr().err
+    # An OpenCV calibration of one camera only.
+    storage = cv2.FileStorage(str(tmp_path / "mono.yaml"), cv2.FILE_STORAGE_WRITE)
+    storage.write("M1", np.array([[300.0, 0, 95], [0, 300, 79], [0, 0, 1]]))
+    storage.release()
+    argv[3] = str(tmp_path / "mono.yaml")
+    assert main([*argv, "--top-bottom"]) == 2
+    assert "mono.yaml: a stereo import needs the right camera's matrix" in capsys.readouterr().err
 
 
 def test_the_near_light_fitted_with_the_shape(tmp_path, monkeypatch):

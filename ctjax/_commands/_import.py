@@ -27,9 +27,11 @@ def add_import_parser(commands) -> None:
         "--camera",
         type=Path,
         required=True,
-        help="the endoscope's camera.json, or 'guess' for a video without a calibration "
-        "(fx = fy = 0.8 width, the principal point at the centre; then `ctjax reconstruct "
-        "--focal refine`)",
+        help="the endoscope's camera.json, an OpenCV calibration file (.yaml, .yml or .xml "
+        "with M1, D1 and, for a stereo scope, M2, D2, R and T in mm: SCARED's "
+        "endoscope_calibration.yaml), or 'guess' for a video without a calibration (fx = fy "
+        "= 0.8 width, the principal point at the centre; then `ctjax reconstruct --focal "
+        "refine`)",
     )
     video.add_argument(
         "--out", type=output_folder, required=True, help="the capture folder to write"
@@ -68,6 +70,13 @@ def add_import_parser(commands) -> None:
         "right camera's in its right half (camera.json needs its stereo block)",
     )
     video.add_argument(
+        "--top-bottom",
+        action="store_true",
+        help="a stereo video with the left camera's image in each frame's top half and the "
+        "right camera's in its bottom half (SCARED's rgb.mp4; camera.json needs its stereo "
+        "block)",
+    )
+    video.add_argument(
         "--force",
         action="store_true",
         help="replace OUT/images (and the depth, normals and poses reconstructed from them)",
@@ -82,6 +91,8 @@ def run_import(args: argparse.Namespace) -> int:
 
     from .._errors import ParameterError
     from ..io._atomic import atomic_write_json
+    from ..io._capture import BASELINE_MM, unlikely_baseline
+    from ..io._opencv_calibration import is_opencv_calibration
     from ..io._video import ImportOptions, guessed_camera, import_video
 
     # The options checked first: a bad one is the only line, before any note.
@@ -93,15 +104,17 @@ def run_import(args: argparse.Namespace) -> int:
         distinct=args.distinct,
         width=args.width,
         side_by_side=args.side_by_side,
+        top_bottom=args.top_bottom,
     )
     if str(args.camera) == "guess":
-        if args.side_by_side or args.right is not None:
+        if options.stacked or args.right is not None:
             raise ParameterError(
-                "a stereo import (--right, --side-by-side) needs the stereo calibration: "
+                "a stereo import (--right, --side-by-side, --top-bottom) needs the stereo "
+                "calibration: "
                 'camera.json\'s "stereo" block (the right camera, R and T in mm); --camera '
                 "guess has none"
             )
-        guess = guessed_camera(args.video, args.side_by_side)
+        guess = guessed_camera(args.video, args.side_by_side, args.top_bottom)
         folder = tempfile.TemporaryDirectory(prefix="ctjax-camera-")
         args.camera = Path(folder.name) / "camera.json"
         args.camera.write_text(json.dumps(guess))
@@ -126,6 +139,20 @@ def run_import(args: argparse.Namespace) -> int:
     if args.json is not None:
         atomic_write_json(args.json, report)
     print(f"wrote {report['kept']} frames to {report['out']}")
+    if is_opencv_calibration(args.camera):
+        print(
+            f"ctjax import: note: the camera from OpenCV's calibration {args.camera}"
+            + (
+                f"; its T read in mm: a baseline of {report['baseline_mm']:.3g} mm"
+                if "baseline_mm" in report
+                else ""
+            ),
+            file=sys.stderr,
+        )
+    baseline = report.get("baseline_mm")
+    if baseline is not None and not BASELINE_MM[0] <= baseline <= BASELINE_MM[1]:
+        # What loading the capture notes, said where the unit came in.
+        print(f"ctjax import: warning: {unlikely_baseline(args.out, baseline)}", file=sys.stderr)
     if report["kept"] < 3:
         print(
             f"ctjax import: warning: {report['kept']} distinct frame(s): structure from motion "

@@ -389,7 +389,7 @@ def load_capture(
                 f"{', '.join(absent[:3])}{' ...' if len(absent) > 3 else ''} is missing"
             )
         if not BASELINE_MM[0] <= stereo.baseline_mm <= BASELINE_MM[1]:
-            notes = (*notes, _unlikely_baseline(root, stereo.baseline_mm))
+            notes = (*notes, unlikely_baseline(root, stereo.baseline_mm))
     return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation)
 
 
@@ -442,7 +442,7 @@ def _saturation(frames, samples, encoding, declared) -> tuple[tuple[float, ...],
 BASELINE_MM = (1.0, 30.0)
 
 
-def _unlikely_baseline(root: Path, baseline: float) -> str:
+def unlikely_baseline(root: Path, baseline: float) -> str:
     return (
         f"{root / 'camera.json'}: stereo.T is {baseline:.3g} mm long, outside the "
         f"{BASELINE_MM[0]:g}-{BASELINE_MM[1]:g} mm of a stereo endoscope's baseline (a da "

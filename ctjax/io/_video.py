@@ -18,7 +18,10 @@ Frames are chosen in two passes over the video, so that only small thumbnails ar
 The second pass decodes the video again and writes the kept frames as
 `CAPTURE/images/frame_NNNNNN.png` (the video's frame number, zero-padded: names sort in
 time) with `camera.json` copied beside them, marked `"encoding": "srgb"` (unless the
-endoscope's camera.json says otherwise: video frames are encoded).
+endoscope's camera.json says otherwise: video frames are encoded). The calibration may be
+camera.json or OpenCV's file (`ctjax.io._opencv_calibration`). A stereo video: a second
+file frame for frame, or each frame holding both images (side by side, or the left above
+the right); the right images go to `CAPTURE/right/`.
 """
 
 import contextlib
@@ -36,11 +39,12 @@ import numpy as np
 
 from .._errors import CaptureError, ParameterError
 from ._atomic import atomic_write_json
-from ._camera_json import read_camera, read_encoding, read_stereo
+from ._camera_json import camera_from_json, read_camera, read_encoding, read_stereo
 from ._encoding import SRGB
 from ._field_of_view import field_of_view
 from ._images import write_quantised_rgb
-from ._stereo import RIGHT
+from ._opencv_calibration import RIGHT_MATRIX, camera_json_from_opencv, is_opencv_calibration
+from ._stereo import RIGHT, parse_stereo
 
 THUMBNAIL_WIDTH = 320
 BLUR_WINDOW = 31
@@ -60,6 +64,9 @@ class ImportOptions:
     # A stereo video recorded side by side: each frame's left half is the left camera's,
     # its right half the right camera's.
     side_by_side: bool = False
+    # Or one above the other: each frame's top half is the left camera's, its bottom half
+    # the right camera's (SCARED's rgb.mp4: 1280x2048 frames of two 1280x1024 images).
+    top_bottom: bool = False
 
     def __post_init__(self):
         if int(self.every) != self.every or self.every < 1:
@@ -80,6 +87,14 @@ class ImportOptions:
             raise ParameterError(f"blur_ratio must be in [0, 1), got {self.blur_ratio}")
         if self.width is not None and (int(self.width) != self.width or self.width < 16):
             raise ParameterError(f"--width must be an integer >= 16, got {self.width}")
+        if self.side_by_side and self.top_bottom:
+            raise ParameterError("a stereo video is --side-by-side or --top-bottom, not both")
+
+    @property
+    def stacked(self) -> bool:
+        """Whether each frame holds both cameras' images (side by side or one above the
+        other)."""
+        return self.side_by_side or self.top_bottom
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,17 +149,25 @@ def _stderr_caught():
 GUESSED_FOCAL = 0.8
 
 
-def guessed_camera(path: Path, side_by_side: bool = False) -> dict:
-    """camera.json's content for a video without a calibration: its frame size (the left
-    half's for a side-by-side stereo video), fx = fy = `GUESSED_FOCAL` width, the principal
-    point at the centre. The focal length is a guess: `ctjax reconstruct --focal refine`
-    refines it from the frames where they determine it."""
+def camera_size(path: Path, options: ImportOptions = ImportOptions()) -> tuple[int, int]:
+    """One camera's image size in the video's frames, (width, height): the left half's (or
+    the top half's) where each frame holds both cameras' (`options`)."""
     video = _open(Path(path))
-    width = int(video.get(cv2.CAP_PROP_FRAME_WIDTH)) // (2 if side_by_side else 1)
-    height = int(video.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    width = int(video.get(cv2.CAP_PROP_FRAME_WIDTH)) // (2 if options.side_by_side else 1)
+    height = int(video.get(cv2.CAP_PROP_FRAME_HEIGHT)) // (2 if options.top_bottom else 1)
     video.release()
     if width <= 0 or height <= 0:
         raise CaptureError(f"{path}: the video does not say its frame size")
+    return width, height
+
+
+def guessed_camera(path: Path, side_by_side: bool = False, top_bottom: bool = False) -> dict:
+    """camera.json's content for a video without a calibration: its frame size (one
+    camera's, for a stereo video whose frames hold both), fx = fy = `GUESSED_FOCAL` width,
+    the principal point at the centre. The focal length is a guess: `ctjax reconstruct
+    --focal refine` refines it from the frames where they determine it."""
+    layout = ImportOptions(side_by_side=side_by_side, top_bottom=top_bottom)
+    width, height = camera_size(path, layout)
     focal = GUESSED_FOCAL * width
     return {
         "width": width,
@@ -180,12 +203,15 @@ def _frames(path: Path, options: ImportOptions, fps: float):
 
 
 def _halves(image: np.ndarray, options: ImportOptions) -> tuple[np.ndarray, np.ndarray | None]:
-    """The left camera's image and the right one's in a side-by-side frame, else the
-    frame itself and None."""
-    if not options.side_by_side:
-        return image, None
-    half = image.shape[1] // 2
-    return image[:, :half], image[:, half : 2 * half]
+    """The left camera's image and the right one's in a frame that holds both (side by
+    side, or the left above the right), else the frame itself and None."""
+    if options.side_by_side:
+        half = image.shape[1] // 2
+        return image[:, :half], image[:, half : 2 * half]
+    if options.top_bottom:
+        half = image.shape[0] // 2
+        return image[:half], image[half : 2 * half]
+    return image, None
 
 
 def _small(image: np.ndarray) -> np.ndarray:
@@ -282,6 +308,31 @@ def _scaled(camera, width: int | None):
     return scaled, (width, height)
 
 
+def _calibration(camera_path: Path, video: Path, options: ImportOptions, stereo: bool):
+    """The left camera, the stereo rig (None for a single camera) and the declared encoding
+    (None: not said) from camera.json or an OpenCV calibration file."""
+    if is_opencv_calibration(camera_path):
+        described = camera_json_from_opencv(camera_path, *camera_size(video, options))
+        intrinsics = camera_from_json(described, camera_path)
+        rig = None
+        if stereo and "stereo" in described:
+            rig = parse_stereo(described["stereo"], intrinsics, str(camera_path), camera_from_json)
+        if stereo and rig is None:
+            raise CaptureError(
+                f"{camera_path}: a stereo import needs the right camera's matrix (one of "
+                f"{', '.join(RIGHT_MATRIX)}) with R and T; the file has the left camera's only"
+            )
+        return intrinsics, rig, None
+    intrinsics = read_camera(camera_path)
+    rig = read_stereo(camera_path) if stereo else None
+    if stereo and rig is None:
+        raise CaptureError(
+            f'{camera_path}: a stereo import needs camera.json\'s "stereo" block (the right '
+            'camera\'s "right": {fx, fy, cx, cy}, "R" and "T" in mm, X_right = R X_left + T)'
+        )
+    return intrinsics, rig, read_encoding(camera_path)
+
+
 def import_video(
     video: str | Path,
     camera: str | Path,
@@ -297,21 +348,20 @@ def import_video(
     video's). Returns a report: the counts of frames considered, dropped and kept, and the
     kept frames' names and times.
 
+    `camera` may also be an OpenCV calibration file (`cv::FileStorage` YAML or XML, e.g.
+    SCARED's `endoscope_calibration.yaml`: `ctjax.io._opencv_calibration`), for frames of
+    the video's size; the capture's camera.json is written from it.
+
     A stereo laparoscope: `right`, the right camera's video (frame for frame with
-    `video`), or `options.side_by_side` (each frame holds both); camera.json must then
-    have its `"stereo"` block (`ctjax.io._stereo`), and the capture gets
-    `right/NAME.png` beside `images/NAME.png`. Frames are chosen on the left camera's."""
+    `video`), or `options.side_by_side` / `options.top_bottom` (each frame holds both);
+    the calibration must then have the right camera (camera.json's `"stereo"` block,
+    `ctjax.io._stereo`), and the capture gets `right/NAME.png` beside `images/NAME.png`.
+    Frames are chosen on the left camera's."""
     video, camera_path, out = Path(video), Path(camera), Path(out)
-    intrinsics = read_camera(camera_path)
-    stereo = options.side_by_side or right is not None
-    rig = read_stereo(camera_path) if stereo else None
-    if stereo and rig is None:
-        raise CaptureError(
-            f'{camera_path}: a stereo import needs camera.json\'s "stereo" block (the right '
-            'camera\'s "right": {fx, fy, cx, cy}, "R" and "T" in mm, X_right = R X_left + T)'
-        )
-    if right is not None and options.side_by_side:
-        raise ParameterError("give a right video or --side-by-side, not both")
+    if right is not None and options.stacked:
+        raise ParameterError("give a right video or --side-by-side / --top-bottom, not both")
+    stereo = options.stacked or right is not None
+    intrinsics, rig, encoding = _calibration(camera_path, video, options, stereo)
     if options.width is not None and options.width > intrinsics.width:
         # Area averaging only shrinks: a wider frame would be interpolated, no new detail.
         raise ParameterError(
@@ -384,8 +434,7 @@ def import_video(
             break
     # Video frames are sRGB-encoded (every camera pipeline encodes before compression),
     # unless the endoscope's camera.json says otherwise.
-    encoding = read_encoding(camera_path) or SRGB
-    described = {**intrinsics.to_json(), "encoding": encoding}
+    described = {**intrinsics.to_json(), "encoding": encoding or SRGB}
     if rig is not None:
         described["stereo"] = rig.to_json()
     atomic_write_json(out / "camera.json", described)
@@ -395,4 +444,5 @@ def import_video(
         "fps": scan.fps,
         **counts,
         "frames": [{"name": n, "time_s": int(n.split("_")[1]) / scan.fps} for n in names],
+        **({} if rig is None else {"baseline_mm": rig.baseline_mm}),
     }
