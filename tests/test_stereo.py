@@ -286,6 +286,12 @@ def test_opencv_calibration_files_read_as_camera_json(stereo_capture, tmp_path):
     (tmp_path / "plain.yaml").write_text("M1: [[300, 0, 95.5], [0, 310, 79], [0, 0, 1]]\n")
     plain = camera_json_from_opencv(tmp_path / "plain.yaml", *size)
     assert (plain["fx"], plain["fy"], plain["cx"], plain["cy"]) == (300, 310, 95.5, 79)
+    # ROS's camera_info YAML (a da Vinci Research Kit's): rows, cols and data.
+    ros = "camera_matrix:\n  rows: 3\n  cols: 3\n  data: [300, 0, 95.5, 0, 310, 79, 0, 0, 1]\n"
+    ros += "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [-0.1, 0.01, 0, 0, 0]\n"
+    (tmp_path / "ros.yaml").write_text(ros)
+    ros = camera_json_from_opencv(tmp_path / "ros.yaml", *size)
+    assert (ros["fy"], ros["cx"], ros["k1"], ros["k2"]) == (310, 95.5, -0.1, 0.01)
     # One camera: no stereo block.
     mono = _opencv_calibration(
         tmp_path / "mono.yaml", described, ("M1", "D1", None, None, None, None)

@@ -3,15 +3,17 @@ camera.json's content: SCARED's `endoscope_calibration.yaml` and what `stereoCal
 scripts save, so that `ctjax import VIDEO --camera CALIBRATION.yaml` needs no conversion.
 
     M1 (or K1, KL, cameraMatrix1, camera_matrix, K)   3x3, the left camera's (or the only)
-    D1 (or DL, distCoeffs1, dist_coeffs, D)           its distortion, OpenCV's order
+    D1 (or DL, distCoeffs1, distortion_coefficients)  its distortion, OpenCV's order
     M2, D2 (or K2 / KR, D2 / DR, cameraMatrix2, ...)  the right camera's: a stereo rig
     R (3x3), T (3)                                    X_right = R X_left + T
 
-A file has no image size that ctjax could trust (most omit it), so the size is the frames'
-(`width`, `height`: one camera's image in the video). T is read in millimetres, the unit of
-camera.json's `"stereo"` block (OpenCV's T is in the calibration target's unit: SCARED's and
-most laparoscope calibrations are in mm). Distortion terms beyond OpenCV's first five are
-refused unless zero, as camera.json's are (`ctjax.io._camera_json`).
+Each matrix may be an `!!opencv-matrix`, a plain list (of rows), or ROS's camera_info form
+(rows, cols, data). A file has no image size that ctjax could trust (most omit it), so the
+size is the frames' (`width`, `height`: one camera's image in the video). T is read in
+millimetres, the unit of camera.json's `"stereo"` block (OpenCV's T is in the calibration
+target's unit: SCARED's and most laparoscope calibrations are in mm). Distortion terms
+beyond OpenCV's first five are refused unless zero, as camera.json's are
+(`ctjax.io._camera_json`).
 """
 
 from pathlib import Path
@@ -28,7 +30,9 @@ OPENCV_SUFFIXES = (".yaml", ".yml", ".xml")
 
 # The names OpenCV's samples, SCARED and common calibration scripts give each matrix.
 LEFT_MATRIX = ("M1", "K1", "KL", "cameraMatrix1", "camera_matrix", "cameraMatrix", "K")
-LEFT_DISTORTION = ("D1", "DL", "distCoeffs1", "dist_coeffs", "distCoeffs", "D")
+LEFT_DISTORTION = (
+    "D1", "DL", "distCoeffs1", "dist_coeffs", "distCoeffs", "distortion_coefficients", "D",
+)  # fmt: skip
 RIGHT_MATRIX = ("M2", "K2", "KR", "cameraMatrix2")
 RIGHT_DISTORTION = ("D2", "DR", "distCoeffs2")
 
@@ -58,8 +62,13 @@ def _read(storage, names: tuple[str, ...], path: Path):
         if node.empty():
             continue
         try:
-            # A plain YAML list (of lists) rather than an !!opencv-matrix.
-            value = np.array(_numbers(node)) if node.isSeq() else node.mat()
+            if node.isSeq():  # a plain YAML list (of lists) rather than an !!opencv-matrix
+                value = np.array(_numbers(node))
+            elif node.isMap() and node.getNode("dt").empty():  # ROS's camera_info YAML
+                rows, columns = int(node.getNode("rows").real()), int(node.getNode("cols").real())
+                value = np.array(_numbers(node.getNode("data"))).reshape(rows, columns)
+            else:
+                value = node.mat()
         except (cv2.error, ValueError):
             value = None
         if value is None or value.dtype == object:
