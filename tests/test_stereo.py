@@ -224,7 +224,8 @@ def _opencv_calibration(path, described: dict, names=("M1", "D1", "M2", "D2", "R
 
 
 @pytest.mark.parametrize(
-    "layout", ["two videos", "side by side", "top bottom", "top bottom, OpenCV's calibration"]
+    "layout",
+    ["two videos", "two folders", "side by side", "top bottom", "top bottom, OpenCV's calibration"],
 )
 def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path, capsys, layout):
     capture = load_capture(stereo_capture)
@@ -239,6 +240,13 @@ def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path
     if layout == "two videos":
         argv += [str(_video(tmp_path / "l.mp4", left)), "--right"]
         argv += [str(_video(tmp_path / "r.mp4", right))]
+    elif layout == "two folders":  # a dataset's frames: left/ and right/, the same names
+        for side, images in (("left", left), ("right", right)):
+            (tmp_path / side).mkdir()
+            for k, image in enumerate(images):
+                bgr = np.round(np.clip(image[..., ::-1], 0, 1) * 255).astype(np.uint8)
+                cv2.imwrite(str(tmp_path / side / f"{k:04d}.png"), bgr)
+        argv += [str(tmp_path / "left"), "--right", str(tmp_path / "right")]
     elif layout == "side by side":
         pairs = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=True)]
         argv += [str(_video(tmp_path / "lr.mp4", pairs)), "--side-by-side"]

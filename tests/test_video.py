@@ -159,3 +159,48 @@ def test_a_video_without_calibration_gets_a_guessed_camera(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "needs the stereo calibration" in err and "--camera guess has none" in err
     assert "note" not in err
+
+
+def test_a_folder_of_images_imports_as_a_video_of_its_files(tmp_path, capsys):
+    """A dataset's frames (SCARED's, Hamlyn's, the sinus's JPEGs): the files in name order
+    are the video's frames, --start and --end count files, and each kept frame names its
+    file in the report."""
+    options = SynthOptions(width=96, height=80, frames=4, seed=2, texture_contrast=1.0)
+    truth = synthesize(tmp_path / "truth", options)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    views = [frame.image for frame in load_capture(truth).frames]
+    for k, image in enumerate(views):  # each view twice: a still camera
+        bgr = np.round(np.clip(image[..., ::-1], 0, 1) * 255).astype(np.uint8)
+        for repeat in range(2):
+            cv2.imwrite(str(folder / f"{1000 + 2 * k + repeat}.png"), bgr)
+    (folder / "notes.txt").write_text("not an image")  # other files are left alone
+    out, report = tmp_path / "capture", tmp_path / "import.json"
+    argv = ["import", str(folder), "--camera", str(truth / "camera.json"), "--out", str(out)]
+    assert main([*argv, "--json", str(report)]) == 0
+    result = json.loads(report.read_text())
+    assert result["considered"] == 8 and result["kept"] == 4
+    assert [f["source"] for f in result["frames"]] == [
+        "1000.png",
+        "1002.png",
+        "1004.png",
+        "1006.png",
+    ]
+    first = cv2.imread(str(out / "images" / f"{result['frames'][0]['name']}.png"))
+    assert np.array_equal(first, cv2.imread(str(folder / "1000.png")))
+    assert main([*argv, "--force", "--start", "2", "--end", "5", "--json", str(report)]) == 0
+    assert [f["source"] for f in json.loads(report.read_text())["frames"]] == [
+        "1002.png",
+        "1004.png",
+    ]
+    # What it cannot use, named.
+    cv2.imwrite(str(folder / "1008.png"), np.zeros((40, 96, 3), np.uint8))
+    assert main([*argv, "--force"]) == 2
+    assert "1008.png: 96x40 px where the folder's first frame is 96x80" in capsys.readouterr().err
+    (folder / "1008.png").write_bytes(b"not a png")
+    assert main([*argv, "--force"]) == 2
+    assert "1008.png: cannot read the image" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    argv[1] = str(tmp_path / "empty")
+    assert main(argv) == 2
+    assert "empty: a folder without images" in capsys.readouterr().err

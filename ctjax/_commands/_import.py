@@ -22,7 +22,12 @@ def add_import_parser(commands) -> None:
         "OUT/images/frame_NNNNNN.png (the frame number: names sort in time) and "
         "OUT/camera.json.",
     )
-    video.add_argument("video", type=Path, help="any video file OpenCV reads (MP4, AVI, MKV...)")
+    video.add_argument(
+        "video",
+        type=Path,
+        help="any video file OpenCV reads (MP4, AVI, MKV...), or a folder of images (its "
+        "frames in name order; --start and --end then count files)",
+    )
     video.add_argument(
         "--camera",
         type=Path,
@@ -60,8 +65,8 @@ def add_import_parser(commands) -> None:
     video.add_argument(
         "--right",
         type=Path,
-        help="a stereo laparoscope's right video, frame for frame with VIDEO (camera.json "
-        "needs its stereo block); writes OUT/right/frame_NNNNNN.png",
+        help="a stereo laparoscope's right video (or folder of images), frame for frame with "
+        "VIDEO (camera.json needs its stereo block); writes OUT/right/frame_NNNNNN.png",
     )
     video.add_argument(
         "--side-by-side",

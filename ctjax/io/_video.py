@@ -42,7 +42,7 @@ from ._atomic import atomic_write_json
 from ._camera_json import camera_from_json, read_camera, read_encoding, read_stereo
 from ._encoding import SRGB
 from ._field_of_view import field_of_view
-from ._images import write_quantised_rgb
+from ._images import IMAGE_SUFFIXES, write_quantised_rgb
 from ._opencv_calibration import RIGHT_MATRIX, camera_json_from_opencv, is_opencv_calibration
 from ._stereo import RIGHT, parse_stereo
 
@@ -107,9 +107,34 @@ class _Scan:
     fov: np.ndarray  # the first frame's field of view, at the thumbnails' size
 
 
+# A folder of images stands for a video whose frames are its files in name order, one per
+# "second": --start and --end count files.
+FOLDER_FPS = 1.0
+
+
+def _image_files(path: Path) -> list[Path] | None:
+    """A folder's images in name order (its frames), or None where `path` is not a folder."""
+    if not path.is_dir():
+        return None
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise CaptureError(
+            f"{path}: a folder without images ({', '.join(IMAGE_SUFFIXES)}): nothing to import"
+        )
+    return files
+
+
+def _read_frame(path: Path) -> np.ndarray:
+    """One image of a folder as a video frame (BGR, 8 bits a channel)."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise CaptureError(f"{path}: cannot read the image")
+    return image
+
+
 def _open(path: Path) -> cv2.VideoCapture:
     if not path.is_file():
-        raise CaptureError(f"{path}: video file not found")
+        raise CaptureError(f"{path}: video file (or folder of images) not found")
     # The decoders write their complaints (FFmpeg's "moov atom not found") to the process's
     # stderr, before ctjax's one line: caught here, and named in it.
     with _stderr_caught() as said:
@@ -152,10 +177,16 @@ GUESSED_FOCAL = 0.8
 def camera_size(path: Path, options: ImportOptions = ImportOptions()) -> tuple[int, int]:
     """One camera's image size in the video's frames, (width, height): the left half's (or
     the top half's) where each frame holds both cameras' (`options`)."""
-    video = _open(Path(path))
-    width = int(video.get(cv2.CAP_PROP_FRAME_WIDTH)) // (2 if options.side_by_side else 1)
-    height = int(video.get(cv2.CAP_PROP_FRAME_HEIGHT)) // (2 if options.top_bottom else 1)
-    video.release()
+    files = _image_files(Path(path))
+    if files is not None:
+        height, width = _read_frame(files[0]).shape[:2]
+    else:
+        video = _open(Path(path))
+        width = int(video.get(cv2.CAP_PROP_FRAME_WIDTH))
+        height = int(video.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        video.release()
+    width //= 2 if options.side_by_side else 1
+    height //= 2 if options.top_bottom else 1
     if width <= 0 or height <= 0:
         raise CaptureError(f"{path}: the video does not say its frame size")
     return width, height
@@ -182,9 +213,23 @@ def guessed_camera(path: Path, side_by_side: bool = False, top_bottom: bool = Fa
 
 def _frames(path: Path, options: ImportOptions, fps: float):
     """(frame number, BGR uint8 image) of the considered frames, decoding only those."""
-    video = _open(path)
     first = round(options.start * fps)
     last = None if options.end is None else round(options.end * fps)
+    files = _image_files(path)
+    if files is not None:
+        size = None
+        for index, file in enumerate(files[: None if last is None else last + 1]):
+            if index >= first and (index - first) % options.every == 0:
+                image = _read_frame(file)
+                if size is not None and image.shape != size:
+                    raise CaptureError(
+                        f"{file}: {image.shape[1]}x{image.shape[0]} px where the folder's "
+                        f"first frame is {size[1]}x{size[0]}"
+                    )
+                size = image.shape
+                yield index, image
+        return
+    video = _open(path)
     index = 0
     try:
         while last is None or index <= last:
@@ -231,10 +276,14 @@ def _thumbnail(image: np.ndarray, fov: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _scan(path: Path, options: ImportOptions, progress: Callable[[str], None]) -> _Scan:
-    video = _open(path)
-    fps = video.get(cv2.CAP_PROP_FPS) or 25.0
-    total = int(video.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-    video.release()
+    files = _image_files(path)
+    if files is not None:
+        fps, total = FOLDER_FPS, len(files)
+    else:
+        video = _open(path)
+        fps = video.get(cv2.CAP_PROP_FPS) or 25.0
+        total = int(video.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        video.release()
     indices, thumbnails, sharpness = [], [], []
     fov = size = None
     for index, image in _frames(path, options, fps):
@@ -308,6 +357,14 @@ def _scaled(camera, width: int | None):
     return scaled, (width, height)
 
 
+def _described(name: str, fps: float, files: list[Path] | None) -> dict:
+    """A kept frame in the report: its name, its time and, from a folder, its file."""
+    index = int(name.split("_")[1])
+    return {"name": name, "time_s": index / fps} | (
+        {} if files is None else {"source": files[index].name}
+    )
+
+
 def _calibration(camera_path: Path, video: Path, options: ImportOptions, stereo: bool):
     """The left camera, the stereo rig (None for a single camera) and the declared encoding
     (None: not said) from camera.json or an OpenCV calibration file."""
@@ -361,6 +418,9 @@ def import_video(
     if right is not None and options.stacked:
         raise ParameterError("give a right video or --side-by-side / --top-bottom, not both")
     stereo = options.stacked or right is not None
+    for source in (video, right):  # a folder without images: said before anything else
+        if source is not None:
+            _image_files(Path(source))
     intrinsics, rig, encoding = _calibration(camera_path, video, options, stereo)
     if options.width is not None and options.width > intrinsics.width:
         # Area averaging only shrinks: a wider frame would be interpolated, no new detail.
@@ -395,6 +455,7 @@ def import_video(
         for stale in ("poses.json", "reconstruction.json"):
             (out / stale).unlink(missing_ok=True)
     wanted = {int(scan.indices[i]) for i in kept}
+    files = _image_files(video)
     digits = max(6, len(str(max(wanted))))
     names = []
     intrinsics, size = _scaled(intrinsics, options.width)
@@ -443,6 +504,6 @@ def import_video(
         "out": str(out),
         "fps": scan.fps,
         **counts,
-        "frames": [{"name": n, "time_s": int(n.split("_")[1]) / scan.fps} for n in names],
+        "frames": [_described(n, scan.fps, files) for n in names],
         **({} if rig is None else {"baseline_mm": rig.baseline_mm}),
     }
