@@ -253,6 +253,10 @@ def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path
     else:  # SCARED's rgb.mp4: the left camera's image above the right one's
         pairs = [np.concatenate([a, b], axis=0) for a, b in zip(left, right, strict=True)]
         argv += [str(_video(tmp_path / "lr.mp4", pairs)), "--top-bottom"]
+    if layout.startswith("top bottom"):  # the flag forgotten: said, not imported as one camera
+        assert main([a for a in argv if a != "--top-bottom"]) == 2
+        said = capsys.readouterr().err
+        assert "two cameras' images" in said and "--top-bottom" in said
     json_report = tmp_path / "import.json"
     assert main([*argv, "--width", "128", "--json", str(json_report)]) == 0
     if layout.endswith("OpenCV's calibration"):

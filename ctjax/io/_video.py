@@ -365,12 +365,31 @@ def _described(name: str, fps: float, files: list[Path] | None) -> dict:
     )
 
 
+def _stacked_layout(camera, width: int, height: int) -> str | None:
+    """The stereo layout that frames `width` x `height` px with `camera`'s principal point
+    suggest, where one is clear (much wider or taller than a camera's image, the principal
+    point at a half's centre); None otherwise."""
+    if height > width and abs(camera.cy - height / 4) < 0.1 * height:
+        return "--top-bottom"
+    if width > 2.2 * height and abs(camera.cx - width / 4) < 0.1 * width:
+        return "--side-by-side"
+    return None
+
+
 def _calibration(camera_path: Path, video: Path, options: ImportOptions, stereo: bool):
     """The left camera, the stereo rig (None for a single camera) and the declared encoding
     (None: not said) from camera.json or an OpenCV calibration file."""
     if is_opencv_calibration(camera_path):
-        described = camera_json_from_opencv(camera_path, *camera_size(video, options))
+        size = camera_size(video, options)
+        described = camera_json_from_opencv(camera_path, *size)
         intrinsics = camera_from_json(described, camera_path)
+        layout = None if options.stacked else _stacked_layout(intrinsics, *size)
+        if layout is not None:
+            raise CaptureError(
+                f"{video}: its {size[0]}x{size[1]} frames look like two cameras' images "
+                f"({layout}: the principal point ({intrinsics.cx:.0f}, {intrinsics.cy:.0f}) "
+                f"is the centre of one half); give {layout}, or a video of one camera"
+            )
         rig = None
         if stereo and "stereo" in described:
             rig = parse_stereo(described["stereo"], intrinsics, str(camera_path), camera_from_json)
@@ -433,9 +452,15 @@ def import_video(
         raise CaptureError(f"{images}: already has images (--force replaces them)")
     scan = _scan(video, options, progress)
     if scan.size != (intrinsics.width, intrinsics.height):
+        width, height = scan.size
+        double = {
+            (2 * intrinsics.width, intrinsics.height): "--side-by-side",
+            (intrinsics.width, 2 * intrinsics.height): "--top-bottom",
+        }.get(scan.size if not options.stacked else None)
         raise CaptureError(
-            f"{video}: frames are {scan.size[0]}x{scan.size[1]}, {camera_path} says "
+            f"{video}: frames are {width}x{height}, {camera_path} says "
             f"{intrinsics.width}x{intrinsics.height}"
+            + (f" (two cameras' images in each frame? {double})" if double else "")
         )
     kept, counts = select_frames(scan, options)
     progress(
