@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/real_video.py [SOURCE ...] [--frames 12] [--width 640]
         [--work DIR] [--skip-diagnose] [--skip-evaluate] [--max-rounds 4] [--focal refine]
+        [--camera CALIBRATION] [--layout side-by-side|top-bottom]
 
 Each SOURCE is a capture folder (images/ and camera.json) or a video (imported with
 `ctjax import`, a guessed pinhole camera: fx = fy = 0.8 width, the principal point at the
@@ -62,15 +63,17 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def prepare(source: Path, out: Path, frames: int, width: int) -> Path:
-    """A capture of `frames` frames, `width` px wide, from a capture folder or a video."""
+def prepare(source: Path, out: Path, frames: int, width: int, camera=None, layout=()) -> Path:
+    """A capture of `frames` frames, `width` px wide, from a capture folder or a video
+    (`camera`: its calibration, camera.json or OpenCV's file; `layout`: import's stereo
+    flag, e.g. ("--top-bottom",))."""
     source = source.resolve()  # the commands run from the repository's root
     capture = out / "capture"
     if capture.is_dir():
         shutil.rmtree(capture)
     out.mkdir(parents=True, exist_ok=True)
     if source.suffix.lower() in VIDEO_SUFFIXES:
-        camera = source.with_name("camera.json")
+        camera = camera.resolve() if camera is not None else source.with_name("camera.json")
         if not camera.is_file():
             video = cv2.VideoCapture(str(source))
             w, h = video.get(cv2.CAP_PROP_FRAME_WIDTH), video.get(cv2.CAP_PROP_FRAME_HEIGHT)
@@ -78,7 +81,7 @@ def prepare(source: Path, out: Path, frames: int, width: int) -> Path:
             camera = out / "guessed_camera.json"
             guess = {"width": int(w), "height": int(h), "fx": 0.8 * w, "fy": 0.8 * w}
             camera.write_text(json.dumps(guess | {"cx": (w - 1) / 2, "cy": (h - 1) / 2}))
-        argv = ["import", source, "--camera", camera, "--out", capture]
+        argv = ["import", source, "--camera", camera, "--out", capture, *layout]
         status, _ = _run([*argv, "--max-frames", frames, "--width", width], out / "import.log")
         if status:
             raise SystemExit(f"{source}: ctjax import failed (see {out / 'import.log'})")
@@ -182,7 +185,8 @@ def run_sequence(source: Path, work: Path, args) -> dict:
     out = work / source.stem
     out.mkdir(parents=True, exist_ok=True)
     seconds = {}
-    capture = prepare(source, out, args.frames, args.width)
+    layout = [f"--{args.layout}"] if args.layout else []
+    capture = prepare(source, out, args.frames, args.width, args.camera, layout)
     recon = out / "reconstructed"
     if recon.is_dir():
         shutil.rmtree(recon)
@@ -384,6 +388,17 @@ def main(argv=None):
         choices=("fixed", "refine"),
         default="fixed",
         help="reconstruct's --focal (refine: the guessed camera's focal length from the frames)",
+    )
+    parser.add_argument(
+        "--camera",
+        type=Path,
+        help="a video's calibration: camera.json or OpenCV's file (SCARED's "
+        "endoscope_calibration.yaml; default: camera.json beside the video, else a guess)",
+    )
+    parser.add_argument(
+        "--layout",
+        choices=("side-by-side", "top-bottom"),
+        help="a stereo video's frames hold both images (SCARED's rgb.mp4: top-bottom)",
     )
     parser.add_argument("--max-rounds", type=int, default=4)
     parser.add_argument("--skip-diagnose", action="store_true")
