@@ -247,6 +247,15 @@ def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path
                 bgr = np.round(np.clip(image[..., ::-1], 0, 1) * 255).astype(np.uint8)
                 cv2.imwrite(str(tmp_path / side / f"{k:04d}.png"), bgr)
         argv += [str(tmp_path / "left"), "--right", str(tmp_path / "right")]
+        # A file missing on one side, or named apart: said, not paired with a neighbour.
+        (tmp_path / "right" / "0001.png").rename(tmp_path / "right" / "0001b.png")
+        assert main(argv) == 2
+        assert "not named as" in capsys.readouterr().err
+        (tmp_path / "right" / "0001b.png").unlink()
+        assert main(argv) == 2
+        assert "2 images where" in capsys.readouterr().err
+        bgr = np.round(np.clip(right[1][..., ::-1], 0, 1) * 255).astype(np.uint8)
+        cv2.imwrite(str(tmp_path / "right" / "0001.png"), bgr)
     elif layout == "side by side":
         pairs = [np.concatenate([a, b], axis=1) for a, b in zip(left, right, strict=True)]
         argv += [str(_video(tmp_path / "lr.mp4", pairs)), "--side-by-side"]

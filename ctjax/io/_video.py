@@ -376,6 +376,27 @@ def _stacked_layout(camera, width: int, height: int) -> str | None:
     return None
 
 
+def _check_pairs(left: Path, right: Path) -> None:
+    """Two folders pair their files in name order: they must hold as many, and where they
+    share names, the same names in the same places (a file missing on one side would
+    otherwise pair every later view with its neighbour's)."""
+    lefts, rights = _image_files(left), _image_files(right)
+    if lefts is None or rights is None:
+        return
+    if len(lefts) != len(rights):
+        raise CaptureError(
+            f"{right}: {len(rights)} images where {left} has {len(lefts)}: a stereo pair's "
+            "folders hold one image per instant each"
+        )
+    left_names, right_names = [p.stem for p in lefts], [p.stem for p in rights]
+    if set(left_names) & set(right_names) and left_names != right_names:
+        first = next(a for a, b in zip(left_names, right_names, strict=True) if a != b)
+        raise CaptureError(
+            f"{right}: its images are not named as {left}'s (first apart: {first}): each "
+            "right image pairs with the left one of the same place in name order"
+        )
+
+
 def _calibration(camera_path: Path, video: Path, options: ImportOptions, stereo: bool):
     """The left camera, the stereo rig (None for a single camera) and the declared encoding
     (None: not said) from camera.json or an OpenCV calibration file."""
@@ -440,6 +461,8 @@ def import_video(
     for source in (video, right):  # a folder without images: said before anything else
         if source is not None:
             _image_files(Path(source))
+    if right is not None:
+        _check_pairs(video, Path(right))
     intrinsics, rig, encoding = _calibration(camera_path, video, options, stereo)
     if options.width is not None and options.width > intrinsics.width:
         # Area averaging only shrinks: a wider frame would be interpolated, no new detail.
