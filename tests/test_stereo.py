@@ -356,6 +356,9 @@ def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys
     assert "stereo" in capsys.readouterr().err
     assert main([*argv, "--side-by-side", "--top-bottom"]) == 2
     assert "--side-by-side or --top-bottom, not both" in capsys.readouterr().err
+    guess = ["import", str(video), "--camera", "guess", "--out", str(tmp_path / "g")]
+    assert main([*guess, "--top-bottom"]) == 2
+    assert "needs the stereo calibration" in capsys.readouterr().err
     # T in metres: imported, with the warning that camera.json's T is in millimetres.
     described["stereo"] = json.loads((stereo_capture / "camera.json").read_text())["stereo"]
     described["stereo"]["T"] = [t / 1000 for t in described["stereo"]["T"]]
