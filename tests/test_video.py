@@ -193,6 +193,10 @@ def test_a_folder_of_images_imports_as_a_video_of_its_files(tmp_path, capsys):
         "1002.png",
         "1004.png",
     ]
+    # Without a calibration: the guess from the first file's size.
+    guessed = ["import", str(folder), "--camera", "guess", "--out", str(tmp_path / "g")]
+    assert main(guessed) == 0
+    assert json.loads((tmp_path / "g" / "camera.json").read_text())["fx"] == pytest.approx(0.8 * 96)
     # What it cannot use, named.
     cv2.imwrite(str(folder / "1008.png"), np.zeros((40, 96, 3), np.uint8))
     assert main([*argv, "--force"]) == 2
