@@ -1,4 +1,5 @@
-"""`ctjax import`: a capture from an endoscopic video (any format OpenCV reads).
+"""`ctjax import`: a capture from an endoscopic video (any format OpenCV reads, or a folder
+of images: `ctjax.io._frame_source`).
 
 Frames are chosen in two passes over the video, so that only small thumbnails are held:
 
@@ -24,13 +25,8 @@ file frame for frame, or each frame holding both images (side by side, or the le
 the right); the right images go to `CAPTURE/right/`.
 """
 
-import contextlib
 import dataclasses
-import os
-import re
 import shutil
-import sys
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -42,7 +38,8 @@ from ._atomic import atomic_write_json
 from ._camera_json import camera_from_json, read_camera, read_encoding, read_stereo
 from ._encoding import SRGB
 from ._field_of_view import field_of_view
-from ._images import IMAGE_SUFFIXES, write_quantised_rgb
+from ._frame_source import frame_size, frames, image_files, rate_and_count
+from ._images import write_quantised_rgb
 from ._opencv_calibration import RIGHT_MATRIX, camera_json_from_opencv, is_opencv_calibration
 from ._stereo import RIGHT, parse_stereo
 
@@ -107,68 +104,6 @@ class _Scan:
     fov: np.ndarray  # the first frame's field of view, at the thumbnails' size
 
 
-# A folder of images stands for a video whose frames are its files in name order, one per
-# "second": --start and --end count files.
-FOLDER_FPS = 1.0
-
-
-def _image_files(path: Path) -> list[Path] | None:
-    """A folder's images in name order (its frames), or None where `path` is not a folder."""
-    if not path.is_dir():
-        return None
-    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise CaptureError(
-            f"{path}: a folder without images ({', '.join(IMAGE_SUFFIXES)}): nothing to import"
-        )
-    return files
-
-
-def _read_frame(path: Path) -> np.ndarray:
-    """One image of a folder as a video frame (BGR, 8 bits a channel)."""
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise CaptureError(f"{path}: cannot read the image")
-    return image
-
-
-def _open(path: Path) -> cv2.VideoCapture:
-    if not path.is_file():
-        raise CaptureError(f"{path}: video file (or folder of images) not found")
-    # The decoders write their complaints (FFmpeg's "moov atom not found") to the process's
-    # stderr, before ctjax's one line: caught here, and named in it.
-    with _stderr_caught() as said:
-        video = cv2.VideoCapture(str(path))
-        opened = video.isOpened()
-    if not opened:
-        why = re.sub(r"[^\x20-\x7e]", "?", " ".join(said())).strip()
-        raise CaptureError(
-            f"{path}: cannot open the video (not a video OpenCV can decode"
-            + (f": {why[:200]}" if why else "")
-            + ")"
-        )
-    return video
-
-
-@contextlib.contextmanager
-def _stderr_caught():
-    """File descriptor 2 into a temporary file while in the block; yields a function giving
-    its lines, without the decoders' "[mov,mp4 @ 0x...]" prefixes."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as caught:
-        os.dup2(caught.fileno(), 2)
-        text: list[str] = []
-        try:
-            yield lambda: text
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            caught.seek(0)
-            lines = caught.read().decode("utf-8", "replace").splitlines()
-            text.extend(re.sub(r"^\[[^\]]*\] ", "", line) for line in lines if line.strip())
-
-
 # A video without a calibration (`ctjax import --camera guess`): a pinhole camera with this
 # focal length in widths (fx = fy), the principal point at the centre, no distortion.
 GUESSED_FOCAL = 0.8
@@ -177,19 +112,8 @@ GUESSED_FOCAL = 0.8
 def camera_size(path: Path, options: ImportOptions = ImportOptions()) -> tuple[int, int]:
     """One camera's image size in the video's frames, (width, height): the left half's (or
     the top half's) where each frame holds both cameras' (`options`)."""
-    files = _image_files(Path(path))
-    if files is not None:
-        height, width = _read_frame(files[0]).shape[:2]
-    else:
-        video = _open(Path(path))
-        width = int(video.get(cv2.CAP_PROP_FRAME_WIDTH))
-        height = int(video.get(cv2.CAP_PROP_FRAME_HEIGHT))
-        video.release()
-    width //= 2 if options.side_by_side else 1
-    height //= 2 if options.top_bottom else 1
-    if width <= 0 or height <= 0:
-        raise CaptureError(f"{path}: the video does not say its frame size")
-    return width, height
+    width, height = frame_size(Path(path))
+    return width // (2 if options.side_by_side else 1), height // (2 if options.top_bottom else 1)
 
 
 def guessed_camera(path: Path, side_by_side: bool = False, top_bottom: bool = False) -> dict:
@@ -213,38 +137,8 @@ def guessed_camera(path: Path, side_by_side: bool = False, top_bottom: bool = Fa
 
 def _frames(path: Path, options: ImportOptions, fps: float):
     """(frame number, BGR uint8 image) of the considered frames, decoding only those."""
-    first = round(options.start * fps)
     last = None if options.end is None else round(options.end * fps)
-    files = _image_files(path)
-    if files is not None:
-        size = None
-        for index, file in enumerate(files[: None if last is None else last + 1]):
-            if index >= first and (index - first) % options.every == 0:
-                image = _read_frame(file)
-                if size is not None and image.shape != size:
-                    raise CaptureError(
-                        f"{file}: {image.shape[1]}x{image.shape[0]} px where the folder's "
-                        f"first frame is {size[1]}x{size[0]}"
-                    )
-                size = image.shape
-                yield index, image
-        return
-    video = _open(path)
-    index = 0
-    try:
-        while last is None or index <= last:
-            wanted = index >= first and (index - first) % options.every == 0
-            if not wanted:
-                if not video.grab():
-                    return
-            else:
-                ok, image = video.read()
-                if not ok:
-                    return
-                yield index, image
-            index += 1
-    finally:
-        video.release()
+    return frames(path, round(options.start * fps), last, options.every)
 
 
 def _halves(image: np.ndarray, options: ImportOptions) -> tuple[np.ndarray, np.ndarray | None]:
@@ -276,14 +170,7 @@ def _thumbnail(image: np.ndarray, fov: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _scan(path: Path, options: ImportOptions, progress: Callable[[str], None]) -> _Scan:
-    files = _image_files(path)
-    if files is not None:
-        fps, total = FOLDER_FPS, len(files)
-    else:
-        video = _open(path)
-        fps = video.get(cv2.CAP_PROP_FPS) or 25.0
-        total = int(video.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-        video.release()
+    fps, total = rate_and_count(path)
     indices, thumbnails, sharpness = [], [], []
     fov = size = None
     for index, image in _frames(path, options, fps):
@@ -380,7 +267,7 @@ def _check_pairs(left: Path, right: Path) -> None:
     """Two folders pair their files in name order: they must hold as many, and where they
     share names, the same names in the same places (a file missing on one side would
     otherwise pair every later view with its neighbour's)."""
-    lefts, rights = _image_files(left), _image_files(right)
+    lefts, rights = image_files(left), image_files(right)
     if lefts is None or rights is None:
         return
     if len(lefts) != len(rights):
@@ -460,7 +347,7 @@ def import_video(
     stereo = options.stacked or right is not None
     for source in (video, right):  # a folder without images: said before anything else
         if source is not None:
-            _image_files(Path(source))
+            image_files(Path(source))
     if right is not None:
         _check_pairs(video, Path(right))
     intrinsics, rig, encoding = _calibration(camera_path, video, options, stereo)
@@ -503,7 +390,7 @@ def import_video(
         for stale in ("poses.json", "reconstruction.json"):
             (out / stale).unlink(missing_ok=True)
     wanted = {int(scan.indices[i]) for i in kept}
-    files = _image_files(video)
+    files = image_files(video)
     digits = max(6, len(str(max(wanted))))
     names = []
     intrinsics, size = _scaled(intrinsics, options.width)
