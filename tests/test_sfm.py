@@ -182,7 +182,11 @@ def test_a_texture_refinement_that_parts_the_frames_surfaces_is_not_kept(
     assert "texture refinement not kept" in capsys.readouterr().out
     for name, view in kept.views.items():  # SfM's surfaces, as without the refinement
         expected = points_only.views[name].surface.coefficients
-        np.testing.assert_allclose(view.surface.coefficients, expected, rtol=1e-9)
+        # Within 1%, where the parted refinement moved every other frame by 5%: two
+        # structure-from-motion runs of the same images in one process agree bit for bit
+        # as a rule, but in one fresh-clone CI run of eight on 2026-12-03 (a slow hour) they
+        # came out 0.25% (0.19 mm) apart.
+        np.testing.assert_allclose(view.surface.coefficients, expected, rtol=0.01)
 
 
 def test_the_texture_refinements_smoothing_is_the_users(reconstructed, points_only, capsys):
