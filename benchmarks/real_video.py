@@ -104,6 +104,12 @@ def prepare(source: Path, out: Path, frames: int, width: int, camera=None, layou
             right = cv2.imread(str(next((source / "right").glob(f"{path.stem}.*"))))
             right = cv2.resize(right, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
             cv2.imwrite(str(capture / "right" / f"{path.stem}.png"), right)
+        for folder in ("excluded", "excluded/right"):  # an instrument's pixels, shrunk alike
+            for mask_path in (source / folder).glob(f"{path.stem}.*"):
+                mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+                mask = cv2.resize(mask, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+                (capture / folder).mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(capture / folder / f"{path.stem}.png"), (mask > 0) * np.uint8(255))
     camera |= _scaled(camera, scale) | {"width": image.shape[1], "height": image.shape[0]}
     if stereo is not None:
         right = stereo["right"]
@@ -128,12 +134,12 @@ def subset(capture: Path, out: Path, parity: int) -> Path:
     if out.is_dir():
         shutil.rmtree(out)
     names = sorted(p.stem for p in (capture / "images").iterdir())[parity::2]
-    for folder in ("images", "depth", "normals", "right"):
+    for folder in ("images", "depth", "normals", "right", "excluded", "excluded/right"):
         if not (capture / folder).is_dir():
-            continue  # "right": a stereo capture's only
+            continue  # "right": a stereo capture's only; "excluded": where instruments are
         (out / folder).mkdir(parents=True)
         for path in (capture / folder).iterdir():
-            if path.stem in names:
+            if path.is_file() and path.stem in names:
                 shutil.copy(path, out / folder / path.name)
     for name in ("camera.json", "reconstruction.json"):
         shutil.copy(capture / name, out / name)

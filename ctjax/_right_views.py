@@ -21,7 +21,8 @@ the right camera has no depth of its own.
 An observation counts when it lands inside the right image, faces the right camera, is not
 hidden (its depth agrees within the tracks' tolerance with the nearest of the left frame's
 surface points splatted into the right view: a z-buffer), and none of the right image's
-four neighbours is clipped in a channel (no channel of it counts then).
+four neighbours is clipped in a channel (no channel of it counts then) or excluded
+(`excluded/right/NAME.png`: an instrument).
 
 The right camera is taken as the left one's twin behind the sensor: a right view carries
 its frame's index (the exposure of that instant, as the left image's) and, for the
@@ -44,6 +45,7 @@ from ._tracks import (
 )
 from ._units import METRIC
 from .io._encoding import SRGB, srgb_to_linear
+from .io._excluded import excluded_pixels
 
 
 def require_stereo(capture) -> None:
@@ -74,6 +76,21 @@ def right_image(capture, name: str) -> np.ndarray:
         dist = np.asarray(camera.distortion, np.float64)
         linear = cv2.undistort(linear, k, dist, None, k)
     return linear
+
+
+def right_excluded(capture, name: str) -> np.ndarray | None:
+    """Frame `name`'s right image's excluded pixels (`excluded/right/NAME.png`: an
+    instrument), undistorted as `right_image` is, None where the capture gives none."""
+    camera = capture.stereo.right
+    mask = excluded_pixels(capture.root, name, (camera.height, camera.width), right=True)
+    if mask is None or camera.distortion is None:
+        return mask
+    k = np.asarray(camera.intrinsic_matrix, np.float64)
+    maps = cv2.initUndistortRectifyMap(
+        k, np.asarray(camera.distortion, np.float64), None, k, (camera.width, camera.height),
+        cv2.CV_32FC1,
+    )  # fmt: skip
+    return cv2.remap(mask.astype(np.uint8), *maps, cv2.INTER_NEAREST) > 0
 
 
 def _project(camera: Camera, point: np.ndarray):
@@ -157,6 +174,13 @@ def _right_observations(capture, index, world, normal, tolerance, saturation_lev
             near = sample_image(image, np.floor(u) + du, np.floor(v) + dv, cv2.INTER_NEAREST)
             clipped |= np.any(~(near < saturation_level), axis=-1)
     seen &= ~clipped
+    excluded = right_excluded(capture, frame.name)
+    if excluded is not None:  # an instrument on any of the four neighbours
+        for du in (0, 1):
+            for dv in (0, 1):
+                rows = np.clip(np.floor(v).astype(int) + dv, 0, right.height - 1)
+                cols = np.clip(np.floor(u).astype(int) + du, 0, right.width - 1)
+                seen &= ~excluded[rows, cols]
     values = np.where(seen[:, None], values, 0.0)
     weight = np.where(seen, observation_weight(np.where(seen, spread, 0.0)), 0.0)
     # Where it lies on the right sensor, as the left camera's pixel at the same place

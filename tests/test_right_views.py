@@ -218,3 +218,31 @@ def test_the_right_views_read_the_right_cameras_ceilings_as_clipped(stereo, tmp_
     assert np.median(plain.values[lost][:, 0]) >= (code - 0.5) / 255
     kept = right & clipped.observed
     np.testing.assert_array_equal(plain.values[kept], clipped.values[kept])
+
+
+def test_a_right_views_excluded_pixels_are_not_observed(stereo, tmp_path):
+    """`excluded/right/NAME.png` (an instrument in the right image): the right views landing
+    on it are not observed, the others are the same; the left views are untouched."""
+    import cv2
+
+    from ctjax._right_views import with_right_views
+    from ctjax.observations import Observations
+
+    capture, _ = stereo
+    tracks = Observations.of(capture).tracks(max_points=2000)
+    plain, right = with_right_views(capture, tracks)
+    root = shutil.copytree(capture.root, tmp_path / "masked")
+    (root / "excluded" / "right").mkdir(parents=True)
+    width = capture.stereo.right.width
+    for frame in capture.frames:  # the right image's left half
+        mask = np.zeros((capture.stereo.right.height, width), np.uint8)
+        mask[:, : width // 2] = 255
+        cv2.imwrite(str(root / "excluded" / "right" / f"{frame.name}.png"), mask)
+    masked, right_masked = with_right_views(load_capture(root), tracks)
+    np.testing.assert_array_equal(right_masked, right & masked.observed)
+    left = tracks.observed.shape[1]  # the left views come first, then one right per frame
+    np.testing.assert_array_equal(masked.observed[:, :left], plain.observed[:, :left])
+    lost = right & ~masked.observed
+    assert 0.2 < lost.sum() / right.sum() < 0.8
+    kept = right & masked.observed
+    np.testing.assert_array_equal(plain.values[kept], masked.values[kept])

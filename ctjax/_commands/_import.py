@@ -82,6 +82,18 @@ def add_import_parser(commands) -> None:
         "block)",
     )
     video.add_argument(
+        "--excluded",
+        type=Path,
+        help="masks of what is not tissue (surgical instruments: white, above half scale), a "
+        "video or folder of images frame for frame with VIDEO and laid out as it; writes "
+        "OUT/excluded/frame_NNNNNN.png, pixels no command uses",
+    )
+    video.add_argument(
+        "--right-excluded",
+        type=Path,
+        help="the same for the right video (--right); writes OUT/excluded/right/",
+    )
+    video.add_argument(
         "--force",
         action="store_true",
         help="replace OUT/images (and the depth, normals and poses reconstructed from them)",
@@ -138,6 +150,8 @@ def run_import(args: argparse.Namespace) -> int:
         args.out,
         options,
         right=args.right,
+        excluded=args.excluded,
+        right_excluded=args.right_excluded,
         force=args.force,
         progress=lambda m: print(f"[ctjax import] {m}", flush=True),
     )

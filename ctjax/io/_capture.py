@@ -9,6 +9,8 @@
       poses.json           optional, {"NAME": 4x4 camera-to-world, rigid}
       right/NAME.png       optional, a stereo laparoscope's right image (camera.json's
                            "stereo" block: the right camera, R and T; `ctjax.io._stereo`)
+      excluded/NAME.png    optional, the pixels that are not tissue (instruments; non-zero),
+                           out of the field of view (`ctjax.io._excluded`)
       truth.json           optional, ground truth of synthetic captures
 
 Frames are the images, sorted by name; depth, normals and poses are matched by NAME.
@@ -36,6 +38,7 @@ from ._camera_json import AUTO_CEILINGS, read_camera, read_ceilings, read_encodi
 from ._channel_ceiling import channel_ceilings, samples_of
 from ._desaturated import desaturated
 from ._encoding import LINEAR, SRGB, decode, default_encoding, encode, srgb_to_linear
+from ._excluded import check_excluded_names, excluded_path, read_excluded
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
 from ._stereo import RIGHT, StereoRig, right_image_path
@@ -53,8 +56,9 @@ class Frame:
     depth: np.ndarray | None = None  # float32 (H, W), mm, NaN where unknown
     normals: np.ndarray | None = None  # float32 (H, W, 3), unit, facing the camera
     pose: np.ndarray | None = None  # float64 (4, 4), camera-to-world
-    # bool (H, W): the scene, inside the endoscope's field of view and off overlays (see
-    # `ctjax.io.field_of_view`); None: everything is.
+    # bool (H, W): the scene, inside the endoscope's field of view, off overlays (see
+    # `ctjax.io.field_of_view`) and off the pixels the capture excludes (instruments:
+    # `ctjax.io._excluded`); None: everything is.
     field_of_view: np.ndarray | None = None
 
     @property
@@ -232,7 +236,7 @@ def _undistort(camera: Camera, frame: Frame) -> Frame:
     size = (camera.width, camera.height)
     map_x, map_y = cv2.initUndistortRectifyMap(k, dist, None, k, size, cv2.CV_32FC1)
 
-    def remap(a, interpolation):
+    def remap(a, interpolation, outside=np.nan):
         if a is None:
             return None
         out = cv2.remap(
@@ -241,15 +245,19 @@ def _undistort(camera: Camera, frame: Frame) -> Frame:
             map_y,
             interpolation,
             borderMode=cv2.BORDER_CONSTANT,
-            borderValue=np.nan if a is not frame.image else 0,
+            borderValue=outside,
         )
         return out
 
+    scene = frame.field_of_view  # the pixels not excluded, on the recorded grid
+    if scene is not None:
+        scene = remap(scene.astype(np.uint8), cv2.INTER_NEAREST, 0).astype(bool)
     return dataclasses.replace(
         frame,
-        image=remap(frame.image, cv2.INTER_LINEAR),
+        image=remap(frame.image, cv2.INTER_LINEAR, 0),
         depth=remap(frame.depth, cv2.INTER_NEAREST),
         normals=remap(frame.normals, cv2.INTER_NEAREST),
+        field_of_view=scene,
     )
 
 
@@ -267,6 +275,7 @@ def load_capture(
     returned camera has none. With `field_of_view=True`, each frame's `field_of_view` marks
     the scene: the pixels inside the endoscope's image circle or polygon and off overlays
     constant over the video (`ctjax.io.visible_masks`); None where that is every pixel.
+    Pixels `excluded/NAME.png` marks (instruments: `ctjax.io._excluded`) are never in it.
     """
     root = Path(path)
     if not root.exists():
@@ -332,7 +341,10 @@ def load_capture(
                 facing_notes.append(f"{normals_path}: {away:.0%} of the normals face away")
         elif depth is not None:
             normals = normals_from_depth(camera, depth)
-        frames.append(Frame(name, image, depth, normals, poses.get(name)))
+        excluded = excluded_path(root, name)
+        scene = None if excluded is None else ~read_excluded(excluded, size)
+        frames.append(Frame(name, image, depth, normals, poses.get(name), scene))
+    check_excluded_names(root, {frame.name for frame in frames})
     truth = None
     if (root / "truth.json").is_file():
         try:
@@ -479,10 +491,15 @@ def _refuse_duplicates(root: Path, frames: list[Frame]) -> None:
 
 def _with_field_of_view(frames: list[Frame], encoding: str) -> list[Frame]:
     """`frames` with their `field_of_view` (None where every pixel is of the scene), found
-    on the recorded values (the border's and overlays' levels are of the video's)."""
+    on the recorded values (the border's and overlays' levels are of the video's), within
+    the one they have (the pixels not excluded)."""
     masks = visible_masks([encode(frame.image, encoding) for frame in frames])
+    masks = [
+        mask if frame.field_of_view is None else mask & frame.field_of_view
+        for frame, mask in zip(frames, masks, strict=True)
+    ]
     return [
-        frame if mask.all() else dataclasses.replace(frame, field_of_view=mask)
+        dataclasses.replace(frame, field_of_view=None if mask.all() else mask)
         for frame, mask in zip(frames, masks, strict=True)
     ]
 

@@ -270,14 +270,16 @@ def black_frames(capture) -> str | None:
         names = ", ".join(f.name for f in empty[:5]) + (" ..." if len(empty) > 5 else "")
         return (
             f"{capture.root}: frame(s) {names} have no pixel in their field of view (black: "
-            f"brightest level {brightest:.3g} of 1, or all border): remove them from the capture"
+            f"brightest level {brightest:.3g} of 1, all border, or excluded): remove them from the "
+            "capture"
         )
     if brightest < _BLACK_LEVEL:
         why = f"the images are black (their brightest level {brightest:.3g} of 1)"
     else:  # bright images whose every pixel was masked: not black
         why = (
             f"the images are not black (brightest level {brightest:.3g} of 1) but every pixel "
-            "is border or overlay, or camera.json's distortion moved the image out of its frame"
+            "is border, overlay or excluded, or camera.json's distortion moved the image out of "
+            "its frame"
         )
     return f"{capture.root}: no frame has a pixel in its field of view: {why}"
 

@@ -22,7 +22,9 @@ time) with `camera.json` copied beside them, marked `"encoding": "srgb"` (unless
 endoscope's camera.json says otherwise: video frames are encoded). The calibration may be
 camera.json or OpenCV's file (`ctjax.io._opencv_calibration`). A stereo video: a second
 file frame for frame, or each frame holding both images (side by side, or the left above
-the right); the right images go to `CAPTURE/right/`.
+the right); the right images go to `CAPTURE/right/`. Masks of what is not tissue
+(instruments), a video or folder frame for frame with the video, go to `CAPTURE/excluded/`
+(`ctjax.io._excluded`).
 """
 
 import dataclasses
@@ -37,9 +39,10 @@ from .._errors import CaptureError, ParameterError
 from ._atomic import atomic_write_json
 from ._camera_json import camera_from_json, read_camera, read_encoding, read_stereo
 from ._encoding import SRGB
+from ._excluded import EXCLUDED
 from ._field_of_view import field_of_view
 from ._frame_source import frame_size, frames, image_files, rate_and_count
-from ._images import write_quantised_rgb
+from ._images import write_mask, write_quantised_rgb
 from ._opencv_calibration import RIGHT_MATRIX, camera_json_from_opencv, is_opencv_calibration
 from ._stereo import RIGHT, parse_stereo
 
@@ -263,6 +266,23 @@ def _stacked_layout(camera, width: int, height: int) -> str | None:
     return None
 
 
+def _excluded_mask(mask: np.ndarray, recorded: tuple[int, int], size, source: Path) -> np.ndarray:
+    """A mask frame (BGR uint8) of a camera's image `recorded` (width, height) px as the
+    excluded pixels of the frame written at `size` (None: as recorded): above half scale
+    in any channel (a compressed mask video's black is not exactly 0), and, shrunk, every
+    new pixel that holds any of them."""
+    if (mask.shape[1], mask.shape[0]) != recorded:
+        raise CaptureError(
+            f"{source}: mask frames are {mask.shape[1]}x{mask.shape[0]}, the camera's images "
+            f"{recorded[0]}x{recorded[1]}"
+        )
+    excluded = np.any(mask > 127, axis=-1)
+    if size is not None:
+        shrunk = cv2.resize(excluded.astype(np.uint8) * 255, size, interpolation=cv2.INTER_AREA)
+        excluded = shrunk > 0
+    return excluded
+
+
 def _check_pairs(left: Path, right: Path) -> None:
     """Two folders pair their files in name order: they must hold as many, and where they
     share names, the same names in the same places (a file missing on one side would
@@ -324,6 +344,8 @@ def import_video(
     options: ImportOptions = ImportOptions(),
     *,
     right: str | Path | None = None,
+    excluded: str | Path | None = None,
+    right_excluded: str | Path | None = None,
     force: bool = False,
     progress: Callable[[str], None] = lambda message: None,
 ) -> dict:
@@ -340,12 +362,21 @@ def import_video(
     `video`), or `options.side_by_side` / `options.top_bottom` (each frame holds both);
     the calibration must then have the right camera (camera.json's `"stereo"` block,
     `ctjax.io._stereo`), and the capture gets `right/NAME.png` beside `images/NAME.png`.
-    Frames are chosen on the left camera's."""
+    Frames are chosen on the left camera's.
+
+    `excluded`: a video or folder of masks, frame for frame with `video` (laid out as it:
+    side by side or one above the other, both cameras'), white (above half scale) where a
+    pixel is not tissue (a surgical instrument); written as `excluded/NAME.png`
+    (`ctjax.io._excluded`: no command uses those pixels). `right_excluded`: the right
+    video's, frame for frame with `right`."""
     video, camera_path, out = Path(video), Path(camera), Path(out)
     if right is not None and options.stacked:
         raise ParameterError("give a right video or --side-by-side / --top-bottom, not both")
     stereo = options.stacked or right is not None
-    for source in (video, right):  # a folder without images: said before anything else
+    if right_excluded is not None and right is None:
+        raise ParameterError("--right-excluded masks the right video: give --right too")
+    # A folder without images: said before anything else.
+    for source in (video, right, excluded, right_excluded):
         if source is not None:
             image_files(Path(source))
     if right is not None:
@@ -381,8 +412,9 @@ def import_video(
     )
     if images.is_dir() and force:
         shutil.rmtree(images)
-        if (out / RIGHT).is_dir():
-            shutil.rmtree(out / RIGHT)
+        for stale in (RIGHT, EXCLUDED):
+            if (out / stale).is_dir():
+                shutil.rmtree(out / stale)
         # The shape reconstructed from the replaced frames belongs to them, not to the new.
         for stale in ("depth", "normals"):
             if (out / stale).is_dir():
@@ -400,13 +432,26 @@ def import_video(
         scale = size[0] / rig.right.width if rig.right.width else 1.0
         rig = dataclasses.replace(rig, right=_scaled(rig.right, round(rig.right.width * scale))[0])
         right_size = (rig.right.width, rig.right.height)
-    right_frames = _frames(Path(right), options, scan.fps) if right is not None else None
+    # The videos (or folders) read frame for frame with `video`.
+    sources = {"right": right, "excluded": excluded, "right_excluded": right_excluded}
+    beside = {
+        key: _frames(Path(source), options, scan.fps)
+        for key, source in sources.items()
+        if source is not None
+    }
+    recorded = (scan.size, recorded_right)
     for index, image in _frames(video, options, scan.fps):
         image, other = _halves(image, options)
-        if right_frames is not None:
-            other_index, other = next(right_frames, (None, None))
+        read = {}
+        for key, frames_beside in beside.items():
+            other_index, read[key] = next(frames_beside, (None, None))
             if other_index != index:
-                raise CaptureError(f"{right}: ends before {video} (frame {index})")
+                raise CaptureError(f"{sources[key]}: ends before {video} (frame {index})")
+        other = read.get("right", other)
+        masks = [None, None]  # the left camera's excluded pixels, the right one's
+        if "excluded" in read:
+            masks = list(_halves(read["excluded"], options))
+        masks[1] = read.get("right_excluded", masks[1])
         if index not in wanted:
             continue
         name = f"frame_{index:0{digits}d}"
@@ -424,6 +469,14 @@ def import_video(
             if right_size is not None:
                 other = cv2.resize(other, right_size, interpolation=cv2.INTER_AREA)
             write_quantised_rgb(out / RIGHT / f"{name}.png", np.ascontiguousarray(other[..., ::-1]))
+        mask_sources = (excluded, right_excluded or excluded)
+        for mask, camera, written, folder, source in zip(
+            masks, recorded, (size, right_size), (EXCLUDED, f"{EXCLUDED}/right"), mask_sources,
+            strict=True,
+        ):  # fmt: skip
+            if mask is not None and camera is not None:
+                mask = _excluded_mask(mask, camera, written, Path(source))
+                write_mask(out / folder / f"{name}.png", mask)
         names.append(name)
         progress(f"wrote {len(names)}/{len(wanted)} frames")
         if len(names) == len(wanted):

@@ -25,6 +25,7 @@ from .._errors import CaptureError, CtjaxError, ParameterError, ReconstructionEr
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
+from ..io._excluded import EXCLUDED
 from ._agreement import refinement_agreement
 from ._checks import check_knots, check_scale
 from ._colmap import MAPPING_ENOUGH, SparseModel
@@ -357,8 +358,10 @@ def reconstruct(
     if out.resolve() != root.resolve():
         image_files = sorted(p for p in (root / "images").iterdir() if p.is_file())
         copies = [root / "camera.json", *image_files]
-        if (root / "right").is_dir():  # a stereo capture's right images
-            copies += sorted(p for p in (root / "right").iterdir() if p.is_file())
+        # A stereo capture's right images; the pixels excluded (instruments), of either.
+        for folder in ("right", EXCLUDED, f"{EXCLUDED}/right"):
+            if (root / folder).is_dir():
+                copies += sorted(p for p in (root / folder).iterdir() if p.is_file())
         if (root / "truth.json").is_file():
             copies.append(root / "truth.json")
     targets = [out / p.relative_to(root) for p in copies] + _geometry_files(out, names)

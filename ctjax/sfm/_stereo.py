@@ -117,6 +117,9 @@ def stereo_points(
     u = k1[0, 0] * left[:, 0] / left[:, 2] + k1[0, 2]
     v = k1[1, 1] * left[:, 1] / left[:, 2] + k1[1, 2]
     seen = (u > -0.5) & (u < size[0] - 0.5) & (v > -0.5) & (v < size[1] - 0.5)
+    # Of the scene only: not the border, overlays or the pixels excluded (an instrument).
+    rows = np.clip(np.round(v).astype(int), 0, size[1] - 1)
+    seen &= frame.visible[rows, np.clip(np.round(u).astype(int), 0, size[0] - 1)]
     return StereoPoints(u[seen], v[seen], left[seen, 2], float(matched[inside].mean()))
 
 

@@ -51,8 +51,9 @@ rules find S; both take linear RGB in [0, 1] (H, W, 3) and the `visible` (H, W) 
   scope, not tissue (the image's own edges do not count: a cropped frame has none). That
   band is no reference for the tissue colour either: bright or vignetted, it is the lens's.
   Limits: a white object (gauze, a bright instrument) is whiter than the tissue around it
-  too, and is taken as S. A broad, soft white patch where a wall close to the scope
-  overexposes is taken as S whole, whether or not its values reach the top of the range.
+  too, and is taken as S (unless the capture excludes its pixels: `ctjax.io._excluded`).
+  A broad, soft white patch where a wall close to the scope overexposes is taken as S
+  whole, whether or not its values reach the top of the range.
   A soft lobe whose added white stays below the tissue's own light (whiteness under
   `whiteness` at its peak, e.g. one whose red clipped first on bright red tissue) and
   that is larger than `window` gives no seed, and is not S unless it touches one.
