@@ -3,6 +3,7 @@
 
 import dataclasses
 import json
+import re
 import shutil
 
 import cv2
@@ -223,9 +224,40 @@ def _opencv_calibration(path, described: dict, names=("M1", "D1", "M2", "D2", "R
     return path
 
 
+def _davinci_calibration(path, described: dict, left_pose=None):
+    """camera.json's content as a da Vinci's StereoCalibration.ini (StereoMIS's), the left
+    camera at `left_pose` (R, T) in the rig's frame (default, as in the files: the identity
+    and zero)."""
+    left_pose = (np.eye(3), np.zeros(3)) if left_pose is None else left_pose
+    stereo = described["stereo"]
+    rotation = np.array(stereo["R"]) @ left_pose[0]
+    translation = np.array(stereo["R"]) @ left_pose[1] + np.array(stereo["T"])
+    lines = []
+    for section, camera, (R, T) in (
+        ("StereoLeft", described, left_pose),
+        ("StereoRight", stereo["right"], (rotation, translation)),
+    ):
+        lines += [f"[{section}]", f"res_x={described['width']}", f"res_y={described['height']}"]
+        lines += [f"fc_x={camera['fx']!r}", f"fc_y={camera['fy']!r}"]
+        lines += [f"cc_x={camera['cx']!r}", f"cc_y={camera['cy']!r}"]
+        terms = [camera.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")] + [0.0] * 3
+        lines += [f"kc_{k}={value!r}" for k, value in enumerate(terms)]
+        lines += [f"R_{k}={value!r}" for k, value in enumerate(np.ravel(R).tolist())]
+        lines += [f"T_{k}={value!r}" for k, value in enumerate(np.ravel(T).tolist())]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 @pytest.mark.parametrize(
     "layout",
-    ["two videos", "two folders", "side by side", "top bottom", "top bottom, OpenCV's calibration"],
+    [
+        "two videos",
+        "two folders",
+        "side by side",
+        "top bottom",
+        "top bottom, OpenCV's calibration",
+        "top bottom, a da Vinci's calibration",
+    ],
 )
 def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path, capsys, layout):
     capture = load_capture(stereo_capture)
@@ -236,6 +268,9 @@ def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path
     if layout.endswith("OpenCV's calibration"):
         described = json.loads(camera.read_text())
         camera = _opencv_calibration(tmp_path / "endoscope_calibration.yaml", described)
+    if layout.endswith("a da Vinci's calibration"):  # StereoMIS's video and its file
+        described = json.loads(camera.read_text())
+        camera = _davinci_calibration(tmp_path / "StereoCalibration.ini", described)
     argv = ["import", "--camera", str(camera), "--out", str(out)]
     if layout == "two videos":
         argv += [str(_video(tmp_path / "l.mp4", left)), "--right"]
@@ -268,9 +303,10 @@ def test_import_writes_the_right_images_beside_the_left(stereo_capture, tmp_path
         assert "two cameras' images" in said and "--top-bottom" in said
     json_report = tmp_path / "import.json"
     assert main([*argv, "--width", "128", "--json", str(json_report)]) == 0
-    if layout.endswith("OpenCV's calibration"):
+    if layout.endswith("calibration"):
         said = capsys.readouterr().err
-        assert "the camera from OpenCV's calibration" in said and "a baseline of 5 mm" in said
+        source = "a da Vinci" if "da Vinci" in layout else "OpenCV"
+        assert f"the camera from {source}'s calibration" in said and "a baseline of 5 mm" in said
     imported = load_capture(out)
     assert len(imported) == 3 and imported.stereo.right.width == 128
     assert imported.stereo.baseline_mm == pytest.approx(BASELINE_MM)
@@ -553,3 +589,53 @@ def test_a_stereo_capture_falls_back_to_its_pairs_where_sfm_registers_too_little
     if registered == 1:
         reconstruct_capture(capture, scale_mm=60.0)  # SfM's one frame, scaled as asked
         assert len(reasons) == 1
+
+
+def test_a_da_vinci_calibration_reads_as_camera_json(stereo_capture, tmp_path):
+    """`import --camera StereoCalibration.ini`: the da Vinci's sections read as camera.json
+    (scaled for a smaller video, the pair's R and T composed where the left camera is not
+    the rig's origin), and one error naming the file, section and key for what it lacks."""
+    from ctjax.io._davinci_calibration import camera_json_from_davinci
+
+    described = json.loads((stereo_capture / "camera.json").read_text())
+    size = (described["width"], described["height"])
+    path = _davinci_calibration(tmp_path / "StereoCalibration.ini", described)
+    read = camera_json_from_davinci(path, *size)
+    for key in ("fx", "fy", "cx", "cy"):
+        assert read[key] == pytest.approx(described[key], rel=1e-12)
+    np.testing.assert_allclose(read["stereo"]["R"], described["stereo"]["R"], atol=1e-12)
+    np.testing.assert_allclose(read["stereo"]["T"], described["stereo"]["T"], atol=1e-12)
+    # Frames half the calibrated size: intrinsics halved about the pixel centres.
+    half = camera_json_from_davinci(path, size[0] // 2, size[1] // 2)
+    assert half["fx"] == pytest.approx(described["fx"] / 2)
+    assert half["cx"] == pytest.approx((described["cx"] + 0.5) / 2 - 0.5)
+    assert half["stereo"]["right"]["fy"] == pytest.approx(described["stereo"]["right"]["fy"] / 2)
+    # The left camera away from the rig's origin: the same pair.
+    angle = np.radians(20)
+    turn = np.array(
+        [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
+    )
+    moved = _davinci_calibration(tmp_path / "moved.ini", described, (turn, np.array([3.0, -1, 7])))
+    composed = camera_json_from_davinci(moved, *size)["stereo"]
+    np.testing.assert_allclose(composed["R"], described["stereo"]["R"], atol=1e-12)
+    np.testing.assert_allclose(composed["T"], described["stereo"]["T"], atol=1e-12)
+
+    text = path.read_text()
+    for edit, message in (
+        (text.replace("[StereoRight]", "[Other]"), "no [StereoRight] section"),
+        (text.replace("fc_x=", "focal=", 1), "[StereoLeft] has no fc_x"),
+        ("\n".join(line for line in text.splitlines() if not line.startswith("T_")) + "\n",
+         "[StereoRight] has no T_0"),
+        (text.replace("cc_y=", "cc_y=abc\nignored=", 1), "[StereoLeft] cc_y is not a number"),
+        (text.replace("kc_5=0.0", "kc_5=0.01", 1), "k4"),
+        ("not an ini file", "not a da Vinci calibration file"),
+    ):  # fmt: skip
+        bad = tmp_path / "bad.ini"
+        bad.write_text(edit)
+        with pytest.raises(CaptureError, match=re.escape(message)) as raised:
+            camera_json_from_davinci(bad, *size)
+        assert str(bad) in str(raised.value)
+    with pytest.raises(CaptureError, match=r"two cameras' images in each frame\? --top-bottom"):
+        camera_json_from_davinci(path, size[0], 2 * size[1])
+    with pytest.raises(CaptureError, match="another aspect"):
+        camera_json_from_davinci(path, size[0], size[1] + 40)

@@ -34,7 +34,8 @@ def add_import_parser(commands) -> None:
         required=True,
         help="the endoscope's camera.json, an OpenCV calibration file (.yaml, .yml or .xml "
         "with M1, D1 and, for a stereo scope, M2, D2, R and T in mm: SCARED's "
-        "endoscope_calibration.yaml), or 'guess' for a video without a calibration (fx = fy "
+        "endoscope_calibration.yaml), a da Vinci's StereoCalibration.ini (StereoMIS's), or "
+        "'guess' for a video without a calibration (fx = fy "
         "= 0.8 width, the principal point at the centre; then `ctjax reconstruct --focal "
         "refine`)",
     )
@@ -109,6 +110,7 @@ def run_import(args: argparse.Namespace) -> int:
     from .._errors import ParameterError
     from ..io._atomic import atomic_write_json
     from ..io._capture import BASELINE_MM, unlikely_baseline
+    from ..io._davinci_calibration import is_davinci_calibration
     from ..io._opencv_calibration import is_opencv_calibration
     from ..io._video import ImportOptions, guessed_camera, import_video
 
@@ -158,9 +160,11 @@ def run_import(args: argparse.Namespace) -> int:
     if args.json is not None:
         atomic_write_json(args.json, report)
     print(f"wrote {report['kept']} frames to {report['out']}")
-    if is_opencv_calibration(args.camera):
+    davinci = is_davinci_calibration(args.camera)
+    if davinci or is_opencv_calibration(args.camera):
         print(
-            f"ctjax import: note: the camera from OpenCV's calibration {args.camera}"
+            f"ctjax import: note: the camera from {'a da Vinci' if davinci else 'OpenCV'}'s "
+            f"calibration {args.camera}"
             + (
                 f"; its T read in mm: a baseline of {report['baseline_mm']:.3g} mm"
                 if "baseline_mm" in report

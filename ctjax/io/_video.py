@@ -38,6 +38,7 @@ import numpy as np
 from .._errors import CaptureError, ParameterError
 from ._atomic import atomic_write_json
 from ._camera_json import camera_from_json, read_camera, read_encoding, read_stereo
+from ._davinci_calibration import camera_json_from_davinci, is_davinci_calibration
 from ._encoding import SRGB
 from ._excluded import EXCLUDED
 from ._field_of_view import field_of_view
@@ -306,10 +307,12 @@ def _check_pairs(left: Path, right: Path) -> None:
 
 def _calibration(camera_path: Path, video: Path, options: ImportOptions, stereo: bool):
     """The left camera, the stereo rig (None for a single camera) and the declared encoding
-    (None: not said) from camera.json or an OpenCV calibration file."""
-    if is_opencv_calibration(camera_path):
+    (None: not said) from camera.json, an OpenCV calibration file or a da Vinci's."""
+    if is_opencv_calibration(camera_path) or is_davinci_calibration(camera_path):
         size = camera_size(video, options)
-        described = camera_json_from_opencv(camera_path, *size)
+        davinci = is_davinci_calibration(camera_path)
+        reader = camera_json_from_davinci if davinci else camera_json_from_opencv
+        described = reader(camera_path, *size)
         intrinsics = camera_from_json(described, camera_path)
         layout = None if options.stacked else _stacked_layout(intrinsics, *size)
         if layout is not None:
@@ -355,7 +358,8 @@ def import_video(
     kept frames' names and times.
 
     `camera` may also be an OpenCV calibration file (`cv::FileStorage` YAML or XML, e.g.
-    SCARED's `endoscope_calibration.yaml`: `ctjax.io._opencv_calibration`), for frames of
+    SCARED's `endoscope_calibration.yaml`: `ctjax.io._opencv_calibration`) or a da Vinci's
+    `StereoCalibration.ini` (StereoMIS's: `ctjax.io._davinci_calibration`), for frames of
     the video's size; the capture's camera.json is written from it.
 
     A stereo laparoscope: `right`, the right camera's video (frame for frame with
