@@ -7,7 +7,10 @@ from ._errors import ParameterError
 from ._typing import Array, Float, Pixel, Scalar
 from ._vector import Vec3
 
+# OpenCV's distortion coefficients, in its order: the five of its default model, then the
+# rational model's three (its CALIB_RATIONAL_MODEL; a da Vinci's calibration has all eight).
 DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3")
+RATIONAL_KEYS = ("k4", "k5", "k6")
 
 
 class Camera(eqx.Module):
@@ -20,8 +23,9 @@ class Camera(eqx.Module):
 
     - `width`, `height`: image size in pixels.
     - `fx`, `fy`: focal lengths in pixels (> 0); `cx`, `cy`: principal point in pixels.
-    - `distortion`: OpenCV's (k1, k2, p1, p2, k3), or None. Images are undistorted on load
-      (`ctjax.load_capture`), after which the camera has no distortion.
+    - `distortion`: OpenCV's (k1, k2, p1, p2, k3), or its rational model's (k1, k2, p1, p2,
+      k3, k4, k5, k6), or None. Images are undistorted on load (`ctjax.load_capture`), after
+      which the camera has no distortion.
     """
 
     width: int = eqx.field(static=True)
@@ -30,7 +34,7 @@ class Camera(eqx.Module):
     fy: Float[Array, ""] = eqx.field(converter=as_float)
     cx: Float[Array, ""] = eqx.field(converter=as_float)
     cy: Float[Array, ""] = eqx.field(converter=as_float)
-    distortion: Float[Array, "5"] | None = None
+    distortion: Float[Array, "5"] | Float[Array, "8"] | None = None
 
     def __check_init__(self):
         if int(self.width) <= 0 or int(self.height) <= 0:
@@ -43,7 +47,8 @@ class Camera(eqx.Module):
         check_positive("Camera", "fx", self.fx)
         check_positive("Camera", "fy", self.fy)
         if self.distortion is not None:
-            check_shape("Camera", "distortion", self.distortion, (5,))
+            if np.shape(self.distortion) != (8,):
+                check_shape("Camera", "distortion", self.distortion, (5,))
             check_finite("Camera", "distortion", self.distortion)
 
     @property
@@ -77,7 +82,8 @@ class Camera(eqx.Module):
             **{k: float(getattr(self, k)) for k in ("fx", "fy", "cx", "cy")},
         }
         if self.distortion is not None:
-            out.update(zip(DISTORTION_KEYS, map(float, np.asarray(self.distortion)), strict=True))
+            terms = map(float, np.asarray(self.distortion))
+            out.update(zip((*DISTORTION_KEYS, *RATIONAL_KEYS), terms, strict=False))
         return out
 
     def without_distortion(self) -> "Camera":

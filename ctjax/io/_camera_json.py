@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._camera import DISTORTION_KEYS, Camera
+from .._camera import DISTORTION_KEYS, RATIONAL_KEYS, Camera
 from .._errors import CaptureError
 from ._encoding import declared_encoding
 from ._stereo import StereoRig, parse_stereo
@@ -52,7 +52,7 @@ def camera_from_json(data: dict, path) -> Camera:
     if missing:
         raise CaptureError(f"{path}: missing key(s) {', '.join(missing)}")
     values = {}
-    for key in ("width", "height", "fx", "fy", "cx", "cy", *DISTORTION_KEYS):
+    for key in ("width", "height", "fx", "fy", "cx", "cy", *DISTORTION_KEYS, *RATIONAL_KEYS):
         if key not in data:
             continue
         value = data[key]
@@ -84,10 +84,13 @@ def camera_from_json(data: dict, path) -> Camera:
             )
     _refuse_unsupported_distortion(data, path)
     distortion = None
-    if any(k in values for k in DISTORTION_KEYS):
-        distortion = np.array([values.get(k, 0.0) for k in DISTORTION_KEYS])
-        if not np.any(distortion):
-            distortion = None
+    # OpenCV's five terms, or its rational model's eight where k4-k6 are not all zero.
+    keys = (*DISTORTION_KEYS, *RATIONAL_KEYS)
+    if not any(values.get(k, 0.0) for k in RATIONAL_KEYS):
+        keys = DISTORTION_KEYS
+    distortion = np.array([values.get(k, 0.0) for k in keys])
+    if not np.any(distortion):
+        distortion = None
     return Camera(
         int(values["width"]),
         int(values["height"]),
@@ -99,11 +102,10 @@ def camera_from_json(data: dict, path) -> Camera:
     )
 
 
-# Distortion coefficients of other models than the five ctjax applies (OpenCV's rational
-# and thin-prism terms, an array of any length): refused unless zero, not silently dropped.
+# Distortion coefficients of other models than the eight ctjax applies (OpenCV's thin-prism
+# and tilted-sensor terms, an array of any length): refused unless zero, not silently dropped.
 _UNSUPPORTED_DISTORTION = (
-    "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tauX", "tauY",
-    "distortion", "dist_coeffs", "distortion_coefficients",
+    "s1", "s2", "s3", "s4", "tauX", "tauY", "distortion", "dist_coeffs", "distortion_coefficients",
 )  # fmt: skip
 
 
@@ -118,7 +120,8 @@ def _refuse_unsupported_distortion(data: dict, path) -> None:
     if unsupported:
         raise CaptureError(
             f"{path}: unsupported distortion key(s) {', '.join(unsupported)}: ctjax applies "
-            f"{', '.join(DISTORTION_KEYS)} (OpenCV's first five coefficients, each its own key) "
+            f"{', '.join((*DISTORTION_KEYS, *RATIONAL_KEYS))} (OpenCV's first eight "
+            "coefficients, each its own key) "
             "and no other; undistort the images first, or refit the camera with those alone"
         )
 

@@ -1,7 +1,7 @@
 """The capture format: the one input of every ctjax command.
 
     CAPTURE/
-      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1 p2 k3,
+      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1 p2 k3 k4 k5 k6,
                            "encoding": "srgb" or "linear")
       images/NAME.png      8- or 16-bit RGB, decoded to linear intensity in [0, 1]
       depth/NAME.npy       optional, float32 (H, W) camera-frame z in mm, NaN where unknown
@@ -268,7 +268,7 @@ def load_capture(
 
     Rejects bad input with one `CaptureError` naming the file: missing folder, missing or
     malformed camera.json (a principal point off the image, distortion keys other than
-    k1 k2 p1 p2 k3 that are not zero), unreadable image, sizes that disagree, normals that
+    k1 k2 p1 p2 k3 k4 k5 k6 that are not zero), unreadable image, sizes that disagree, normals that
     are not unit or that face away from the camera, poses that are not rigid.
     Normals are derived from depth where only depth is given. With distortion coefficients
     in camera.json and `undistort=True`, images (and depth/normals) are undistorted and the

@@ -13,8 +13,7 @@
 Where the left camera's R and T are not the identity and zero, the pair's R and T are
 composed from both (X_cam = R_cam X_rig + T_cam). Frames of another size than res_x x res_y
 with the same aspect (a video written smaller) take the intrinsics scaled, pixel centres
-kept; any other size is refused. Distortion beyond OpenCV's first five terms is refused
-unless zero, as camera.json's is.
+kept; any other size is refused.
 """
 
 import configparser

@@ -12,7 +12,8 @@ Each matrix may be an `!!opencv-matrix`, a plain list (of rows), or ROS's camera
 size is the frames' (`width`, `height`: one camera's image in the video). T is read in
 millimetres, the unit of camera.json's `"stereo"` block (OpenCV's T is in the calibration
 target's unit: SCARED's and most laparoscope calibrations are in mm). Distortion terms
-beyond OpenCV's first five are refused unless zero, as camera.json's are
+beyond OpenCV's first eight (its rational model's; thin-prism and tilted-sensor terms)
+are refused unless zero, as camera.json's are
 (`ctjax.io._camera_json`).
 """
 
@@ -36,7 +37,7 @@ LEFT_DISTORTION = (
 RIGHT_MATRIX = ("M2", "K2", "KR", "cameraMatrix2")
 RIGHT_DISTORTION = ("D2", "DR", "distCoeffs2")
 
-# OpenCV's distortion vector, in its order (4, 5, 8, 12 or 14 terms): the first five are
+# OpenCV's distortion vector, in its order (4, 5, 8, 12 or 14 terms): the first eight are
 # camera.json's keys; the rest keep OpenCV's names, which camera.json refuses unless zero.
 _OPENCV_DISTORTION = (*DISTORTION_KEYS, "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tauX", "tauY")
 
