@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/real_video.py [SOURCE ...] [--frames 12] [--width 640]
         [--work DIR] [--skip-diagnose] [--skip-evaluate] [--max-rounds 4] [--focal refine]
-        [--camera CALIBRATION] [--layout side-by-side|top-bottom]
+        [--camera CALIBRATION] [--layout side-by-side|top-bottom] [--excluded MASKS]
 
 Each SOURCE is a capture folder (images/ and camera.json) or a video (imported with
 `ctjax import`, a guessed pinhole camera: fx = fy = 0.8 width, the principal point at the
@@ -63,10 +63,13 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def prepare(source: Path, out: Path, frames: int, width: int, camera=None, layout=()) -> Path:
+def prepare(
+    source: Path, out: Path, frames: int, width: int, camera=None, layout=(), excluded=None
+) -> Path:
     """A capture of `frames` frames, `width` px wide, from a capture folder or a video
-    (`camera`: its calibration, camera.json or OpenCV's file; `layout`: import's stereo
-    flag, e.g. ("--top-bottom",))."""
+    (`camera`: its calibration, camera.json, OpenCV's file or a da Vinci's .ini; `layout`:
+    import's stereo flag, e.g. ("--top-bottom",); `excluded`: the video's instrument masks,
+    import's --excluded; a capture folder carries its own excluded/)."""
     source = source.resolve()  # the commands run from the repository's root
     capture = out / "capture"
     if capture.is_dir():
@@ -82,6 +85,8 @@ def prepare(source: Path, out: Path, frames: int, width: int, camera=None, layou
             guess = {"width": int(w), "height": int(h), "fx": 0.8 * w, "fy": 0.8 * w}
             camera.write_text(json.dumps(guess | {"cx": (w - 1) / 2, "cy": (h - 1) / 2}))
         argv = ["import", source, "--camera", camera, "--out", capture, *layout]
+        if excluded is not None:
+            argv += ["--excluded", excluded.resolve()]
         status, _ = _run([*argv, "--max-frames", frames, "--width", width], out / "import.log")
         if status:
             raise SystemExit(f"{source}: ctjax import failed (see {out / 'import.log'})")
@@ -192,7 +197,7 @@ def run_sequence(source: Path, work: Path, args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     seconds = {}
     layout = [f"--{args.layout}"] if args.layout else []
-    capture = prepare(source, out, args.frames, args.width, args.camera, layout)
+    capture = prepare(source, out, args.frames, args.width, args.camera, layout, args.excluded)
     recon = out / "reconstructed"
     if recon.is_dir():
         shutil.rmtree(recon)
@@ -398,8 +403,15 @@ def main(argv=None):
     parser.add_argument(
         "--camera",
         type=Path,
-        help="a video's calibration: camera.json or OpenCV's file (SCARED's "
-        "endoscope_calibration.yaml; default: camera.json beside the video, else a guess)",
+        help="a video's calibration: camera.json, OpenCV's file (SCARED's "
+        "endoscope_calibration.yaml) or a da Vinci's StereoCalibration.ini (StereoMIS's; "
+        "default: camera.json beside the video, else a guess)",
+    )
+    parser.add_argument(
+        "--excluded",
+        type=Path,
+        help="a video's instrument masks, a video or folder frame for frame with it "
+        "(import's --excluded)",
     )
     parser.add_argument(
         "--layout",
