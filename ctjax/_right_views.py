@@ -86,10 +86,9 @@ def right_excluded(capture, name: str) -> np.ndarray | None:
     if mask is None or camera.distortion is None:
         return mask
     k = np.asarray(camera.intrinsic_matrix, np.float64)
-    maps = cv2.initUndistortRectifyMap(
-        k, np.asarray(camera.distortion, np.float64), None, k, (camera.width, camera.height),
-        cv2.CV_32FC1,
-    )  # fmt: skip
+    dist = np.asarray(camera.distortion, np.float64)
+    size = (camera.width, camera.height)
+    maps = cv2.initUndistortRectifyMap(k, dist, None, k, size, cv2.CV_32FC1)
     return cv2.remap(mask.astype(np.uint8), *maps, cv2.INTER_NEAREST) > 0
 
 

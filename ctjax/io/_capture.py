@@ -1,8 +1,8 @@
 """The capture format: the one input of every ctjax command.
 
     CAPTURE/
-      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1 p2 k3 k4 k5 k6,
-                           "encoding": "srgb" or "linear")
+      camera.json          {"width", "height", "fx", "fy", "cx", "cy"} (+ optional k1 k2 p1
+                           p2 k3, k4 k5 k6, "encoding": "srgb" or "linear")
       images/NAME.png      8- or 16-bit RGB, decoded to linear intensity in [0, 1]
       depth/NAME.npy       optional, float32 (H, W) camera-frame z in mm, NaN where unknown
       normals/NAME.npy     optional, float32 (H, W, 3) unit normals, camera frame, facing the camera
