@@ -115,6 +115,10 @@ def prepare(
                 mask = cv2.resize(mask, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
                 (capture / folder).mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(str(capture / folder / f"{path.stem}.png"), (mask > 0) * np.uint8(255))
+    for mask_path in source.glob("excluded.*"):  # pixels excluded in every frame, shrunk
+        mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+        mask = cv2.resize(mask, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(capture / "excluded.png"), (mask > 0) * np.uint8(255))
     camera |= _scaled(camera, scale) | {"width": image.shape[1], "height": image.shape[0]}
     if stereo is not None:
         right = stereo["right"]
@@ -148,6 +152,8 @@ def subset(capture: Path, out: Path, parity: int) -> Path:
                 shutil.copy(path, out / folder / path.name)
     for name in ("camera.json", "reconstruction.json"):
         shutil.copy(capture / name, out / name)
+    for path in capture.glob("excluded.*"):  # pixels excluded in every frame
+        shutil.copy(path, out / path.name)
     poses = _json(capture / "poses.json")
     (out / "poses.json").write_text(json.dumps({k: v for k, v in poses.items() if k in names}))
     return out

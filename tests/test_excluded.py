@@ -102,6 +102,27 @@ def test_the_excluded_pixels_are_out_of_the_field_of_view_and_every_mask(clean, 
     )
 
 
+def test_a_mask_for_every_frame_joins_each_frames_own(clean, tmp_path):
+    """`excluded.png`: pixels excluded in every frame (an overlay the loader does not find
+    itself, text that changes), beside each frame's own `excluded/NAME.png`."""
+    root = _with_instrument(clean, tmp_path / "c", masks=True)
+    height, width = load_capture(clean).frames[0].image.shape[:2]
+    box = np.zeros((height, width), np.uint8)
+    box[4:20, 8:60] = 255  # a text box in the corner
+    cv2.imwrite(str(root / "excluded.png"), box)
+    capture = load_capture(root)
+    for k, frame in enumerate(capture.frames):
+        shaft, _ = _shaft(width, height, k)
+        np.testing.assert_array_equal(frame.visible, ~(shaft | (box > 0)))
+    copied = tmp_path / "copied"
+    argv = ["reconstruct", str(root), "--out", str(copied), "--scale-mm", "60"]
+    assert main([*argv, "--no-photometric"]) == 0
+    assert (copied / "excluded.png").read_bytes() == (root / "excluded.png").read_bytes()
+    cv2.imwrite(str(root / "excluded.png"), box[:10])
+    with pytest.raises(ValueError, match=r"excluded.png: mask is \d+x10, its frame"):
+        load_capture(root)
+
+
 def test_excluded_masks_are_undistorted_with_their_frames(tmp_path):
     """A mask is drawn on the recorded (distorted) image: it moves with the image when the
     loader undistorts it."""

@@ -10,7 +10,8 @@
       right/NAME.png       optional, a stereo laparoscope's right image (camera.json's
                            "stereo" block: the right camera, R and T; `ctjax.io._stereo`)
       excluded/NAME.png    optional, the pixels that are not tissue (instruments; non-zero),
-                           out of the field of view (`ctjax.io._excluded`)
+                           out of the field of view (`ctjax.io._excluded`); excluded.png:
+                           in every frame
       truth.json           optional, ground truth of synthetic captures
 
 Frames are the images, sorted by name; depth, normals and poses are matched by NAME.
@@ -38,7 +39,7 @@ from ._camera_json import AUTO_CEILINGS, read_camera, read_ceilings, read_encodi
 from ._channel_ceiling import channel_ceilings, samples_of
 from ._desaturated import desaturated
 from ._encoding import LINEAR, SRGB, decode, default_encoding, encode, srgb_to_linear
-from ._excluded import check_excluded_names, excluded_path, read_excluded
+from ._excluded import always_excluded, check_excluded_names, excluded_path, read_excluded
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
 from ._stereo import RIGHT, StereoRig, right_image_path
@@ -275,7 +276,8 @@ def load_capture(
     returned camera has none. With `field_of_view=True`, each frame's `field_of_view` marks
     the scene: the pixels inside the endoscope's image circle or polygon and off overlays
     constant over the video (`ctjax.io.visible_masks`); None where that is every pixel.
-    Pixels `excluded/NAME.png` marks (instruments: `ctjax.io._excluded`) are never in it.
+    Pixels `excluded/NAME.png` marks (instruments: `ctjax.io._excluded`), or `excluded.png`
+    in every frame, are never in it.
     """
     root = Path(path)
     if not root.exists():
@@ -299,6 +301,7 @@ def load_capture(
     size = (camera.height, camera.width)
     declared = read_encoding(root / "camera.json")
     encodings, frames, facing_notes, greyed, samples = set(), [], [], 0, []
+    everywhere = always_excluded(root, size)
     for image_path in image_paths:
         name = image_path.stem
         raw = read_recorded(image_path)
@@ -343,6 +346,8 @@ def load_capture(
             normals = normals_from_depth(camera, depth)
         excluded = excluded_path(root, name)
         scene = None if excluded is None else ~read_excluded(excluded, size)
+        if everywhere is not None:
+            scene = ~everywhere if scene is None else scene & ~everywhere
         frames.append(Frame(name, image, depth, normals, poses.get(name), scene))
     check_excluded_names(root, {frame.name for frame in frames})
     truth = None

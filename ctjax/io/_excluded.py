@@ -3,6 +3,8 @@
     CAPTURE/excluded/NAME.png         optional: frame NAME's pixels that are not tissue
                                       (non-zero), on the recorded image's grid
     CAPTURE/excluded/right/NAME.png   optional: the same for its right image (stereo)
+    CAPTURE/excluded.png              optional: pixels excluded in every frame (an overlay
+                                      the loader does not find itself: text that changes)
 
 An instrument moves with the surgeon, not with the tissue, and a metal one shines: its
 pixels are neither the rigid scene that structure-from-motion reconstructs nor the tissue
@@ -67,6 +69,15 @@ def check_excluded_names(root: Path, names: set[str]) -> None:
                 f"{folder}: {', '.join(stray[:3])}{' ...' if len(stray) > 3 else ''} "
                 "names no frame of the capture (a mask is named as its frame's image)"
             )
+
+
+def always_excluded(root: Path, size: tuple[int, int]) -> np.ndarray | None:
+    """The pixels `excluded.png` excludes in every frame (H, W), None without the file."""
+    for suffix in IMAGE_SUFFIXES:
+        path = root / f"{EXCLUDED}{suffix}"
+        if path.is_file():
+            return read_excluded(path, size)
+    return None
 
 
 def excluded_pixels(

@@ -364,6 +364,7 @@ def reconstruct(
                 copies += sorted(p for p in (root / folder).iterdir() if p.is_file())
         if (root / "truth.json").is_file():
             copies.append(root / "truth.json")
+        copies += sorted(p for p in root.glob(f"{EXCLUDED}.*") if p.is_file())  # every frame's
     targets = [out / p.relative_to(root) for p in copies] + _geometry_files(out, names)
     if focal == "refine" and not copies:  # in place: the refined focal length goes there
         targets.append(out / "camera.json")
