@@ -225,6 +225,16 @@ def test_import_writes_each_kept_frames_masks(tmp_path, capsys):
             np.testing.assert_array_equal(written(out, k, right_side), shrunk)
     frame = load_capture(out).frames[0]
     assert not frame.visible[written(out, 0)].any()
+    # One image: the pixels excluded in every frame (an overlay), as excluded.png.
+    box = np.zeros((128, 160), np.uint8)
+    box[:16, :40] = 255
+    cv2.imwrite(str(tmp_path / "box.png"), box)
+    argv = ["import", str(left), "--camera", camera, "--out", str(out), "--force"]
+    assert main([*argv, "--excluded", str(tmp_path / "box.png"), "--width", "80"]) == 0
+    assert not (out / "excluded" / "frame_000000.png").exists()  # the old masks went
+    everywhere = cv2.imread(str(out / "excluded.png"), cv2.IMREAD_GRAYSCALE) > 127
+    np.testing.assert_array_equal(everywhere, cv2.resize(box, (80, 64)) > 0)
+    assert all(not f.visible[everywhere].any() for f in load_capture(out).frames)
 
     # One video of both cameras' images, the left above the right, and its masks so.
     stacked = [np.concatenate(pair, axis=0) for pair in zip(*recorded, strict=True)]

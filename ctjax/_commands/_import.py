@@ -86,8 +86,9 @@ def add_import_parser(commands) -> None:
         "--excluded",
         type=Path,
         help="masks of what is not tissue (surgical instruments: white, above half scale), a "
-        "video or folder of images frame for frame with VIDEO and laid out as it; writes "
-        "OUT/excluded/frame_NNNNNN.png, pixels no command uses",
+        "video or folder of images frame for frame with VIDEO and laid out as it (writes "
+        "OUT/excluded/frame_NNNNNN.png), or one image for every frame (an overlay: writes "
+        "OUT/excluded.png); pixels no command uses",
     )
     video.add_argument(
         "--right-excluded",

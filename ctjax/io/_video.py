@@ -42,8 +42,8 @@ from ._davinci_calibration import camera_json_from_davinci, is_davinci_calibrati
 from ._encoding import SRGB
 from ._excluded import EXCLUDED
 from ._field_of_view import field_of_view
-from ._frame_source import frame_size, frames, image_files, rate_and_count
-from ._images import write_mask, write_quantised_rgb
+from ._frame_source import frame_size, frames, image_files, rate_and_count, read_frame
+from ._images import IMAGE_SUFFIXES, write_mask, write_quantised_rgb
 from ._opencv_calibration import RIGHT_MATRIX, camera_json_from_opencv, is_opencv_calibration
 from ._stereo import RIGHT, parse_stereo
 
@@ -368,7 +368,9 @@ def import_video(
     `ctjax.io._stereo`), and the capture gets `right/NAME.png` beside `images/NAME.png`.
     Frames are chosen on the left camera's.
 
-    `excluded`: a video or folder of masks, frame for frame with `video` (laid out as it:
+    `excluded`: one image, the pixels excluded in every frame (written as `excluded.png`: an
+    overlay the loader does not find), or a video or folder of masks, frame for frame with
+    `video` (laid out as it:
     side by side or one above the other, both cameras'), white (above half scale) where a
     pixel is not tissue (a surgical instrument); written as `excluded/NAME.png`
     (`ctjax.io._excluded`: no command uses those pixels). `right_excluded`: the right
@@ -379,6 +381,10 @@ def import_video(
     stereo = options.stacked or right is not None
     if right_excluded is not None and right is None:
         raise ParameterError("--right-excluded masks the right video: give --right too")
+    everywhere = None  # one image: the pixels excluded in every frame (`excluded.png`)
+    if excluded is not None and Path(excluded).suffix.lower() in IMAGE_SUFFIXES:
+        mask_file = Path(excluded)
+        everywhere, excluded = read_frame(mask_file), None
     # A folder without images: said before anything else.
     for source in (video, right, excluded, right_excluded):
         if source is not None:
@@ -423,7 +429,7 @@ def import_video(
         for stale in ("depth", "normals"):
             if (out / stale).is_dir():
                 shutil.rmtree(out / stale)
-        for stale in ("poses.json", "reconstruction.json"):
+        for stale in ("poses.json", "reconstruction.json", f"{EXCLUDED}.png"):
             (out / stale).unlink(missing_ok=True)
     wanted = {int(scan.indices[i]) for i in kept}
     files = image_files(video)
@@ -485,6 +491,9 @@ def import_video(
         progress(f"wrote {len(names)}/{len(wanted)} frames")
         if len(names) == len(wanted):
             break
+    if everywhere is not None:  # as the left camera's images: its half of a stacked layout
+        mask = _excluded_mask(_halves(everywhere, options)[0], scan.size, size, Path(mask_file))
+        write_mask(out / f"{EXCLUDED}.png", mask)
     # Video frames are sRGB-encoded (every camera pipeline encodes before compression),
     # unless the endoscope's camera.json says otherwise.
     described = {**intrinsics.to_json(), "encoding": encoding or SRGB}
