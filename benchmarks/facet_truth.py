@@ -35,6 +35,9 @@ sigma_M 0.2, halves 0.0657 / 0.0653 (F_tilde 0.0161 / 0.0161), `successful`. `--
 0.0223 / 0.0163): the width within 6%, F_tilde 34-72% high.
 Again 2026-12-02, after the closed forms (`ctjax/fitting/_profiled_albedo.py`): seed 1 the
 same figures to 3 digits in 143.7 s (two sigmas alone: 72-78 s, 180-211 s before).
+Again 2026-12-03 at 68f2ca2 (each candidate's sums over the other views combined per
+F_tilde, a faint lobe priced): without `--marginal` the same sigma, F_tilde, ratio and
+status to 3 digits, 46.4 s and 39.5 s for the two captures (144 s for both on 2026-12-01).
 """
 
 import argparse
