@@ -65,3 +65,27 @@ def test_the_sum_over_the_nodes_is_the_logsumexp_and_says_when_it_underflows():
     log_weights, costs = np.array([[0.0, -800.0]]), np.array([900.0, 0.0])[:, None, None]
     _, underflow = _over_the_nodes(log_weights, jnp.exp(costs.min(0) - costs), costs.min(0))
     assert underflow
+
+
+def test_every_point_takes_the_exact_sums_again_only_where_the_fast_ones_underflowed():
+    """`every_point`: the fast outputs where they did not underflow, the exact ones where
+    they did (every 7th of 45 points, across batches of 8 and the padded last one), the
+    exact function run on as few batches as the underflowed points fill (6 in batches of
+    4: twice)."""
+    from ctjax.fitting._facet_marginal import every_point
+
+    calls = []
+
+    def fast(x):
+        return x * 10.0, x[:, None] + 0.5, jnp.mod(x, 7) == 3
+
+    def exact(x):
+        jax.debug.callback(lambda: calls.append(1))
+        return -x, -x[:, None]
+
+    index = np.arange(45.0)
+    out, second = every_point(fast, exact, jnp.asarray(index), at_once=8, exact_at_once=4)
+    flagged = index % 7 == 3
+    np.testing.assert_array_equal(out, np.where(flagged, -index, index * 10))
+    np.testing.assert_array_equal(second[:, 0], np.where(flagged, -index, index + 0.5))
+    assert len(calls) == 2

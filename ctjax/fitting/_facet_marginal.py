@@ -317,24 +317,35 @@ def _marginal(model, samples, judged, rotations, candidates, gains, sigma, prior
 
         return jax.vmap(one)(*x)
 
-    def batch(x):
-        """`_POINTS_AT_ONCE` points by the product of matrices, again by the logsumexp
-        where a point's sum underflowed."""
-        ll, without, underflow = points(False, x)
-        return jax.lax.cond(jnp.any(underflow), lambda: points(True, x)[:2], lambda: (ll, without))
-
     arrays = (point, normal, pixel, weight, values, w, frame, h)
-    count = point.shape[0]
-    batches = -(-count // _POINTS_AT_ONCE)
-    padded = batches * _POINTS_AT_ONCE - count  # repeat the last point (a valid one)
-    arrays = jax.tree.map(
-        lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], padded, 0)]).reshape(
-            batches, _POINTS_AT_ONCE, *a.shape[1:]
-        ),
-        arrays,
-    )
-    ll, without = jax.lax.map(batch, arrays)
-    return ll.reshape(-1, *ll.shape[2:])[:count], without.reshape(-1, *without.shape[2:])[:count]
+    return every_point(lambda x: points(False, x), lambda x: points(True, x)[:2], arrays)
+
+
+def every_point(fast, exact, arrays, at_once: int = _POINTS_AT_ONCE, exact_at_once: int = 16):
+    """`fast` over every point of `arrays` (leading axis P), `at_once` points a batch:
+    (outputs, underflowed (P,)); then `exact` (the same outputs) on the points whose fast
+    sums underflowed alone, `exact_at_once` at a time (a divisor of `at_once`): only as many
+    batches as they fill. (A batch of `fast` taken again by `exact` wherever one of its
+    points underflowed: 3.5x the time of `facet_marginal` on the cholecystectomy in
+    float32, where a tenth of the points underflow.)"""
+    count = jax.tree.leaves(arrays)[0].shape[0]
+    batches = -(-count // at_once)
+    padded = batches * at_once - count  # repeat the last point (a valid one)
+    arrays = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], padded, 0)]), arrays)
+    shaped = jax.tree.map(lambda a: a.reshape(batches, at_once, *a.shape[1:]), arrays)
+    *out, underflow = (x.reshape(-1, *x.shape[2:]) for x in jax.lax.map(fast, shaped))
+    order = jnp.argsort(jnp.where(underflow, 0, 1), stable=True)  # the underflowed first
+    todo = -(-jnp.sum(underflow) // exact_at_once)
+
+    def again(i, state):
+        index = jax.lax.dynamic_slice(order, (i * exact_at_once,), (exact_at_once,))
+        redo = underflow[index]  # the slice's last points may not have underflowed
+        return tuple(
+            kept.at[index].set(jnp.where(redo.reshape(-1, *[1] * (e.ndim - 1)), e, kept[index]))
+            for kept, e in zip(state, exact(jax.tree.map(lambda a: a[index], arrays)), strict=True)
+        )
+
+    return tuple(x[:count] for x in jax.lax.fori_loop(0, todo, again, tuple(out)))
 
 
 class FacetMarginal(eqx.Module):
