@@ -103,6 +103,9 @@ def _long_running_programs_optimised():
 # `pytest_xdist_auto_num_workers` returning 2, 3 or 4): 2 workers 462.5 s, 3 workers 437.7
 # and 476.2 s, 4 workers 499.0 s: within the run-to-run spread at 3, worse at 4. -n auto.
 #
+# `benchmarks/suite_time.py` measures what follows (per file, test and compiled program, cold);
+# its latest figures and what did not cut them: benchmarks/README.md.
+#
 # Where the time goes, at 1abb1a4 (735 tests, cold, fresh clone, 2 cores: 468 s, 15 CPU-min;
 # per-test jax.monitoring events): compiling is 59% of the CPU time (XLA 35%, tracing 13%,
 # lowering 11%), in ~2300 distinct programs. The kept programs (`persistent_jit`) are 409
