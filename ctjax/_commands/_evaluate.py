@@ -79,6 +79,7 @@ def add_evaluate_parser(commands) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
+    from ..diagnostics._budget import excess_by_angle_text
     from ..estimation import why_no_albedo_map
     from ..evaluation import evaluate, evaluation_plots
     from ..io._atomic import atomic_write_json
@@ -159,7 +160,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                 f"what is left of {name.replace('_', '-')}'s test-frame residual: "
                 f"{100 * budget['highlight_share']:.0f}% within 7 px of the highlights "
                 f"({100 * budget['highlight_pixels']:.0f}% of the views, "
-                f"{budget['highlight_excess_levels']:+.1f} levels against the model), "
+                f"{budget['highlight_excess_levels']:+.1f} levels against the model"
+                f"{excess_by_angle_text(budget.get('highlight_excess_by_angle', {}))}), "
                 f"{100 * budget['gradient_share']:.0f}% with the image gradient "
                 f"({budget['misregistration_px']:.2f} px)"
             )

@@ -11,7 +11,11 @@ or light candidate takes. Three parts are measured on the held-out pixels:
   from the highlights and the field's edges) estimates s in pixels, and s^2 mean |grad I|^2
   is the share of the mean squared residual it accounts for.
 - **Highlights**: the share of the squared residual within `NEAR_HIGHLIGHT_PX` of S (clipped
-  cores, sparkles finer than the shape), beside the share of the pixels there.
+  cores, sparkles finer than the shape), beside the share of the pixels there, and how much
+  brighter than the model they are, by the angle between the model's N and H
+  (`ANGLE_BINS_DEG`): a lobe about these normals puts its light where that angle is small,
+  so an excess that does not fall with it is light no such lobe can place (highlights where
+  the shape's normals do not put them: facets finer than the shape, a misoriented surface).
 - **Per frame**: the share a gain of each frame's own (exposure, a light that changed, tissue
   that moved as a whole) takes: per frame and channel, the residual's least-squares
   multiple of the predicted intensity.
@@ -25,6 +29,7 @@ them describes.
 """
 
 import dataclasses
+import itertools
 
 import numpy as np
 
@@ -34,6 +39,12 @@ from ._variables import VARIABLES, physical_variables
 
 # "Near a highlight": within this many pixels of S (the evaluation's bound).
 NEAR_HIGHLIGHT_PX = 7
+# The near-S excess is also reported in these bins of the angle between N and H (degrees).
+ANGLE_BINS_DEG = (0.0, 10.0, 20.0, 30.0, 45.0, 180.0)
+
+
+def _angle_label(low: float, high: float) -> str:
+    return f"{low:g}+" if high >= 180 else f"{low:g}-{high:g}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +61,11 @@ class ResidualBudget:
     per_frame_share: float
     smooth_share: dict[str, float]
     samples: int
+    # Per bin of the angle between N and H (`ANGLE_BINS_DEG`, degrees): the near-S views'
+    # mean excess (levels, None without views there) and their share of all the views.
+    highlight_excess_by_angle: dict[str, tuple[float | None, float]] = dataclasses.field(
+        default_factory=dict
+    )
 
     def to_json(self) -> dict:
         return {
@@ -59,6 +75,10 @@ class ResidualBudget:
             "highlight_share": self.highlight_share,
             "highlight_pixels": self.highlight_pixels,
             "highlight_excess_levels": self.highlight_excess,
+            "highlight_excess_by_angle": {
+                label: {"excess_levels": excess, "views": views}
+                for label, (excess, views) in self.highlight_excess_by_angle.items()
+            },
             "per_frame_share": self.per_frame_share,
             "smooth_share": dict(self.smooth_share),
             "samples": self.samples,
@@ -67,10 +87,11 @@ class ResidualBudget:
             "RMSE): the part that grows with the image gradient squared (a misregistration of "
             "misregistration_px pixels RMS per axis: shape, poses or tissue motion), the part "
             f"within {NEAR_HIGHLIGHT_PX} px of S (on highlight_pixels of the views; "
-            "highlight_excess_levels: how much brighter than the model they are on average), "
-            "what a "
-            "gain per frame takes, and what a function of each physical variable alone "
-            "takes; they overlap",
+            "highlight_excess_levels: how much brighter than the model they are on average; "
+            "highlight_excess_by_angle: the same by the angle between N and H, in degrees, "
+            "with their share of the views: a lobe about the model's normals puts its light "
+            "where that angle is small), what a gain per frame takes, and what a function "
+            "of each physical variable alone takes; they overlap",
         }
 
     def summary(self) -> str:
@@ -81,10 +102,22 @@ class ResidualBudget:
             f"{self.misregistration_px:.2f} px of misregistration: shape, poses or tissue "
             f"motion), {100 * self.highlight_share:.0f}% within {NEAR_HIGHLIGHT_PX} px of the "
             f"highlights ({100 * self.highlight_pixels:.0f}% of the pixels, "
-            f"{self.highlight_excess:+.1f} levels against the model), "
+            f"{self.highlight_excess:+.1f} levels against the model"
+            f"{excess_by_angle_text(self.to_json()['highlight_excess_by_angle'])}), "
             f"{100 * self.per_frame_share:.0f}% a gain per frame, at most {100 * smooth:.0f}% "
             f"a function of one physical variable ({VARIABLES[variable]})"
         )
+
+
+def excess_by_angle_text(by_angle: dict) -> str:
+    """`highlight_excess_by_angle` (the JSON's) for a line: "; by the angle between N and H:
+    +12.3 at 0-15 deg, ..." (empty without views near S)."""
+    parts = [
+        f"{block['excess_levels']:+.1f} at {label} deg"
+        for label, block in by_angle.items()
+        if block["excess_levels"] is not None
+    ]
+    return f"; by the angle between N and H: {', '.join(parts)}" if parts else ""
 
 
 def _gradient_squared(image: np.ndarray) -> np.ndarray:
@@ -225,6 +258,15 @@ def _budget(observations, model, samples, residual, weight) -> ResidualBudget:
         slope = max(float(slope), 0.0)
     gradient_share = slope * mean(gradient, fit) / total if fit.any() else 0.0
     highlight_share = float(np.sum(w * squared * near) / np.sum(w * squared))
+    angle = np.asarray(variables["angle_n_h_deg"])
+    excess = np.mean(residual, axis=1)
+    by_angle = {}
+    for low, high in itertools.pairwise(ANGLE_BINS_DEG):
+        here = known & near & (angle >= low) & (angle < high)
+        by_angle[_angle_label(low, high)] = (
+            mean(excess, here) if here.any() else None,
+            mean(here.astype(float)),
+        )
     smooth = {}
     for name in VARIABLES:
         means, bin_weight = _weighted_bins(
@@ -244,4 +286,5 @@ def _budget(observations, model, samples, residual, weight) -> ResidualBudget:
         per_frame_share=per_frame,
         smooth_share=smooth,
         samples=int(known.sum()),
+        highlight_excess_by_angle=by_angle,
     )
