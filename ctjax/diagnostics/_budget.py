@@ -111,7 +111,7 @@ class ResidualBudget:
 
 def excess_by_angle_text(by_angle: dict) -> str:
     """`highlight_excess_by_angle` (the JSON's) for a line: "; by the angle between N and H:
-    +12.3 at 0-15 deg, ..." (empty without views near S)."""
+    +12.3 at 0-10 deg, ..." (empty without views near S)."""
     parts = [
         f"{block['excess_levels']:+.1f} at {label} deg"
         for label, block in by_angle.items()
