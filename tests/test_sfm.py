@@ -302,6 +302,80 @@ def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
     assert (capture / "normals" / "frame_002.npy").is_file()
 
 
+def test_frames_the_video_order_leaves_unregistered_get_every_pair_matched(tmp_path, monkeypatch):
+    """Sequential matching (past `EXHAUSTIVE_MAX_FRAMES`) whose mappings register too few
+    frames: every pair is matched and mapped again (on the cholecystectomy video's 24 frames
+    the video order registered 3 of 24, every pair 24)."""
+    from ctjax.io import load_capture
+    from ctjax.sfm import _colmap
+
+    capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
+    loaded = load_capture(_images_only(capture, tmp_path / "images-only"))
+    monkeypatch.setattr(_colmap, "EXHAUSTIVE_MAX_FRAMES", 2)
+    mapped, calls = _colmap._mapped, []
+
+    def video_order_fails(database, *args, tag=""):
+        calls.append(tag)
+        return mapped(database, *args, tag=tag) if tag else {}
+
+    monkeypatch.setattr(_colmap, "_mapped", video_order_fails)
+    said = []
+    sparse = _colmap.sparse_reconstruction(loaded.camera, loaded.frames, progress=said.append)
+    assert calls == ["", "exhaustive"]
+    assert sparse.matching == "sequential, then exhaustive" and sparse.unregistered == ()
+    assert "  0/3 frames registered: matching every pair" in said
+
+
+def test_a_mapping_that_keeps_no_frame_is_an_error_not_an_empty_reconstruction(
+    tmp_path, monkeypatch
+):
+    """COLMAP can end a mapping with its initial pair dropped again (12 frames of the
+    cholecystectomy video over 1.5 s: 0 of 12 registered, 11 points), which `reconstruct`
+    wrote as a reconstruction of no frame and exit status 0."""
+    from types import SimpleNamespace
+
+    from ctjax import ReconstructionError
+    from ctjax.io import load_capture
+    from ctjax.sfm import _colmap
+
+    capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
+    loaded = load_capture(_images_only(capture, tmp_path / "images-only"))
+    dropped = SimpleNamespace(num_reg_images=lambda: 0)
+    monkeypatch.setattr(_colmap, "_mapped", lambda *a, **k: {0: dropped})
+    with pytest.raises(ReconstructionError, match=r"registered 0 of 3 frames \(frame_000: \d+"):
+        _colmap.sparse_reconstruction(loaded.camera, loaded.frames)
+
+
+def test_sfm_points_that_give_no_frame_a_surface_are_an_error(tmp_path, monkeypatch):
+    """A mono capture whose registered frames see fewer than 16 of SfM's points each (12
+    frames of the cholecystectomy video over 1.5 s: 11 points) was written as a
+    reconstruction of no frame, exit status 0; it is one error naming why."""
+    from ctjax import ReconstructionError
+    from ctjax.io import load_capture
+    from ctjax.sfm import _reconstruct
+    from ctjax.sfm._colmap import SparseModel
+
+    capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
+    loaded = load_capture(_images_only(capture, tmp_path / "images-only"))
+    names = tuple(frame.name for frame in loaded.frames)
+    sparse = SparseModel(
+        names=names,
+        registered=names,
+        cam_from_world={name: np.eye(4) for name in names},
+        points=np.random.default_rng(0).normal([0, 0, 60], [10, 10, 1], (11, 3)),
+        point_errors=np.full(11, 0.5),
+        track_lengths=np.full(11, 2),
+        keypoints=dict.fromkeys(names, 1000),
+        matching="exhaustive",
+        mean_reprojection_error=0.3,
+    )
+    monkeypatch.setattr(
+        _reconstruct, "sparse_with_focal", lambda *a: (sparse, loaded.camera, {"focal": "fixed"})
+    )
+    with pytest.raises(ReconstructionError, match="11 points from 3 frames give no frame a"):
+        _reconstruct.reconstruct_capture(loaded)
+
+
 def test_little_parallax_is_named():
     from types import SimpleNamespace
 

@@ -185,6 +185,13 @@ def reconstruct_capture(
     surfaces, hulls, counts, cams = _view_surfaces(
         camera, sparse, points, world_from_ref, unit, knot_spacing_px, say
     )
+    if not surfaces and not pairs_possible:  # (12 frames of a video over 1.5 s: 11 points)
+        raise ReconstructionError(
+            f"structure-from-motion's {len(sparse.points)} points from "
+            f"{len(sparse.registered)} frames give no frame a surface (at least 16 points in "
+            "view needed): too little texture or parallax between the frames (frames further "
+            "apart in time move the camera more)"
+        )
     if pairs_possible and reference not in surfaces:
         error = ReconstructionError(
             f"structure-from-motion's points give its first frame ({reference}) no surface "
