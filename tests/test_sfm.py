@@ -30,6 +30,16 @@ def _images_only(capture, out):
 
 
 @pytest.fixture(scope="module")
+def small_images(tmp_path_factory):
+    """A 192x160 x 3 capture's images and camera alone, loaded (SfM's control flow)."""
+    from ctjax.io import load_capture
+
+    root = tmp_path_factory.mktemp("small")
+    capture = synthesize(root / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
+    return load_capture(_images_only(capture, root / "images-only"))
+
+
+@pytest.fixture(scope="module")
 def reconstructed(tmp_path_factory):
     root = tmp_path_factory.mktemp("sfm")
     truth = synthesize(root / "truth", SynthOptions(width=320, height=256, frames=5, seed=1))
@@ -302,15 +312,15 @@ def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
     assert (capture / "normals" / "frame_002.npy").is_file()
 
 
-def test_frames_the_video_order_leaves_unregistered_get_every_pair_matched(tmp_path, monkeypatch):
+def test_frames_the_video_order_leaves_unregistered_get_every_pair_matched(
+    small_images, monkeypatch
+):
     """Sequential matching (past `EXHAUSTIVE_MAX_FRAMES`) whose mappings register too few
     frames: every pair is matched and mapped again (on the cholecystectomy video's 24 frames
     the video order registered 3 of 24, every pair 24)."""
-    from ctjax.io import load_capture
     from ctjax.sfm import _colmap
 
-    capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
-    loaded = load_capture(_images_only(capture, tmp_path / "images-only"))
+    loaded = small_images
     monkeypatch.setattr(_colmap, "EXHAUSTIVE_MAX_FRAMES", 2)
     mapped, calls = _colmap._mapped, []
 
@@ -327,7 +337,7 @@ def test_frames_the_video_order_leaves_unregistered_get_every_pair_matched(tmp_p
 
 
 def test_a_mapping_that_keeps_no_frame_is_an_error_not_an_empty_reconstruction(
-    tmp_path, monkeypatch
+    small_images, monkeypatch
 ):
     """COLMAP can end a mapping with its initial pair dropped again (12 frames of the
     cholecystectomy video over 1.5 s: 0 of 12 registered, 11 points), which `reconstruct`
@@ -335,28 +345,24 @@ def test_a_mapping_that_keeps_no_frame_is_an_error_not_an_empty_reconstruction(
     from types import SimpleNamespace
 
     from ctjax import ReconstructionError
-    from ctjax.io import load_capture
     from ctjax.sfm import _colmap
 
-    capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
-    loaded = load_capture(_images_only(capture, tmp_path / "images-only"))
+    loaded = small_images
     dropped = SimpleNamespace(num_reg_images=lambda: 0)
     monkeypatch.setattr(_colmap, "_mapped", lambda *a, **k: {0: dropped})
     with pytest.raises(ReconstructionError, match=r"registered 0 of 3 frames \(frame_000: \d+"):
         _colmap.sparse_reconstruction(loaded.camera, loaded.frames)
 
 
-def test_sfm_points_that_give_no_frame_a_surface_are_an_error(tmp_path, monkeypatch):
+def test_sfm_points_that_give_no_frame_a_surface_are_an_error(small_images, monkeypatch):
     """A mono capture whose registered frames see fewer than 16 of SfM's points each (12
     frames of the cholecystectomy video over 1.5 s: 11 points) was written as a
     reconstruction of no frame, exit status 0; it is one error naming why."""
     from ctjax import ReconstructionError
-    from ctjax.io import load_capture
     from ctjax.sfm import _reconstruct
     from ctjax.sfm._colmap import SparseModel
 
-    capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
-    loaded = load_capture(_images_only(capture, tmp_path / "images-only"))
+    loaded = small_images
     names = tuple(frame.name for frame in loaded.frames)
     sparse = SparseModel(
         names=names,
@@ -374,6 +380,38 @@ def test_sfm_points_that_give_no_frame_a_surface_are_an_error(tmp_path, monkeypa
     )
     with pytest.raises(ReconstructionError, match="11 points from 3 frames give no frame a"):
         _reconstruct.reconstruct_capture(loaded)
+
+
+def test_mapping_tries_other_seeds_then_a_wider_initial_pair(tmp_path, monkeypatch):
+    """Incremental mapping that registers too few frames is run from two more seeds, then
+    from an initial pair `WIDER_START` times further apart (24 frames of the
+    cholecystectomy video over 3 s: 6 of 24 for every seed at 4 degrees, 24 at 16)."""
+    from types import SimpleNamespace
+
+    import pycolmap
+
+    from ctjax.sfm import _colmap
+
+    runs, registered = [], {4.0: 2, 16.0: 10}
+
+    def mapping(database, images, out, options):
+        angle = options.mapper.init_min_tri_angle
+        runs.append((options.random_seed, angle))
+        return {0: SimpleNamespace(num_reg_images=lambda: registered[angle])}
+
+    monkeypatch.setattr(pycolmap, "incremental_mapping", mapping)
+    said = []
+    models = _colmap._mapped("db", tmp_path, 10, 5, 4.0, False, said.append)
+    assert runs == [(5, 4.0), (6, 4.0), (7, 4.0), (5, 16.0)]
+    assert _colmap._registered(models) == 10
+    assert (
+        said[-1]
+        == "  2/10 frames registered: mapping again (an initial pair at least 16 degrees apart)"
+    )
+    runs.clear()
+    registered[4.0] = 8  # enough (MAPPING_ENOUGH): one run
+    assert _colmap._registered(_colmap._mapped("db", tmp_path, 10, 5, 4.0, False, print)) == 8
+    assert runs == [(5, 4.0)]
 
 
 def test_little_parallax_is_named():
