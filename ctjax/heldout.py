@@ -29,6 +29,7 @@ from .fitting._map_least_squares import (
     heldout_map_errors,
     heldout_map_residuals,
     heldout_map_rmse,
+    in_radiance,
 )
 from .fitting._marginal_width import at_the_marginal_width
 from .fitting._parameters import free_parameters
@@ -300,12 +301,40 @@ class HeldOutTracks:
             )
         return blocks
 
+    def model_facet_blocks(self, model, **which) -> dict:
+        """`facet_blocks` under `model`'s light; a model with image effects on the views
+        with its effects undone (`in_radiance`), their names in the facets' JSON
+        (`effects_undone`). `which`: `facet_blocks`' `lobe` and `marginal`."""
+        effects = [type(effect).__name__ for effect in getattr(model, "effects", ())]
+        tracks, model = self.in_radiance(model)
+        blocks = tracks.facet_blocks(model.light, **which)
+        for block in blocks.values() if effects else ():
+            block["effects_undone"] = effects
+        return blocks
+
     def facet_lobe_at_the_marginal_width(self, light, marginal: dict) -> dict:
         """The facet lobe under `light` with sigma held at the marginal's
         (`FacetMarginal.to_json()`), its F_tilde chosen and judged as `facet_lobe`'s
         (`ctjax.fitting.at_the_marginal_width`), as JSON."""
         lobe = self.facet_lobe(light, sigmas=(float(marginal["sigma"]),))
         return at_the_marginal_width(lobe, marginal)
+
+    def in_radiance(self, model) -> tuple["HeldOutTracks", object]:
+        """These tracks with `model`'s image effects undone on every observation (its
+        per-frame parameters fitted on the held-out frames first, `with_heldout_frames`;
+        each weight times the effects' squared slope: `ctjax.fitting.in_radiance`) and
+        `model` without them: for estimators of a model without image effects (the
+        facets). Without effects: these tracks and `model`."""
+        if not tuple(getattr(model, "effects", ())):
+            return self, model
+        model = self.with_heldout_frames(model)
+        undone = dataclasses.replace(
+            self,
+            train=in_radiance(model, self.train),
+            test=in_radiance(model, self.test),
+            nuisance=None,
+        )
+        return undone, eqx.tree_at(lambda m: m.effects, model, ())
 
     def heldout_rmse(self, model) -> float:
         """RMSE (8-bit levels) of `model` on the held-out views (see the class doc; its

@@ -22,6 +22,7 @@ from ._convert import on_device
 from ._errors import CtjaxError, ParameterError
 from ._geometry import points_from_depth
 from ._typing import Array, Float, Int
+from ._units import length_unit_of
 from ._vector import Vec3
 from .io import Capture
 
@@ -284,6 +285,19 @@ class Observations:
         if depth.size == 0:
             raise CtjaxError(f"{self.capture.root}: no usable pixel with depth")
         return float(np.median(depth))
+
+    def candidate_context(self) -> dict:
+        """What a candidate effect needs to know of the capture to start its parameters
+        (`AbstractCandidate.__call__`): the working distance, the length unit, the number
+        of frames, the principal point and the focal length (px)."""
+        camera = self.capture.camera
+        return {
+            "median_depth_mm": self.median_depth_mm(),
+            "length_unit": length_unit_of(self.capture),
+            "frames": len(self.capture.frames),
+            "principal_point": (float(camera.cx), float(camera.cy)),
+            "focal_px": (float(camera.fx), float(camera.fy)),
+        }
 
     def pixels(
         self, frames, *, max_samples: int | None = None, seed: int = 0, dtype=None

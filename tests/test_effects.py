@@ -2,13 +2,17 @@
 the pixel (vignetting), applied through `effect.at(site)` everywhere a model predicts."""
 
 import dataclasses
+import functools
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import command_error
 
 from ctjax import Camera, CtjaxError, ShadingModel, Vec3, cook_torrance_brdf, render, shade
-from ctjax.effects import FrameExposure, Gain, Site, Vignetting
+from ctjax.calibration import calibrate_near_light
+from ctjax.effects import FrameExposure, Gain, Site, Vignetting, image_effect_names, image_effects
+from ctjax.evaluation import evaluate, fit_colocated
 from ctjax.fitting import fit_model_map, paper_model
 from ctjax.heldout import HeldOutTracks
 from ctjax.io import load_capture
@@ -74,11 +78,17 @@ def test_the_renderer_applies_each_effect_where_the_pixel_was_recorded():
     assert corner < centre  # the rim is darker
 
 
-def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(tmp_path):
+@pytest.fixture(scope="module")
+def exposed(tmp_path_factory):
+    """Textured tissue with auto-exposure (sd 0.1 in log), 5 frames."""
+    options = SynthOptions(width=128, height=96, frames=5, seed=3, effects={"frame_exposure": 0.1})
+    return load_capture(synthesize(tmp_path_factory.mktemp("exposed") / "c", options))
+
+
+def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(exposed):
     """On textured tissue with auto-exposure (sd 0.1 in log), the map fit on the calibration
     frames recovers their exposures, and judging fits the held-out frames' on them."""
-    options = SynthOptions(width=128, height=96, frames=5, seed=3, effects={"frame_exposure": 0.1})
-    capture = load_capture(synthesize(tmp_path / "c", options))
+    capture = exposed
     truth = np.asarray(capture.truth["effects"]["frame_exposure"]["effects[0].log_exposure"])
     heldout = HeldOutTracks.split(capture, 3, max_points=3000, heldout_points=3000)
     start = paper_model(1.0, 0.3, 0.2)
@@ -90,3 +100,73 @@ def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(tmp_path):
     np.testing.assert_allclose(judged.model.effects[0].log_exposure, truth, atol=0.01)
     without = dataclasses.replace(fit.model, effects=())
     assert judged.heldout_rmse < 0.5 * heldout.heldout_rmse(without)
+    # The views in radiance (for estimators of a model without effects, the facets): each
+    # measurement over its frame's exposure, its weight times the exposure squared.
+    undone, plain = heldout.in_radiance(fit.model)
+    assert plain.effects == () and undone.nuisance is None
+    exposure = np.asarray(judged.model.effects[0].exposure)
+    for before, after in ((heldout.train, undone.train), (heldout.test, undone.test)):
+        seen = np.asarray(before.weight) > 0
+        gain = exposure[np.asarray(before.site.frame)][seen]
+        np.testing.assert_allclose(
+            np.asarray(after.values)[:, seen], np.asarray(before.values)[:, seen] / gain, rtol=1e-5
+        )
+        np.testing.assert_allclose(
+            np.asarray(after.weight)[seen], np.asarray(before.weight)[seen] * gain**2, rtol=1e-5
+        )
+    assert heldout.in_radiance(without) == (heldout, without)  # nothing to undo
+
+
+def test_image_effects_by_name_start_where_the_diagnostics_would():
+    context = dict(frames=4, principal_point=(10.0, 8.0), focal_px=(50.0, 50.0))
+    exposure, vignetting = image_effects(("frame_exposure", "vignetting"), paper_model(), context)
+    np.testing.assert_array_equal(exposure.log_exposure, np.zeros(3))
+    assert isinstance(vignetting, Vignetting) and float(vignetting.k2) == 0.0
+    assert "frame_exposure" in image_effect_names() and "inverse_square" not in image_effect_names()
+    with pytest.raises(CtjaxError, match="'inverse_square': not an image effect"):
+        image_effects(("inverse_square",), paper_model(), {**context, "median_depth_mm": 50.0})
+    with pytest.raises(CtjaxError, match="'exposure': unknown; image effects: ambient"):
+        image_effects(("exposure",), paper_model(), context)
+
+
+def test_evaluate_fits_the_exposure_in_both_models_and_judges_the_facets_in_radiance(
+    exposed, coarse_facets
+):
+    """`evaluate(effects=...)`: Cook-Torrance's estimator and both Lambertian fits take the
+    auto-exposure, each held-out frame's fitted on its views; the facets are judged on the
+    views with it undone."""
+    truth = np.asarray(exposed.truth["effects"]["frame_exposure"]["effects[0].log_exposure"])
+    near = functools.partial(calibrate_near_light, falloff=[()], max_samples=3000)
+    summary = evaluate(
+        exposed, calibration=3, cook_torrance=near, sfs=False, facets=True,
+        effects=("frame_exposure",),
+    ).to_json()  # fmt: skip
+    cook_torrance = summary["models"]["cook_torrance"]
+    np.testing.assert_allclose(cook_torrance["effects"]["log_exposure"], truth, atol=0.01)
+    assert cook_torrance["sigma"] == pytest.approx(0.2, rel=0.1)
+    # Noise of 1 level: what is left is about it, for the lobe and for neither Lambertian.
+    assert summary["cook_torrance_rgb_rmse_test"] < 2.5
+    same_light = summary["lambertian_same_light_rgb_rmse_test"]
+    assert same_light > 2 * summary["cook_torrance_rgb_rmse_test"]
+    assert "log_exposure" in summary["models"]["lambertian_same_light"]
+    assert summary["facets"]["effects_undone"] == ["FrameExposure"]
+    assert np.isfinite(summary["facets"]["ratio"])
+    with pytest.raises(CtjaxError, match="judged with the albedo map"):
+        evaluate(exposed, albedo="uniform", effects=("frame_exposure",))
+    with pytest.raises(CtjaxError, match="fits no image effects"):
+        evaluate(exposed, cook_torrance=fit_colocated, sfs=False, effects=("frame_exposure",))
+
+
+def test_the_commands_take_image_effects_by_name(exposed, tmp_path, capsys):
+    """`--effects` reaches `evaluate` and `calibrate_near_light` (a name that is not an image
+    effect is refused there, before any fit) and is refused where no estimator takes it."""
+    json_out = ["--json", str(tmp_path / "out.json")]
+    root = str(exposed.root)
+    for argv, message in (
+        (["evaluate", root, "--effects", "inverse_square"], "not an image effect"),
+        (["calibrate-light", root, "--effects", "exposure"], "'exposure': unknown"),
+        (["evaluate", root, "--light", "colocated", "--effects", "vignetting"], "--light near"),
+        (["calibrate-light", root, "--model", "field", "--effects", "ambient"], "--model near"),
+    ):
+        status, lines = command_error([*argv, *json_out], capsys)
+        assert status == 2 and len(lines) == 1 and message in lines[0], lines

@@ -68,6 +68,20 @@ def load_observations(args: argparse.Namespace):
     return Observations.of(load_capture(args))
 
 
+def add_effects_argument(parser: argparse.ArgumentParser, prefix: str = "") -> None:
+    """`--effects NAME ...`: image effects fitted with the rest, by their candidates' names
+    (`ctjax.effects.image_effect_names`; checked when the command runs)."""
+    parser.add_argument(
+        "--effects",
+        nargs="+",
+        default=[],
+        metavar="EFFECT",
+        help=f"{prefix}image effects fitted with the rest: frame_exposure (a scope's "
+        "auto-exposure: a gain per frame, each held-out frame's fitted on its own views), "
+        "vignetting, ambient, camera_gamma, srgb_response (default: none)",
+    )
+
+
 def add_diffuse_argument(parser: argparse.ArgumentParser, prefix: str = "") -> None:
     """`--diffuse NAME`: the diffuse term, one of the lobes `ctjax.lobes.diffuse_lobes`
     finds (a new one's file offers it here)."""

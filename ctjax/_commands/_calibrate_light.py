@@ -10,6 +10,7 @@ from .._errors import CtjaxError
 from .._units import in_length_unit, label
 from ._args import (
     add_diffuse_argument,
+    add_effects_argument,
     add_falloff_argument,
     add_workers_argument,
     field_solver,
@@ -58,6 +59,7 @@ def add_calibrate_light_parser(commands) -> None:
     )
     light.add_argument("--calib", type=int, help="number of calibration frames (default 60%%)")
     add_diffuse_argument(light, "near: ")
+    add_effects_argument(light, "near: ")
     light.add_argument(
         "--right-views",
         action="store_true",
@@ -104,6 +106,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         if args.facets or args.facet_marginal:
             option = "--facets" if args.facets else "--facet-marginal"
             raise CtjaxError(f"{option} is for the near light (--model near)")
+        if args.effects:
+            raise CtjaxError("--effects is for the near light (--model near)")
         if args.offset != "lens-plane":
             raise CtjaxError("--offset is for the near light (--model near)")
         return _calibrate_light_field(args)
@@ -120,6 +124,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         workers=args.workers,
         diffuse=diffuse_lobe_named(args.diffuse),
         offset_axes=args.offset.replace("-", "_"),
+        effects=tuple(args.effects),
     )
     summary = result.to_json()
     if args.facets or args.facet_marginal:
@@ -130,7 +135,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
 
         split = HeldOutTracks.split(observations, args.calib)
         summary.update(
-            split.facet_blocks(result.model.light, lobe=args.facets, marginal=args.facet_marginal)
+            split.model_facet_blocks(result.model, lobe=args.facets, marginal=args.facet_marginal)
         )
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))
     offset = ", ".join(f"{v:.2f}" for v in summary["offset_mm"])

@@ -10,6 +10,7 @@ from .._errors import CtjaxError
 from .._units import in_length_unit, label
 from ._args import (
     add_diffuse_argument,
+    add_effects_argument,
     add_workers_argument,
     cook_torrance_estimator,
     load_observations,
@@ -74,6 +75,7 @@ def add_evaluate_parser(commands) -> None:
         "(minutes more on a 640 px capture)",
     )
     add_diffuse_argument(evaluate, "Cook-Torrance's (near light): ")
+    add_effects_argument(evaluate, "both models (near light, albedo map): ")
     add_workers_argument(evaluate, "test frames' shapes from shading")
     evaluate.set_defaults(run=run_evaluate)
 
@@ -89,6 +91,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise CtjaxError(
             f"--diffuse is for the near light's Cook-Torrance (--light near), not --light "
             f"{args.light} (the paper's fits are Lambertian + Cook-Torrance)"
+        )
+    if args.effects and args.light != "near":
+        raise CtjaxError(
+            f"--effects is for the near light's Cook-Torrance (--light near), not --light "
+            f"{args.light}"
         )
     if args.facet_marginal and args.facets == "off":
         raise CtjaxError("--facet-marginal is for the facets judged: not with --facets off")
@@ -106,6 +113,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         diffuse=diffuse_lobe_named(args.diffuse),
         facets={"on": True, "off": False}.get(args.facets, "auto"),
         facet_marginal=args.facet_marginal,
+        effects=tuple(args.effects),
     )
     summary = evaluation.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))

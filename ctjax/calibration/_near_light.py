@@ -20,6 +20,7 @@ from .._result import Estimate
 from .._right_views import with_right_views
 from .._threads import checked_workers, in_order
 from .._units import length_unit_of
+from ..effects import image_effects
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     LEVENBERG_MARQUARDT,
@@ -51,6 +52,7 @@ from ._near_light_models import (
     near_light_starts,
     no_offset,
     offset_axes_of,
+    paper_start,
     position_name,
     position_stderr,
     warn_of_misfit,
@@ -83,6 +85,7 @@ def calibrate_near_light(
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
     offset_axes: str = "lens_plane",
+    effects: Sequence = (),
 ) -> Estimate:
     """Fit the near-light model on the calibration frames; report errors on held-out frames.
 
@@ -104,6 +107,10 @@ def calibrate_near_light(
     `offset_axes`: `"lens_plane"` (default) fits the light's offset in the lens plane
     (`LensPlaneLight`: the scope's light leaves the face of its tip), `"free"` along the
     optical axis too (`PointLight`); the JSON's `offset_mm` has x, y, z either way.
+    `effects`: image effects fitted with the rest (`ctjax.effects.image_effects`: effects or
+    their names, e.g. `("frame_exposure", "vignetting")`: a scope's auto-exposure and its
+    optics' falloff); a per-frame one (an exposure per frame) is fitted on the held-out
+    frames when they are judged, as `ctjax diagnose` does.
     """
     say = progress or (lambda message: None)
     if offset_axes not in OFFSET_AXES:
@@ -115,6 +122,8 @@ def calibrate_near_light(
             f"{capture.root}: the near-light model needs depth for every frame"
             " (`ctjax reconstruct CAPTURE` estimates it from the images)"
         )
+    start = paper_start(diffuse)
+    effects = image_effects(effects, start, capture.candidate_context()) if effects else ()
     unmapped = why_no_albedo_map(capture) if albedo is None else None
     albedo = default_albedo(capture) if albedo is None else albedo
     if albedo not in ALBEDO_CHOICES:
@@ -134,6 +143,7 @@ def calibrate_near_light(
             workers=workers,
             diffuse=diffuse,
             offset_axes=offset_axes,
+            effects=effects,
         )
         return _with_highlight_alignment(fit, capture)
     if right_views:
@@ -151,6 +161,7 @@ def calibrate_near_light(
         workers=workers,
         diffuse=diffuse,
         offset_axes=offset_axes,
+        effects=effects,
     )
     fit.warnings.extend([unmapped] if unmapped else [])
     return _with_highlight_alignment(fit, capture)
@@ -266,6 +277,7 @@ def near_light_map(
     workers: int | None = None,
     diffuse: type[Lambertian] = Lambertian,
     offset_axes: str = "lens_plane",
+    effects: tuple = (),
 ) -> Estimate:
     """The near-light model on textured tissue: one albedo per surface point.
 
@@ -291,7 +303,8 @@ def near_light_map(
     within 2 standard errors of 0, the estimate is the light at the lens, reported with
     `offset_bound_mm` (the fitted offset's norm plus 2 standard errors): the data cannot
     tell an offset below it from none. `workers`: falloff sets fitted at once, on threads.
-    `diffuse`, `offset_axes`: as `calibrate_near_light`'s.
+    `diffuse`, `offset_axes`: as `calibrate_near_light`'s; `effects`: image effects
+    (`AbstractImageEffect`s at their start), fitted with the rest.
     """
     started = time.perf_counter()
     workers = checked_workers(workers)
@@ -345,10 +358,11 @@ def near_light_map(
         """The set with its offset and at the lens (held: the same program), judged as it
         would be reported: at the lens unless its offset is `SIMPLEST_WITHIN` better (SCARED
         61-84: the spot alone 12.49 with its offset, 10.57 at the lens; the pair 11.26)."""
-        chosen, placed = placed_fit(near_light_starts(choice, capture, diffuse, offset_axes))
+        starts = near_light_starts(choice, capture, diffuse, offset_axes, effects)
+        chosen, placed = placed_fit(starts)
         error = heldout.heldout_rmse(chosen.model)
         hold = (position_name(chosen.model),)
-        lens = placed_fit(at_the_lens(choice, diffuse, offset_axes), hold=hold)[0]
+        lens = placed_fit(at_the_lens(choice, diffuse, offset_axes, effects), hold=hold)[0]
         lens_error = heldout.heldout_rmse(lens.model)
         offset_better = error < (1 - SIMPLEST_WITHIN) * lens_error
         return chosen, error if offset_better else lens_error, placed, lens, (error, lens_error)

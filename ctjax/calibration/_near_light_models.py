@@ -44,11 +44,12 @@ def falloff_name(falloff: tuple[AbstractFalloff, ...]) -> str:
     return "+".join(f.name for f in falloff) or "none"
 
 
-def paper_start(diffuse: type[Lambertian]) -> ShadingModel:
+def paper_start(diffuse: type[Lambertian], effects=()) -> ShadingModel:
     """The paper's model with `diffuse` as its diffuse term (its shape at the middle of its
-    domain), a fit's start."""
+    domain) and the image `effects` (`AbstractImageEffect`s at their start), a fit's start."""
     model = paper_model(1.0, 0.3, 0.2)
-    return eqx.tree_at(lambda m: m.brdf, model, with_diffuse_lobe(model.brdf, diffuse))
+    model = eqx.tree_at(lambda m: m.brdf, model, with_diffuse_lobe(model.brdf, diffuse))
+    return eqx.tree_at(lambda m: m.effects, model, tuple(effects))
 
 
 # Where the light's offset is fitted: in the lens plane (`LensPlaneLight`, the default: the
@@ -87,14 +88,16 @@ def near_light_starts(
     capture,
     diffuse: type[Lambertian] = Lambertian,
     axes: str = "lens_plane",
+    effects=(),
 ) -> list[ShadingModel]:
-    """Starting models from every offset of `offset_starts` and several roughnesses."""
+    """Starting models from every offset of `offset_starts` and several roughnesses, with
+    the image `effects` at their start."""
     starts = []
     unit = length_unit_of(capture)
     for offset in offset_starts(unit, median_depth_mm(capture)):
         light = light_at(offset, falloff, axes)
         starts.extend(
-            roughness_variants(eqx.tree_at(lambda m: m.light, paper_start(diffuse), light))
+            roughness_variants(eqx.tree_at(lambda m: m.light, paper_start(diffuse, effects), light))
         )
     return starts
 
@@ -114,10 +117,11 @@ def falloff_sets(capture, falloff) -> list[tuple[AbstractFalloff, ...]]:
 
 
 def at_the_lens(
-    falloff: tuple[AbstractFalloff, ...], diffuse: type[Lambertian], axes: str
+    falloff: tuple[AbstractFalloff, ...], diffuse: type[Lambertian], axes: str, effects=()
 ) -> list[ShadingModel]:
     light = light_at((0.0, 0.0, 0.0), falloff, axes)
-    return roughness_variants(eqx.tree_at(lambda m: m.light, paper_start(diffuse), light))
+    start = paper_start(diffuse, effects)
+    return roughness_variants(eqx.tree_at(lambda m: m.light, start, light))
 
 
 def no_offset(result, offset, stderr, offset_fit, lens_fit, unit) -> None:

@@ -53,6 +53,7 @@ def near_light_uniform(
     workers: int,
     diffuse: type[Lambertian],
     offset_axes: str,
+    effects: tuple = (),
 ) -> Estimate:
     """`calibrate_near_light` with one albedo (its arguments; `say` its progress)."""
     started = time.perf_counter()
@@ -76,8 +77,9 @@ def near_light_uniform(
 
     def fit_choice(choice):
         """The set with its offset and at the lens, judged as it would be reported."""
-        offset = fit(near_light_starts(choice, capture, diffuse, offset_axes))
-        lens = fit(at_the_lens(choice, diffuse, offset_axes), freeze=(position_name(offset.model),))
+        offset = fit(near_light_starts(choice, capture, diffuse, offset_axes, effects))
+        lens_starts = at_the_lens(choice, diffuse, offset_axes, effects)
+        lens = fit(lens_starts, freeze=(position_name(offset.model),))
         pair = heldout.heldout_rmse(offset.model), heldout.heldout_rmse(lens.model)
         return offset, lens, pair
 

@@ -18,7 +18,6 @@ import numpy as np
 from .._errors import CtjaxError, ParameterError
 from .._result import Estimate
 from .._threads import checked_workers, in_order
-from .._units import length_unit_of
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     ShadingModel,
@@ -31,7 +30,7 @@ from ..fitting import (
     roughness_variants,
 )
 from ..fitting._parameters import per_frame_names
-from ..heldout import HeldOut, HeldOutTracks, median_depth_mm, noise_floor_map_levels, split_for
+from ..heldout import HeldOut, HeldOutTracks, noise_floor_map_levels, split_for
 from ..io import Capture
 from ..observations import Observations
 from ._candidates import CANDIDATES, AbstractCandidate, candidate
@@ -95,14 +94,7 @@ class Prepared:
     @functools.cached_property
     def _context(self) -> dict:
         obs = self.observations
-        return {
-            "median_depth_mm": median_depth_mm(obs),
-            "length_unit": length_unit_of(obs),
-            "frames": len(obs),
-            "principal_point": (float(obs.camera.cx), float(obs.camera.cy)),
-            "focal_px": (float(obs.camera.fx), float(obs.camera.fy)),
-            "albedo_map_possible": default_albedo(obs) == "map",
-        }
+        return {**obs.candidate_context(), "albedo_map_possible": default_albedo(obs) == "map"}
 
     def context(self, albedo: str) -> dict:
         """What a candidate needs to know of the capture (`AbstractCandidate.__call__`)."""

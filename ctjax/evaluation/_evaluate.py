@@ -10,7 +10,7 @@ import dataclasses
 import inspect
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -21,12 +21,14 @@ from .._result import Estimate
 from .._status import Status
 from .._threads import checked_workers, in_order
 from .._units import METRIC, length_unit_of
+from ..effects import image_effects
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     ShadingModel,
     facets_suggestion,
     fit_model,
     fit_model_map,
+    paper_model,
     pixel_columns,
     pixel_predict,
     rmse_levels,
@@ -59,6 +61,7 @@ def fit_lambertian(
     tracks: HeldOutTracks | None = None,
     light: AbstractLight | None = None,
     diffuse: Lambertian | None = None,
+    effects: tuple = (),
 ) -> Estimate:
     """The Lambertian model (rho_tilde, light at the camera) fitted to every usable pixel of
     `frames`: linear, so the closed form is the least-squares solution. With `tracks` (an
@@ -67,9 +70,10 @@ def fit_lambertian(
     another light, held as it is (e.g. Cook-Torrance's fitted one: its offset and
     falloff), so that the two models differ by the lobe alone. `diffuse`: another diffuse
     lobe in place of Lambert's (e.g. Cook-Torrance's fitted `OrenNayar`), its shape fitted
-    from where it is."""
+    from where it is. `effects`: image effects fitted with the rest, from these values."""
     lobe = Lambertian(1.0) if diffuse is None else diffuse
-    start = ShadingModel(BRDF(lobe), ColocatedLight() if light is None else light)
+    light = ColocatedLight() if light is None else light
+    start = ShadingModel(BRDF(lobe), light, tuple(effects))
     held = [p.name for p in free_parameters(start) if p.name.startswith("light")]
     if tracks is not None:
         return fit_model_map(start, tracks.train, freeze=held)
@@ -92,7 +96,12 @@ def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None)
     return fit
 
 
-def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse) -> Estimate:
+def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse, effects) -> Estimate:
+    if effects and isinstance(cook_torrance, Estimate | ShadingModel):
+        raise CtjaxError(
+            "effects are fitted by Cook-Torrance's estimator: a fitted model is used as it is "
+            "(give the estimator, e.g. calibrate_near_light, or the model with its effects)"
+        )
     if isinstance(cook_torrance, Estimate):
         return cook_torrance
     if isinstance(cook_torrance, ShadingModel):
@@ -111,6 +120,14 @@ def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse) -> Esti
                     "term (calibrate_near_light does)"
                 )
             options["diffuse"] = diffuse
+        if effects:
+            if "effects" not in parameters:
+                raise CtjaxError(
+                    "effects: the Cook-Torrance estimator "
+                    f"{getattr(cook_torrance, '__name__', cook_torrance)!r} fits no image effects "
+                    "(calibrate_near_light does)"
+                )
+            options["effects"] = effects
         return cook_torrance(capture, calibration=calibration, **options)
     raise CtjaxError(
         "cook_torrance must be a fitted ShadingModel, an Estimate or an estimator "
@@ -194,6 +211,7 @@ def evaluate(
     diffuse: type[Lambertian] = Lambertian,
     facets: bool | str = False,
     facet_marginal: bool = False,
+    effects: Sequence = (),
 ) -> Evaluation:
     """Fit Lambertian and Cook-Torrance on the calibration frames and evaluate both on the
     test frames (RGB error and SfS).
@@ -222,7 +240,12 @@ def evaluate(
     chosen from its other views, beside Lambert's under the same light; `"auto"` (the
     command's default): only where `ctjax.fitting.facets_suggestion` points there;
     `facet_marginal`: with them, the facets integrated out and the facet lobe at that width
-    (`HeldOutTracks.facet_blocks`), nested in their JSON."""
+    (`HeldOutTracks.facet_blocks`), nested in their JSON. `effects`: image effects both
+    models fit with the rest
+    (`ctjax.effects.image_effects`: effects or their names, e.g. `("frame_exposure",)` for a
+    scope's auto-exposure; with the map only), each per-frame one fitted on the held-out
+    frames where they are judged; the facets are then judged on the views with the
+    effects undone (`HeldOutTracks.in_radiance`)."""
     workers = checked_workers(workers)
     if facets not in (True, False, "auto"):
         raise CtjaxError(f"facets must be True, False or 'auto', got {facets!r}")
@@ -242,6 +265,13 @@ def evaluate(
     if albedo not in ALBEDO_CHOICES:
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     calib, test = split_frames(len(capture), calibration, source=capture.root)
+    if effects:
+        if albedo != "map":
+            raise CtjaxError(
+                "effects are judged with the albedo map (a frame's exposure is fitted on its "
+                f"own views of the tracked points): not with albedo {albedo!r}"
+            )
+        effects = image_effects(effects, paper_model(), capture.candidate_context())
     if sfs:  # before any fit: a capture SfS cannot be scored on fails in a second
         for index in test:
             _check_sfs_reference((reference or capture).frames[index], capture.camera)
@@ -249,22 +279,26 @@ def evaluate(
     timings, notes = {}, [unmapped] if unmapped else []
     tic = time.perf_counter()
     progress(f"fitting the Lambertian model on frames {calib} (albedo {albedo})...")
-    lambertian = fit_lambertian(capture, calib, tracks=tracks)
+    lambertian = fit_lambertian(capture, calib, tracks=tracks, effects=effects)
     timings["lambertian_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     progress(f"fitting Cook-Torrance with its light on frames {calib}...")
-    fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo, diffuse)
+    fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo, diffuse, effects)
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     same_light = same_diffuse = None
     light = fitted.model.light
     if not isinstance(light, ColocatedLight) or light.falloff:
         progress("fitting the Lambertian model under Cook-Torrance's light (held)...")
-        same_light = fit_lambertian(capture, calib, tracks=tracks, light=light)
+        same_light = fit_lambertian(
+            capture, calib, tracks=tracks, light=light, effects=fitted.model.effects
+        )
     own = _diffuse_of(fitted.model)
     if own is not None:
         progress(f"fitting Cook-Torrance's diffuse term ({type(own).__name__}) alone...")
-        same_diffuse = fit_lambertian(capture, calib, tracks=tracks, light=light, diffuse=own)
+        same_diffuse = fit_lambertian(
+            capture, calib, tracks=tracks, light=light, diffuse=own, effects=fitted.model.effects
+        )
     timings["lambertian_same_light_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     lambertian, fitted = (_judged(capture, e, calib, test, tracks) for e in (lambertian, fitted))
@@ -338,13 +372,12 @@ def evaluate(
 
 def _facet_lobe(tracks, model, why=None, marginal=False) -> tuple[dict | None, str | None]:
     """`facet_lobe`'s JSON under `model`'s light, why it was judged (`why`, None: asked) and
-    with `marginal` the other `HeldOutTracks.facet_blocks` in it; or None and why not."""
+    with `marginal` the other `HeldOutTracks.facet_blocks` in it; or None and why not. A
+    model with image effects: on the views with its effects undone (`in_radiance`)."""
     if tracks is None:
         return None, "facets not judged: they need the albedo map (--albedo map)"
-    if tuple(getattr(model, "effects", ())):
-        return None, "facets not judged: Cook-Torrance's model has image effects"
     judged = "asked (facets=True)" if why is None else f"by itself: {why}"
-    blocks = tracks.facet_blocks(model.light, marginal=marginal)
+    blocks = tracks.model_facet_blocks(model, marginal=marginal)
     return blocks.pop("facets") | {"judged": judged} | blocks, None
 
 

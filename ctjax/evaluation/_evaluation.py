@@ -190,6 +190,11 @@ class Evaluation:
                 # Not "successful" where the data do not determine its lobe.
                 "status": Status(self.cook_torrance.status).name,
                 "undetermined": self.cook_torrance.details.get("undetermined", []),
+                **(
+                    {"effects": named_parameters(self.cook_torrance.model.effects)}
+                    if self.cook_torrance.model.effects
+                    else {}
+                ),
             },
         }
         out["lobes_judged"] = lobes_judged(out)

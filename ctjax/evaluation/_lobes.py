@@ -78,6 +78,8 @@ def lobes_judged(summary: dict) -> dict:
                     block.get("status"),
                 )
             )
+            if rows[-1] is not None and block.get("effects_undone"):
+                rows[-1]["effects_undone"] = block["effects_undone"]
     rows = [row for row in rows if row is not None]
     determined = [row for row in rows if row["status"] == "successful" and row["ratio"] < 1]
     best = min(determined, key=lambda row: row["ratio"])["lobe"] if determined else None
@@ -88,9 +90,16 @@ def lobes_judged(summary: dict) -> dict:
             "held-out RGB RMSE (8-bit levels) of Cook-Torrance with each lobe, and its ratio "
             "to Lambert's model under the same light on the same views; best_determined: the "
             "lowest ratio under 1 among the lobes whose status is successful (the data "
-            "determine them)"
+            "determine them); effects_undone: a row judged on the views with the model's image "
+            "effects undone (its levels the radiance's, the first frame's exposure: compare "
+            "its ratio)"
         ),
     }
+
+
+def _undone(row: dict) -> str:
+    effects = row.get("effects_undone")
+    return f" (levels with {' and '.join(effects)} undone)" if effects else ""
 
 
 def lobes_judged_lines(block: dict) -> list[str]:
@@ -103,8 +112,9 @@ def lobes_judged_lines(block: dict) -> list[str]:
         lines.append(
             f"  about {row['about']}: sigma {sigma}, max F_tilde "
             f"{'-' if F_tilde is None else f'{F_tilde:.3g}'}: {row['heldout_rgb_rmse']:.2f} "
-            f"against {row['lambertian_same_light_rgb_rmse']:.2f}, {row['ratio']:.3f}x, "
-            f"{row['status']}"
+            f"against {row['lambertian_same_light_rgb_rmse']:.2f}"
+            + _undone(row)
+            + f", {row['ratio']:.3f}x, {row['status']}"
         )
     best = block["best_determined"]
     best = "none beats Lambert's with status successful" if best is None else dict(LOBES)[best]

@@ -369,6 +369,13 @@ def facet_lobe(
     )
 
 
+def _undone(summary: dict) -> str:
+    """Where the views were judged with the model's image effects undone (`effects_undone`):
+    the levels are the radiance's (the first frame's exposure)."""
+    effects = summary.get("effects_undone")
+    return f" of the radiance ({' and '.join(effects)} undone)" if effects else ""
+
+
 def facet_lobe_line(summary: dict) -> str:
     """One line for a command's output from `FacetLobe.to_json()`."""
     bound = ", at the end of its grid" if summary["at_bound"] else ""
@@ -377,7 +384,8 @@ def facet_lobe_line(summary: dict) -> str:
         f"{summary['sigma_stderr']:.2g}, F_tilde {summary['F_tilde']:.3g} +- "
         f"{summary['F_tilde_stderr']:.2g}, peak F_tilde/sigma^2 {summary['peak']:.3g}, "
         f"chosen on the calibration frames{bound}): held-out RMSE "
-        f"{summary['heldout_rgb_rmse']:.2f} levels, {summary['ratio']:.3f}x Lambert's under "
+        f"{summary['heldout_rgb_rmse']:.2f} levels{_undone(summary)}, {summary['ratio']:.3f}x "
+        "Lambert's under "
         f"the same light ({summary['lambertian_same_light_rgb_rmse']:.2f}; with its own normal "
         f"chosen the same way {summary['lambertian_turned_normals_rgb_rmse']:.2f}"
         + (

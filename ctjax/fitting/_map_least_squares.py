@@ -140,6 +140,22 @@ def _linear(model, samples: TrackSamples):
     return linear.reshape(samples.values.shape), samples.weight * scale
 
 
+def in_radiance(model, samples: TrackSamples) -> TrackSamples:
+    """`samples` with `model`'s image effects undone on every measured value and each
+    observation's weight times the effects' squared slope there (as the map's fit reads
+    them, `_linear`): what an estimator of a model without image effects can take, its
+    residuals in the image's levels to first order. Without effects: `samples`."""
+    if not tuple(getattr(model, "effects", ())):
+        return samples
+    values, weight = _in_radiance(strongly_typed(model), samples)
+    return eqx.tree_at(lambda s: (s.values, s.weight), samples, (values, weight))
+
+
+@persistent_jit
+def _in_radiance(model, samples):
+    return _linear(model, samples)
+
+
 def _flat_sites(samples: TrackSamples) -> Site:
     """Where each observation was recorded, flattened (M P,) like the values' columns."""
     (u, v), frame = samples.site
