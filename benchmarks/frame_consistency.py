@@ -1,7 +1,7 @@
 """Which frames do the others predict? Each frame's views of the tracked points, each predicted
 from the point's albedo in its other views.
 
-    python benchmarks/frame_consistency.py CAPTURE [--calib N] [--factor 1.5]
+    python benchmarks/frame_consistency.py CAPTURE [--calib N] [--factor 1.5] [--near]
 
 The held-out protocol of `ctjax evaluate` and `ctjax fit` (`ctjax.heldout.HeldOutTracks`):
 the paper's model with the albedo map fitted on the calibration frames (the first 60%),
@@ -11,6 +11,11 @@ and on the held-out ones (the judged views). Printed per frame: that RMSE (8-bit
 and the views it counts; the calibration frames whose RMSE exceeds `--factor` times their
 median are named. No lobe explains a frame that its neighbours do not predict under any
 model: the tissue moved, the pose or the shape is off there, or the frame is blurred.
+Beside it each frame's brightness against what the others predict
+(`HeldOutTracks.frame_brightness`, measured over predicted) and the frames off by more than
+`BRIGHTNESS_OFF_LOG` (10%), as `ctjax evaluate` prints them; `--near`: under
+`calibrate_near_light`'s model (its falloff chosen; minutes) as evaluate's are, instead of
+the paper's light at the lens.
 
 Measured (2026-11-28): all 35 frames of the shared sinus at 640 px (`ctjax reconstruct`:
 35 of 35, 880 points): the calibration frames' RMSE runs from 5.8 to 33.8 levels (median
@@ -31,9 +36,10 @@ from pathlib import Path
 import numpy as np
 from _results import emit
 
+from ctjax.calibration import calibrate_near_light
 from ctjax.fitting import fit_model_map, paper_model
 from ctjax.fitting._map_least_squares import heldout_map_residuals
-from ctjax.heldout import HeldOutTracks
+from ctjax.heldout import BRIGHTNESS_OFF_LOG, HeldOutTracks
 from ctjax.io import load_capture
 
 
@@ -59,17 +65,33 @@ def main() -> None:
     parser.add_argument(
         "--factor", type=float, default=1.5, help="name the frames above this x the median"
     )
+    parser.add_argument(
+        "--near", action="store_true", help="the near light's model (calibrate_near_light)"
+    )
     args = parser.parse_args()
     capture = load_capture(args.capture)
     split = HeldOutTracks.split(capture, args.calib)
-    model = fit_model_map(paper_model(sigma=0.3), split.train, standard_errors=False).model
+    if args.near:
+        model = calibrate_near_light(capture, calibration=len(split.calibration)).model
+    else:
+        model = fit_model_map(paper_model(sigma=0.3), split.train, standard_errors=False).model
+    brightness = split.frame_brightness(model)
     names = [frame.name for frame in capture.frames]
     calibration = per_frame(model, split.train)
     heldout = per_frame(model, split.test, split.judged)
     median = float(np.median([rmse for rmse, _ in calibration.values()]))
     for part, figures in (("calibration", calibration), ("heldout", heldout)):
         for f, (rmse, views) in figures.items():
-            emit({"part": part, "frame": names[f], "index": f, "rmse": rmse, "views": views})
+            emit(
+                {
+                    "part": part,
+                    "frame": names[f],
+                    "index": f,
+                    "rmse": rmse,
+                    "views": views,
+                    "brightness": brightness[f],
+                }
+            )
     outliers = [names[f] for f, (rmse, _) in calibration.items() if rmse > args.factor * median]
     emit(
         {
@@ -77,6 +99,11 @@ def main() -> None:
             "calibration_median_rmse": median,
             "factor": args.factor,
             "calibration_frames_above": outliers,
+            "model": "near light" if args.near else "the paper's, light at the lens",
+            "log_brightness_sd": float(np.nanstd(np.log(list(brightness.values())))),
+            "brightness_off": [
+                names[f] for f, g in brightness.items() if abs(np.log(g)) > BRIGHTNESS_OFF_LOG
+            ],
         }
     )
 

@@ -15,10 +15,14 @@ import numpy as np
 
 from ._convert import on_device
 from ._errors import CtjaxError
+from ._frame_consistency import BRIGHTNESS_OFF_LOG as BRIGHTNESS_OFF_LOG
+from ._frame_consistency import NOT_PREDICTED_FACTOR as NOT_PREDICTED_FACTOR
+from ._frame_consistency import frame_consistency as frame_consistency
+from ._frame_consistency import frames_not_predicted as frames_not_predicted
 from ._noise_floor import noise_floor_levels as noise_floor_levels
 from ._noise_floor import noise_floor_map_levels as noise_floor_map_levels
 from ._paired import SampleErrors
-from ._result import Estimate, finite_or_none
+from ._result import Estimate
 from ._right_views import require_stereo, with_right_views
 from .fitting._facet_lobe import facet_lobe
 from .fitting._facet_marginal import facet_marginal
@@ -40,30 +44,6 @@ from .observations import Observations, PixelSamples
 # Among models within this fraction of the lowest held-out RMSE, the simplest is kept: a
 # component the data do not show fits to ~nothing and would otherwise win on noise.
 SIMPLEST_WITHIN = 0.01
-
-
-# A calibration frame whose views its neighbours predict this many times worse than the
-# calibration frames' median is one the others do not predict (`frames_not_predicted`):
-# on the shared sinus's 35 frames the first third reads 21-34 levels against a median of
-# 14.4 (frames 0, 1, 7, 9, 10 and 11 above 1.5x), its held-out frames 3.4-9.0; the
-# cholecystectomy's 12 frames 16.2-23.3 against 17.8 (none): `benchmarks/frame_consistency.py`.
-NOT_PREDICTED_FACTOR = 1.5
-
-
-def frames_not_predicted(
-    frame_rmse: dict[int, float], calibration: Sequence[int], factor: float = NOT_PREDICTED_FACTOR
-) -> tuple[list[int], float]:
-    """The calibration frames whose RMSE (`HeldOutTracks.frame_rmse`) exceeds `factor`
-    times the calibration frames' median, and that median. A frame the others do not
-    predict raises their figures too (their views' albedos take its values in): on a
-    128x96 x 5 synthetic capture with one frame's image shifted by 3 px, that frame read
-    16.7 levels against a median of 8.2 over 4 calibration frames (2.0-2.3 unshifted), and
-    1.54x the median over 3: with few frames, a bad one may go unnamed."""
-    values = [frame_rmse[f] for f in calibration if math.isfinite(frame_rmse.get(f, math.nan))]
-    if not values:
-        return [], math.nan
-    median = float(np.median(values))
-    return [f for f in calibration if frame_rmse.get(f, math.nan) > factor * median], median
 
 
 def split_frames(
@@ -382,6 +362,31 @@ class HeldOutTracks:
                 out[f] = math.sqrt(float(np.sum(squared[here])) / total) if total else math.nan
         return out
 
+    def frame_brightness(self, model) -> dict[int, float]:
+        """Each frame's measured over predicted brightness under `model`, by frame index:
+        the gain g minimising sum w (measured - g predicted)^2 over the views `frame_rmse`
+        counts (a calibration frame's in `train`, a held-out frame's judged ones in `test`;
+        NaN for a frame with none). Each view is predicted from the point's albedo in its
+        other views, so g is a frame's brightness against the others': 1 where the model
+        accounts for it; a spread across frames is an exposure change it lacks (a scope's
+        auto-exposure, `FrameExposure`)."""
+        out = {}
+        for samples, judged, tested in (
+            (self.train, None, model),
+            (self.test, self.judged, self.with_heldout_frames(model)),
+        ):
+            residual, weight = heldout_map_residuals(tested, samples, judged)
+            measured = 255 * np.asarray(samples.values, float)
+            predicted = measured - residual
+            frame = np.asarray(samples.site.frame)
+            across = np.sum(measured * predicted, axis=0) * weight
+            power = np.sum(predicted * predicted, axis=0) * weight
+            for f in self.calibration if judged is None else self.heldout:
+                here = (frame == f) & (weight > 0)
+                total = float(np.sum(power[here]))
+                out[f] = float(np.sum(across[here])) / total if total > 0 else math.nan
+        return out
+
     def heldout_errors(self, model) -> SampleErrors:
         """Each tracked point's error on its held-out views under `model` as `judge` left it
         (its per-frame parameters fitted there): for comparing two judged models."""
@@ -408,38 +413,6 @@ class HeldOutTracks:
             noise_floor=self.noise_floor(model) if noise_floor else fit.noise_floor,
             frames=self.frames,
         )
-
-
-def frame_consistency(tracks: HeldOutTracks, models: dict) -> dict:
-    """Each frame's RMSE (8-bit levels) under each of `models` (by name;
-    `HeldOutTracks.frame_rmse`), by frame name, the calibration frames the others do not
-    predict under the first model (`frames_not_predicted`) and the frames with no judged view
-    (`not_judged`: none of their pixels on a surface point another frame sees, a frame whose
-    depth, normals or pose disagree with the others'), as JSON."""
-    names = [frame.name for frame in tracks.capture.frames]
-    rmse = {name: tracks.frame_rmse(model) for name, model in models.items()}
-    first = next(iter(rmse.values()))
-    outliers, median = frames_not_predicted(first, tracks.calibration)
-
-    return {
-        **{
-            name: {names[f]: finite_or_none(v) for f, v in sorted(r.items())}
-            for name, r in rmse.items()
-        },
-        "calibration_median_levels": finite_or_none(median),
-        "not_predicted": [names[f] for f in outliers],
-        "not_judged": [names[f] for f, v in sorted(first.items()) if not math.isfinite(v)],
-        "note": (
-            "8-bit levels per frame: a calibration frame's views each predicted from the "
-            "point's albedo in its other views, a test frame's judged views as the test RMSE "
-            f"counts them; not_predicted: calibration frames above {NOT_PREDICTED_FACTOR}x "
-            f"the calibration frames' median under the {next(iter(rmse))} model (tissue or "
-            "scope motion the poses and shape do not follow, blur): no lobe explains them, "
-            "and they weigh on the fit; `ctjax fit` on a capture without them says what "
-            "they change; not_judged: frames none of whose views was judged (their "
-            "depth, normals or pose put none of their pixels on a point the others see)"
-        ),
-    }
 
 
 def split_for(

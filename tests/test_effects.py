@@ -14,7 +14,7 @@ from ctjax.calibration import calibrate_near_light
 from ctjax.effects import FrameExposure, Gain, Site, Vignetting, image_effect_names, image_effects
 from ctjax.evaluation import evaluate, fit_colocated
 from ctjax.fitting import fit_model_map, paper_model
-from ctjax.heldout import HeldOutTracks
+from ctjax.heldout import HeldOutTracks, frame_consistency
 from ctjax.io import load_capture
 from ctjax.lights import ColocatedLight
 from ctjax.synth import SynthOptions, synthesize
@@ -115,6 +115,18 @@ def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(exposed):
             np.asarray(after.weight)[seen], np.asarray(before.weight)[seen] * gain**2, rtol=1e-5
         )
     assert heldout.in_radiance(without) == (heldout, without)  # nothing to undo
+    # Each frame's brightness against what the others predict: the exposure the model
+    # lacks, relative to the frames around it; 1 under the model that has it.
+    lacking = frame_consistency(heldout, {"without": without})
+    log_gain = np.log(list(lacking["brightness"].values()))
+    relative = np.concatenate([[0.0], truth]) - np.mean(np.concatenate([[0.0], truth]))
+    assert np.corrcoef(log_gain, relative)[0, 1] > 0.9
+    # The two frames furthest from the others' mean (log +0.09 and -0.14; read ~1.3x that:
+    # each view against its point's other views, the frame itself not among them).
+    assert lacking["brightness_off"] == ["frame_003", "frame_004"]
+    having = frame_consistency(heldout, {"with": fit.model})
+    np.testing.assert_allclose(list(having["brightness"].values()), 1.0, atol=0.03)
+    assert having["brightness_off"] == []
 
 
 def test_image_effects_by_name_start_where_the_diagnostics_would():
@@ -150,6 +162,7 @@ def test_evaluate_fits_the_exposure_in_both_models_and_judges_the_facets_in_radi
     assert same_light > 2 * summary["cook_torrance_rgb_rmse_test"]
     assert "log_exposure" in summary["models"]["lambertian_same_light"]
     assert summary["facets"]["effects_undone"] == ["FrameExposure"]
+    assert summary["frames_rmse"]["brightness_off"] == []
     assert np.isfinite(summary["facets"]["ratio"])
     with pytest.raises(CtjaxError, match="judged with the albedo map"):
         evaluate(exposed, albedo="uniform", effects=("frame_exposure",))

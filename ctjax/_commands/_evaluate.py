@@ -155,6 +155,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"of {frames['calibration_median_levels']:.1f} over the calibration frames: motion "
             "the poses and shape do not follow; no lobe explains them (frames_rmse in the JSON)"
         )
+    if frames.get("brightness_off"):
+        named = ", ".join(f"{n} {frames['brightness'][n]:.2f}x" for n in frames["brightness_off"])
+        print(
+            f"frames brighter or darker than the others predict ({frames['brightness_model']}, "
+            f"measured over predicted): {named}: an exposure change the model lacks (a scope's "
+            "auto-exposure: --effects frame_exposure fits one per frame) or motion it does not "
+            "follow (frames_rmse in the JSON)"
+        )
     if frames.get("not_judged"):
         print(
             f"ctjax evaluate: warning: no view of {', '.join(frames['not_judged'])} was judged "

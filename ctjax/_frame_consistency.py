@@ -1,0 +1,90 @@
+"""Whether the frames agree with one another under a model: each frame's RMSE and its
+brightness against what the other frames predict (`HeldOutTracks.frame_rmse` and
+`frame_brightness`), the frames the others do not predict and the frames off in brightness:
+what `ctjax evaluate` prints beside its RMSEs (`frames_rmse` in its JSON)."""
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._result import finite_or_none
+
+# A calibration frame whose views its neighbours predict this many times worse than the
+# calibration frames' median is one the others do not predict (`frames_not_predicted`):
+# on the shared sinus's 35 frames the first third reads 21-34 levels against a median of
+# 14.4 (frames 0, 1, 7, 9, 10 and 11 above 1.5x), its held-out frames 3.4-9.0; the
+# cholecystectomy's 12 frames 16.2-23.3 against 17.8 (none): `benchmarks/frame_consistency.py`.
+NOT_PREDICTED_FACTOR = 1.5
+# A frame whose brightness its neighbours' views predict off by more than this (natural
+# log: 10%) under the fullest model is named by `frame_consistency` (`brightness_off`). On
+# the real sequences measured (12-24 frames) most frames sit within 0.035-0.08 (sd) of the
+# others; a synthetic auto-exposure of sd 0.15 in log reads 0.155, none 0.008.
+BRIGHTNESS_OFF_LOG = 0.1
+
+
+def frames_not_predicted(
+    frame_rmse: dict[int, float], calibration: Sequence[int], factor: float = NOT_PREDICTED_FACTOR
+) -> tuple[list[int], float]:
+    """The calibration frames whose RMSE (`HeldOutTracks.frame_rmse`) exceeds `factor`
+    times the calibration frames' median, and that median. A frame the others do not
+    predict raises their figures too (their views' albedos take its values in): on a
+    128x96 x 5 synthetic capture with one frame's image shifted by 3 px, that frame read
+    16.7 levels against a median of 8.2 over 4 calibration frames (2.0-2.3 unshifted), and
+    1.54x the median over 3: with few frames, a bad one may go unnamed."""
+    values = [frame_rmse[f] for f in calibration if math.isfinite(frame_rmse.get(f, math.nan))]
+    if not values:
+        return [], math.nan
+    median = float(np.median(values))
+    return [f for f in calibration if frame_rmse.get(f, math.nan) > factor * median], median
+
+
+def frame_consistency(tracks, models: dict) -> dict:
+    """Each frame's RMSE (8-bit levels) under each of `models` (by name;
+    `HeldOutTracks.frame_rmse`), by frame name, the calibration frames the others do not
+    predict under the first model (`frames_not_predicted`), the frames with no judged view
+    (`not_judged`: none of their pixels on a surface point another frame sees, a frame whose
+    depth, normals or pose disagree with the others'), and each frame's brightness against
+    what the others predict under the last model (`HeldOutTracks.frame_brightness`, the
+    fullest: its light's falloff accounts for the distance) with the frames off by more
+    than `BRIGHTNESS_OFF_LOG` (`brightness_off`), as JSON. `tracks`: a `HeldOutTracks`."""
+    names = [frame.name for frame in tracks.capture.frames]
+    rmse = {name: tracks.frame_rmse(model) for name, model in models.items()}
+    first = next(iter(rmse.values()))
+    outliers, median = frames_not_predicted(first, tracks.calibration)
+    last, fullest = list(models.items())[-1]
+    brightness = tracks.frame_brightness(fullest)
+    off = [
+        names[f]
+        for f, g in sorted(brightness.items())
+        if g > 0 and abs(math.log(g)) > BRIGHTNESS_OFF_LOG
+    ]
+
+    return {
+        **{
+            name: {names[f]: finite_or_none(v) for f, v in sorted(r.items())}
+            for name, r in rmse.items()
+        },
+        "calibration_median_levels": finite_or_none(median),
+        "not_predicted": [names[f] for f in outliers],
+        "not_judged": [names[f] for f, v in sorted(first.items()) if not math.isfinite(v)],
+        "brightness": {names[f]: finite_or_none(g) for f, g in sorted(brightness.items())},
+        "brightness_model": last,
+        "brightness_off": off,
+        "note": (
+            "8-bit levels per frame: a calibration frame's views each predicted from the "
+            "point's albedo in its other views, a test frame's judged views as the test RMSE "
+            f"counts them; not_predicted: calibration frames above {NOT_PREDICTED_FACTOR}x "
+            f"the calibration frames' median under the {next(iter(rmse))} model (tissue or "
+            "scope motion the poses and shape do not follow, blur): no lobe explains them, "
+            "and they weigh on the fit; `ctjax fit` on a capture without them says what "
+            "they change; not_judged: frames none of whose views was judged (their "
+            "depth, normals or pose put none of their pixels on a point the others see); "
+            "brightness: each frame's measured over predicted values (the gain that fits "
+            "them best) under the brightness_model, each view predicted from the point's "
+            "albedo in its other views: 1 where the model accounts for the frame's "
+            f"brightness; brightness_off: frames off by more than {BRIGHTNESS_OFF_LOG:g} in "
+            "natural log, an exposure change the model lacks (a scope's auto-exposure: "
+            "--effects frame_exposure) or motion it does not follow"
+        ),
+    }
