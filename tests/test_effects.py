@@ -183,3 +183,15 @@ def test_the_commands_take_image_effects_by_name(exposed, tmp_path, capsys):
     ):
         status, lines = command_error([*argv, *json_out], capsys)
         assert status == 2 and len(lines) == 1 and message in lines[0], lines
+
+
+def test_the_commands_print_the_fitted_effects_in_one_line():
+    from ctjax._commands._args import effects_line
+
+    effects = (FrameExposure(np.log([1.1, 0.8])), Vignetting(-0.3, 0.05, (5.0, 4.0), (9.0, 9.0)))
+    model = ShadingModel(paper_model().brdf, ColocatedLight(), effects)
+    assert effects_line(model) == (
+        "image effects: each frame's exposure over the first's 1.00 1.10 0.80; "
+        "vignetting_k2 -0.3; vignetting_k4 0.05"
+    )
+    assert effects_line(paper_model()) is None

@@ -5,6 +5,7 @@ the capture loaded with its notes, and the command line's words for objects (`--
 """
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -80,6 +81,24 @@ def add_effects_argument(parser: argparse.ArgumentParser, prefix: str = "") -> N
         "auto-exposure: a gain per frame, each held-out frame's fitted on its own views), "
         "vignetting, ambient, camera_gamma, srgb_response (default: none)",
     )
+
+
+def effects_line(model) -> str | None:
+    """The fitted image effects of `model` in one line (a frame's exposure as a factor over
+    the first frame's), or None without effects."""
+    from .._json import named_parameters
+
+    if not tuple(getattr(model, "effects", ())):
+        return None
+    parts = []
+    for name, value in named_parameters(tuple(model.effects)).items():
+        if name == "log_exposure":
+            factors = " ".join(f"{math.exp(v):.2f}" for v in [0.0, *value])
+            parts.append(f"each frame's exposure over the first's {factors}")
+        else:
+            values = value if isinstance(value, list) else [value]
+            parts.append(f"{name} {' '.join(f'{v:.3g}' for v in values)}")
+    return "image effects: " + "; ".join(parts)
 
 
 def add_diffuse_argument(parser: argparse.ArgumentParser, prefix: str = "") -> None:

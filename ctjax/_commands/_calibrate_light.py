@@ -13,6 +13,7 @@ from ._args import (
     add_effects_argument,
     add_falloff_argument,
     add_workers_argument,
+    effects_line,
     field_solver,
     load_observations,
     output_file,
@@ -156,6 +157,8 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         f"(held-out) levels, noise floor {result.noise_floor:.2f}; wrote {args.json}"
     )
     print(_brdf_line(summary, diffuse_lobe_named(args.diffuse)))
+    if effects_line(result.model):
+        print(effects_line(result.model))
     if "highlight_alignment" in summary:
         print(highlight_alignment_line(summary["highlight_alignment"]))
     if "facets" in summary:

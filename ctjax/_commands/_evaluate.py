@@ -13,6 +13,7 @@ from ._args import (
     add_effects_argument,
     add_workers_argument,
     cook_torrance_estimator,
+    effects_line,
     load_observations,
     output_file,
     output_folder,
@@ -127,6 +128,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         f"{summary['cook_torrance_rgb_rmse_calibration']:.2f} / "
         f"{summary['cook_torrance_rgb_rmse_test']:.2f} (albedo {summary['albedo']})"
     )
+    if effects_line(evaluation.cook_torrance.model):
+        print(f"Cook-Torrance's {effects_line(evaluation.cook_torrance.model)}")
     gain = summary["gain"]
     if "lobe_levels" in gain:
         parts = []
