@@ -377,11 +377,16 @@ def add_undetermined(estimate, found: Undetermined):
 def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=None):
     """`flag` for an estimate whose standard errors are in `details["stderr"]` by dotted
     field name (the LM fitters'), plus `stderrs` by paper name; `lobe_gain` as in
-    `undetermined`."""
+    `undetermined`. A per-frame parameter (`PER_FRAME`: a frame's exposure) is a nuisance,
+    as a point's albedo is, and flags nothing: a held-out frame's is fitted on that frame
+    when it is judged, and has no standard error from the calibration frames."""
     from ._json import paper_names
+    from .fitting._parameters import per_frame_names
 
     names = paper_names(estimate.model)
-    by_name = {names[k]: v for k, v in estimate.details.get("stderr", {}).items() if k in names}
+    nuisance = set(per_frame_names(estimate.model))
+    stderr = estimate.details.get("stderr", {})
+    by_name = {names[k]: v for k, v in stderr.items() if k in names and k not in nuisance}
     ranges = _diffuse_shape_ranges(estimate.model, names) | (ranges or {})
     return flag(estimate, by_name | (stderrs or {}), ranges, lobe_gain=lobe_gain)
 

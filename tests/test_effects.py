@@ -195,3 +195,21 @@ def test_the_commands_print_the_fitted_effects_in_one_line():
         "vignetting_k2 -0.3; vignetting_k4 0.05"
     )
     assert effects_line(paper_model()) is None
+
+
+def test_the_held_out_frames_exposures_flag_nothing_with_one_albedo(tmp_path):
+    """With one albedo (pixels), the standard errors come from the calibration frames, which
+    do not see a held-out frame's exposure: a per-frame nuisance, it flags nothing (it is
+    fitted on its frame when judged), and the rest is recovered."""
+    options = SynthOptions(
+        width=128, height=96, frames=5, seed=3, texture=False, effects={"frame_exposure": 0.1}
+    )
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    truth = np.asarray(capture.truth["effects"]["frame_exposure"]["effects[0].log_exposure"])
+    fit = calibrate_near_light(
+        capture, calibration=3, falloff=[()], albedo="uniform", effects=("frame_exposure",)
+    )
+    assert fit.status.name == "successful", fit.details.get("undetermined")
+    np.testing.assert_allclose(fit.model.effects[0].log_exposure, truth, atol=0.01)
+    stderr = fit.details["stderr"]["effects[0].log_exposure"]
+    assert stderr[-1] is None or not np.isfinite(stderr[-1])  # the held-out frame's
