@@ -241,11 +241,10 @@ def evaluate(
     command's default): only where `ctjax.fitting.facets_suggestion` points there;
     `facet_marginal`: with them, the facets integrated out and the facet lobe at that width
     (`HeldOutTracks.facet_blocks`), nested in their JSON. `effects`: image effects both
-    models fit with the rest
-    (`ctjax.effects.image_effects`: effects or their names, e.g. `("frame_exposure",)` for a
-    scope's auto-exposure; with the map only), each per-frame one fitted on the held-out
-    frames where they are judged; the facets are then judged on the views with the
-    effects undone (`HeldOutTracks.in_radiance`)."""
+    models fit with the rest (`ctjax.effects.image_effects`: effects or their names, e.g.
+    `("frame_exposure",)` for a scope's auto-exposure; with the map only), each per-frame
+    one fitted on the held-out frames where they are judged; the facets are then judged on
+    the views with the effects undone (`HeldOutTracks.in_radiance`)."""
     workers = checked_workers(workers)
     if facets not in (True, False, "auto"):
         raise CtjaxError(f"facets must be True, False or 'auto', got {facets!r}")
