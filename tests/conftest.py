@@ -99,6 +99,10 @@ def _long_running_programs_optimised():
 # for 19 s (likely: the files share compiled programs through the persistent cache above,
 # and heavy files started together each compile the same fitters). xdist's order is kept.
 #
+# pytest-xdist's `--dist worksteal` (tests handed out in contiguous chunks, an idle worker
+# taking from the other) instead of `loadfile`: at 61f81a5 (873 tests, cold, fresh clone,
+# 2 cores) 375.4 s against loadfile's 374.7 s the run before: the same. loadfile is kept.
+#
 # Workers: more than the cores does not pay either. At 79c0fba (656 tests, cold, 2 cores,
 # `pytest_xdist_auto_num_workers` returning 2, 3 or 4): 2 workers 462.5 s, 3 workers 437.7
 # and 476.2 s, 4 workers 499.0 s: within the run-to-run spread at 3, worse at 4. -n auto.
