@@ -33,6 +33,7 @@ class Status(enum.IntEnum):
     unstable = 10
     misoriented = 11
     imprecise = 12
+    brightness_off = 13
 
     @property
     def message(self) -> str:
@@ -93,6 +94,7 @@ _UNDETERMINED = (
     Status.unstable,
     Status.misoriented,
     Status.imprecise,
+    Status.brightness_off,
 )
 
 _MESSAGES = {
@@ -117,6 +119,9 @@ _MESSAGES = {
     "it",
     Status.imprecise: "converged, but a roughness's standard error is over a quarter of its "
     "value: the data leave it anywhere from half to one and a half times it, no measurement of it",
+    Status.brightness_off: "converged, but frames are brighter or darker than the other frames "
+    "predict under the model (an exposure change or a falloff it lacks, which the lobe "
+    "absorbs): no measurement of the lobe",
 }
 
 _FROM_OPTIMISTIX = (

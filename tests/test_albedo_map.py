@@ -152,6 +152,11 @@ def test_the_map_recovers_the_brdf_and_the_texture(textured, key):
     np.testing.assert_allclose(result["F_tilde"], truth["F_tilde"], rtol=0.03)
     # Over every observation, texture interpolated across frames included.
     assert result["rgb_rmse_calibration"] < 3.0
+    # Every frame as bright as the others predict under the fit (no exposure change).
+    brightness = list(result["frames_brightness"].values())
+    assert len(brightness) == len(capture) and result["brightness_off"] == []
+    np.testing.assert_allclose(brightness, 1.0, atol=0.01)
+    assert result["status"] == "successful"
     errors, coverage = _map_errors(root, estimate)
     # 160x128 makes the synthetic texture finer than a pixel: looser than at 320x256.
     assert np.median(errors) < 0.015 and np.percentile(errors, 90) < 0.05

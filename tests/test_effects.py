@@ -9,9 +9,19 @@ import numpy as np
 import pytest
 from helpers import command_error
 
-from ctjax import Camera, CtjaxError, ShadingModel, Vec3, cook_torrance_brdf, render, shade
+from ctjax import (
+    Camera,
+    CtjaxError,
+    ShadingModel,
+    Status,
+    Vec3,
+    cook_torrance_brdf,
+    render,
+    shade,
+)
 from ctjax.calibration import calibrate_near_light
 from ctjax.effects import FrameExposure, Gain, Site, Vignetting, image_effect_names, image_effects
+from ctjax.estimation import fit_capture
 from ctjax.evaluation import evaluate, fit_colocated
 from ctjax.fitting import fit_model_map, paper_model
 from ctjax.heldout import HeldOutTracks, frame_consistency
@@ -83,6 +93,29 @@ def exposed(tmp_path_factory):
     """Textured tissue with auto-exposure (sd 0.1 in log), 5 frames."""
     options = SynthOptions(width=128, height=96, frames=5, seed=3, effects={"frame_exposure": 0.1})
     return load_capture(synthesize(tmp_path_factory.mktemp("exposed") / "c", options))
+
+
+def test_fit_names_the_frames_an_exposure_change_brightens_and_flags_the_lobe(exposed):
+    """`fit` (the paper's model, no exposure) names the frames brighter or darker than the
+    others predict, following their true exposure, and its lobe is no measurement."""
+    truth = exposed.truth["effects"]["frame_exposure"]["effects[0].log_exposure"]
+    truth = np.concatenate([[0.0], truth])
+    result = fit_capture(exposed).to_json()
+    log_brightness = np.log([result["frames_brightness"][f.name] for f in exposed.frames])
+    # Each frame's against the others' (each point's albedo comes from its other frames).
+    others = np.asarray([np.delete(truth, f).mean() for f in range(len(truth))])
+    np.testing.assert_allclose(log_brightness, truth - others, atol=0.05)
+    off = [f.name for f, g in zip(exposed.frames, log_brightness, strict=True) if abs(g) > 0.1]
+    assert off and result["brightness_off"] == off
+    # Undone, the lobe comes back to the truth (sigma 0.2, F_tilde 0.3): it had absorbed it.
+    undone, f_tilde = result["brightness_undone"], np.asarray(exposed.truth["F_tilde"])
+    assert np.max(np.abs(result["F_tilde"] / f_tilde - 1)) > 0.15  # 0.19-0.25 for 0.3
+    np.testing.assert_allclose(undone["F_tilde"], f_tilde, rtol=0.1)
+    assert undone["sigma"] == pytest.approx(exposed.truth["sigma"], rel=0.03)
+    assert undone["rgb_rmse"] < 0.5 * result["rgb_rmse"]
+    assert result["status"] == "brightness_off"
+    assert any("frame_exposure" in w for w in result["warnings"])
+    assert not Status.brightness_off.determined and Status.brightness_off.converged
 
 
 def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(exposed):

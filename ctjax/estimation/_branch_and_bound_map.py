@@ -39,6 +39,7 @@ from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
 from ._brdf import PAPER, BRDFFamily, design_geometry
 from ._variable_projection import (
+    albedo_from_other_views,
     over_views,
     project_weights,
     projected_residuals,
@@ -455,18 +456,27 @@ def _where_lobes_show(family, params, shading: TrackShading, per_point: int):
     """Sums of squared weighted residuals of `family` at `params` and of its diffuse lobe
     alone at the same `params` (its shape as fitted), every albedo and global weight
     projected out, over the observations where `family`'s lobes other than the per-point one
-    predict at least `LOBE_SHOWS`; and their number."""
+    predict at least `LOBE_SHOWS`; and their number. Then, for each observation (M, P),
+    the weighted products of its measured and predicted RGB and of the predicted with
+    itself, each view predicted with its point's albedo from the point's other views (0
+    where those are too few: `albedo_from_other_views`), for `frame_brightness`."""
     columns = track_columns(family, params, shading)
     _, weights, residual = projected_residuals(columns, shading.values, shading.weight, per_point)
     lobes = sum(
-        c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point
+        (c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point),
+        jnp.zeros_like(shading.values),
     )
     shows = (jnp.max(lobes, axis=0) >= LOBE_SHOWS) & (shading.weight > 0)
     _, _, plain_residual = projected_residuals(
         (columns[per_point],), shading.values, shading.weight, 0
     )
     ssr = lambda r: jnp.sum(jnp.where(shows[None], r * r, 0))  # noqa: E731
-    return ssr(residual), ssr(plain_residual), jnp.sum(shows)
+    a, w = columns[per_point], shading.weight
+    albedo, ok = albedo_from_other_views(a, shading.values - lobes, w, w > 0)
+    predicted = a * albedo + lobes
+    across = jnp.where(ok, w * jnp.sum(shading.values * predicted, axis=0), 0)
+    power = jnp.where(ok, w * jnp.sum(predicted * predicted, axis=0), 0)
+    return ssr(residual), ssr(plain_residual), jnp.sum(shows), across, power
 
 
 def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[float, int]:
@@ -484,10 +494,30 @@ def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[
     per_point = fit.family.weight_names.index("rho_tilde")
     if len(fit.family.weight_names) == 1:  # the diffuse lobe alone: no lobe to show
         return 0.0, 0
-    fit_ssr, plain_ssr, count = _where_lobes_show(
+    fit_ssr, plain_ssr, count, _, _ = _where_lobes_show(
         fit.family, jnp.asarray(fit.params), shading, per_point
     )
     count, fit_ssr, plain_ssr = int(count), float(fit_ssr), float(plain_ssr)
     if count == 0 or not plain_ssr > 0 or not np.isfinite(fit_ssr):
         return 0.0, count
     return 1 - math.sqrt(fit_ssr / plain_ssr), count
+
+
+def frame_brightness(fit: AlbedoMapFit, shading: TrackShading, frame) -> dict[int, float]:
+    """Each frame's measured over predicted brightness under `fit`, by frame index: the
+    gain g minimising sum w |measured - g predicted|^2 over the frame's views (`frame`: the
+    frame index of each observation, (M, P) as `shading.weight`; -1: not counted), each view
+    predicted with its point's albedo from the point's views in the other frames (a point
+    seen in one frame predicts nothing). 1 for every frame where the model accounts for the
+    frames' brightness; a spread is an exposure change (a scope's auto-exposure) or a
+    falloff with distance that the model lacks, which the lobe then absorbs. NaN for a
+    frame with no predicted view. As `HeldOutTracks.frame_brightness` for the LM fitters."""
+    per_point = fit.family.weight_names.index("rho_tilde")
+    *_, across, power = _where_lobes_show(fit.family, jnp.asarray(fit.params), shading, per_point)
+    across, power, frame = np.asarray(across), np.asarray(power), np.asarray(frame)
+    out = {}
+    for f in sorted({int(f) for f in np.unique(frame) if f >= 0}):
+        here = frame == f
+        total = float(np.sum(power[here]))
+        out[f] = float(np.sum(across[here])) / total if total > 0 else math.nan
+    return out

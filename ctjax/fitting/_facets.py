@@ -37,6 +37,7 @@ from .._convert import on_device
 from .._errors import ParameterError
 from .._model import ShadingModel
 from .._programs import persistent_jit
+from ..estimation._variable_projection import OTHER_VIEWS_SHARE
 from ..lobes._paper import cook_torrance_brdf
 from ..solvers import DenseLM, least_squares
 from ._facet_geometry import (
@@ -45,7 +46,7 @@ from ._facet_geometry import (
     grouped_per_point,
     lobe_columns,
 )
-from ._map_least_squares import OTHER_VIEWS_SHARE, TrackSamples, diffuse_lobe
+from ._map_least_squares import TrackSamples, diffuse_lobe
 from ._parameters import strongly_typed
 
 # The price of a facet, in units of (2 levels)^2 (about the real sequences' noise floor,

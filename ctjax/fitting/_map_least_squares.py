@@ -26,7 +26,10 @@ from .._tracks import Tracks, views_first
 from .._vector import Vec3
 from ..effects import AbstractImageEffect
 from ..effects._effect import Site, apply_effects, undo_effects
-from ..estimation._variable_projection import projected_residuals
+from ..estimation._variable_projection import (
+    albedo_from_other_views,
+    projected_residuals,
+)
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
 from ._fit import LEVENBERG_MARQUARDT, named_errors
@@ -251,19 +254,6 @@ def lobe_gain_where_it_shows(model, plain, tracks: "Tracks | TrackSamples") -> t
     return 1 - math.sqrt(fit_ssr / plain_ssr), count
 
 
-# A view is predicted only where the point's other views hold at least this share of the
-# view's own information about its albedo (sum of w a^2 against the view's w a^2, a the
-# diffuse shading): an albedo from views the model calls 3x dimmer or more amplifies their
-# noise, and any error of the model there, as much. Measured on the shared sinus (12
-# frames, 640 px, two reconstructions that differ by a few hundred pixels of mask a frame):
-# with the previous bar (1e-6 of the point's information) 50 of 26k held-out views, lit
-# 0.16 by the fitted light and under 0.002 in their other views, carried 99.7-99.9% of the
-# squared error of three of the four falloff sets (480-1142 levels; the spot's 34.8), and
-# the falloff chosen differed between the reconstructions (spot, inverse square); with
-# this bar both choose inverse square (23.7 and 22.0 levels held-out).
-OTHER_VIEWS_SHARE = 0.1
-
-
 @persistent_jit
 def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     """The residuals (C, M, P; 0 where not judged) and weights (M, P) of the `judged`
@@ -276,12 +266,7 @@ def _predicted_views(model, samples: TrackSamples, judged, per_point: int):
     a = columns[per_point]
     rest = sum(c * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point)
     target = values - rest  # (C, M, P)
-    s_aa = jnp.sum(w * a * a, axis=0)  # (P,)
-    s_ai = jnp.sum(w * a * target, axis=1, keepdims=True)  # (C, 1, P)
-    others = s_aa - w * a * a  # (M, P): the other views' normal equations
-    other_ai = s_ai - w * a * target
-    ok = judged & (w > 0) & (others >= OTHER_VIEWS_SHARE * w * a * a) & (others > 0)
-    albedo = jnp.maximum(other_ai / jnp.where(ok, others, 1), 0)
+    albedo, ok = albedo_from_other_views(a, target, w, judged)
     residual = target - a * albedo
     w = samples.weight
     if tuple(getattr(model, "effects", ())):  # the image's residual (see `_projected`)
