@@ -3,6 +3,7 @@ the pixel (vignetting), applied through `effect.at(site)` everywhere a model pre
 
 import dataclasses
 import functools
+import json
 
 import jax.numpy as jnp
 import numpy as np
@@ -116,6 +117,34 @@ def test_fit_names_the_frames_an_exposure_change_brightens_and_flags_the_lobe(ex
     assert result["status"] == "brightness_off"
     assert any("frame_exposure" in w for w in result["warnings"])
     assert not Status.brightness_off.determined and Status.brightness_off.converged
+
+
+def test_fit_fits_each_frames_exposure_in_the_branch_and_bound(exposed, tmp_path, capsys):
+    """`fit --effects frame_exposure`: a gain per frame alternated with the branch and bound
+    recovers the exposures and the lobe, and its frames then agree in brightness."""
+    from ctjax.cli import main
+
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(exposed.root), "--json", str(out), "--effects", "frame_exposure"]) == 0
+    result = json.loads(out.read_text())
+    truth = exposed.truth["effects"]["frame_exposure"]["effects[0].log_exposure"]
+    np.testing.assert_allclose(result["log_exposure"], truth, atol=0.005)
+    assert result["sigma"] == pytest.approx(exposed.truth["sigma"], rel=0.01)
+    np.testing.assert_allclose(result["F_tilde"], exposed.truth["F_tilde"], rtol=0.02)
+    assert result["status"] == "successful" and result["brightness_off"] == []
+    np.testing.assert_allclose(list(result["frames_brightness"].values()), 1.0, atol=0.005)
+    assert result["rgb_rmse"] < 2.5  # 9.4 levels without the exposure
+    assert "each frame's exposure over the first's 1.00 1.06" in capsys.readouterr().out
+    # Image effects the branch and bound does not fit, and the uniform albedo: refused.
+    status, lines = command_error(
+        ["fit", str(exposed.root), "--json", str(out), "--effects", "vignetting"], capsys
+    )
+    assert status == 2 and "invalid choice" in lines[-1]
+    argv = ["fit", str(exposed.root), "--json", str(out), "--albedo", "uniform"]
+    status, lines = command_error([*argv, "--effects", "frame_exposure"], capsys)
+    assert status == 2 and "with the albedo map" in lines[0]
+    with pytest.raises(CtjaxError, match="calibrate-light"):
+        fit_capture(exposed, effects=("vignetting",))
 
 
 def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(exposed):

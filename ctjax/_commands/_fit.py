@@ -11,6 +11,7 @@ from .._units import in_length_unit
 from ._args import (
     add_diffuse_argument,
     add_mask_arguments,
+    effects_line,
     load_capture,
     mask_options,
     output_file,
@@ -101,6 +102,16 @@ def add_fit_parser(commands) -> None:
         "also the facet lobe at the marginal's width, its F_tilde chosen and judged as "
         "--facets' (each estimator for what it reads consistently)",
     )
+    fit.add_argument(
+        "--effects",
+        nargs="+",
+        default=[],
+        choices=("frame_exposure",),
+        metavar="EFFECT",
+        help="image effects fitted with the BRDF: frame_exposure (a scope's auto-exposure: a "
+        "gain per frame over the first's, with the albedo map; the other image effects: "
+        "calibrate-light --effects)",
+    )
     add_mask_arguments(fit)
     fit.set_defaults(run=run_fit)
 
@@ -157,6 +168,7 @@ def run_fit(args: argparse.Namespace) -> int:
         albedo=args.albedo,
         max_points=args.max_tracks,
         right_views=args.right_views,
+        effects=tuple(args.effects),
     )
     if args.albedo_maps is not None:
         if "albedo" not in estimate.details or estimate.details["albedo"] != "map":
@@ -184,8 +196,9 @@ def run_fit(args: argparse.Namespace) -> int:
         from ..heldout import HeldOutTracks
 
         split = HeldOutTracks.split(observations)
+        # With an exposure fitted: on the views with it undone (`model_facet_blocks`).
         result.update(
-            split.facet_blocks(estimate.model.light, lobe=args.facets, marginal=args.facet_marginal)
+            split.model_facet_blocks(estimate.model, lobe=args.facets, marginal=args.facet_marginal)
         )
     atomic_write_json(args.json, in_length_unit(result, capture.length_unit))
     keys = ("rho_tilde", "F_tilde", "sigma", "rgb_rmse", "albedo", "status", *family.names)
@@ -204,6 +217,8 @@ def run_fit(args: argparse.Namespace) -> int:
         f"Lambertian: rgb_rmse {result['lambertian']['rgb_rmse']:.2f} levels; {samples}; "
         f"wrote {args.json}" + (f" and {args.albedo_maps}/" if args.albedo_maps else "")
     )
+    if effects_line(estimate.model):
+        print(effects_line(estimate.model))
     halves = result.get("halves", {})
     if halves:
         names = [n for n in family.names if n in halves["even_frames"]]

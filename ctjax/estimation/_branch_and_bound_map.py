@@ -459,7 +459,8 @@ def _where_lobes_show(family, params, shading: TrackShading, per_point: int):
     predict at least `LOBE_SHOWS`; and their number. Then, for each observation (M, P),
     the weighted products of its measured and predicted RGB and of the predicted with
     itself, each view predicted with its point's albedo from the point's other views (0
-    where those are too few: `albedo_from_other_views`), for `frame_brightness`."""
+    where those are too few: `albedo_from_other_views`), for `frame_brightness`; and the
+    weighted residuals (C, M, P), for `rgb_rmse_recorded`."""
     columns = track_columns(family, params, shading)
     _, weights, residual = projected_residuals(columns, shading.values, shading.weight, per_point)
     lobes = sum(
@@ -476,7 +477,7 @@ def _where_lobes_show(family, params, shading: TrackShading, per_point: int):
     predicted = a * albedo + lobes
     across = jnp.where(ok, w * jnp.sum(shading.values * predicted, axis=0), 0)
     power = jnp.where(ok, w * jnp.sum(predicted * predicted, axis=0), 0)
-    return ssr(residual), ssr(plain_residual), jnp.sum(shows), across, power
+    return ssr(residual), ssr(plain_residual), jnp.sum(shows), across, power, residual
 
 
 def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[float, int]:
@@ -494,7 +495,7 @@ def lobe_gain_where_it_shows(fit: AlbedoMapFit, shading: TrackShading) -> tuple[
     per_point = fit.family.weight_names.index("rho_tilde")
     if len(fit.family.weight_names) == 1:  # the diffuse lobe alone: no lobe to show
         return 0.0, 0
-    fit_ssr, plain_ssr, count, _, _ = _where_lobes_show(
+    fit_ssr, plain_ssr, count, *_ = _where_lobes_show(
         fit.family, jnp.asarray(fit.params), shading, per_point
     )
     count, fit_ssr, plain_ssr = int(count), float(fit_ssr), float(plain_ssr)
@@ -513,7 +514,9 @@ def frame_brightness(fit: AlbedoMapFit, shading: TrackShading, frame) -> dict[in
     falloff with distance that the model lacks, which the lobe then absorbs. NaN for a
     frame with no predicted view. As `HeldOutTracks.frame_brightness` for the LM fitters."""
     per_point = fit.family.weight_names.index("rho_tilde")
-    *_, across, power = _where_lobes_show(fit.family, jnp.asarray(fit.params), shading, per_point)
+    *_, across, power, _ = _where_lobes_show(
+        fit.family, jnp.asarray(fit.params), shading, per_point
+    )
     across, power, frame = np.asarray(across), np.asarray(power), np.asarray(frame)
     out = {}
     for f in sorted({int(f) for f in np.unique(frame) if f >= 0}):
@@ -521,3 +524,19 @@ def frame_brightness(fit: AlbedoMapFit, shading: TrackShading, frame) -> dict[in
         total = float(np.sum(power[here]))
         out[f] = float(np.sum(across[here])) / total if total > 0 else math.nan
     return out
+
+
+def rgb_rmse_recorded(fit: AlbedoMapFit, shading: TrackShading, gain) -> float:
+    """The RMSE (8-bit levels) of `fit` over every observation of `shading`, whose values
+    are the recorded ones over `gain` (M, P: each view's, a frame's exposure undone), in
+    the recorded values: each residual times its view's gain (`fit.rgb_rmse` is in the
+    values' units)."""
+    per_point = fit.family.weight_names.index("rho_tilde")
+    *_, residual = _where_lobes_show(fit.family, jnp.asarray(fit.params), shading, per_point)
+    weight = np.asarray(shading.weight, float)
+    observed = weight > 0
+    if not observed.any():
+        return math.nan
+    scale = np.asarray(gain, float)[observed] / np.sqrt(weight[observed])
+    recorded = np.asarray(residual, float)[:, observed] * scale
+    return 255 * math.sqrt(float(np.mean(recorded * recorded)))

@@ -57,6 +57,7 @@ def fit_capture(
     albedo: str | None = None,
     max_points: int | None = None,
     right_views: bool = False,
+    effects: tuple[str, ...] = (),
 ) -> Estimate:
     """Estimate the BRDF of a capture: the paper's light (co-located with the camera,
     L = V) and its model (`family`) by default.
@@ -66,6 +67,9 @@ def fit_capture(
     frames (`fit_albedo_map`): the estimate for textured tissue. `albedo="uniform"`: the
     paper's model, one rho_tilde, fitted on the ring S~ of every frame (below).
     `right_views`: with the map, a stereo capture's right images too (`fit_albedo_map`).
+    `effects`: image effects fitted with the BRDF, by name: `"frame_exposure"` (a gain per
+    frame, a scope's auto-exposure), with the map; the others need a light model that
+    takes them (`ctjax.calibration.calibrate_near_light(effects=...)`).
     Either way the estimate carries the highlights' alignment
     (`ctjax.specular.flag_misoriented`): where one rotation of the normals would put the
     highlights at N = H, the lobe is no measurement (`Status.misoriented`).
@@ -76,6 +80,15 @@ def fit_capture(
         raise CtjaxError(f"albedo must be one of {ALBEDO_CHOICES}, got {albedo!r}")
     if right_views and albedo != "map":
         raise CtjaxError("the right views are fitted with the albedo map (--albedo map)")
+    effects = tuple(effects)
+    if any(e != "frame_exposure" for e in effects) or len(effects) > 1:
+        raise CtjaxError(
+            f"effects {list(effects)}: the branch and bound fits frame_exposure only (a gain "
+            "per frame); the other image effects with a near light: `ctjax calibrate-light "
+            "--effects ...`"
+        )
+    if effects and albedo != "map":
+        raise CtjaxError("frame_exposure is fitted with the albedo map (--albedo map)")
     obs = Observations.of(capture, masks)
     if albedo == "map":
         fit = fit_albedo_map(
@@ -85,6 +98,7 @@ def fit_capture(
             tolerance=tolerance,
             max_points=max_points,
             right_views=right_views,
+            frame_exposure=bool(effects),
         )
     else:
         fit = fit_uniform(obs, masks, family, tolerance=tolerance)

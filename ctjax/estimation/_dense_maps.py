@@ -138,6 +138,7 @@ def albedo_maps(
     frames=None,
     among=None,
     dtype=None,
+    effects=(),
 ):
     """The albedo map of every frame (of `frames`, all by default) given the fitted BRDF's
     global lobes and the light: a list of (H, W, 3) float32 maps (rho_tilde per pixel, in
@@ -152,11 +153,21 @@ def albedo_maps(
     below `MIN_COSINE`). A point seen in one frame only gets the albedo of that one
     observation, given the fitted BRDF. `among`: the frames a point is looked for in (all
     by default; e.g. the calibration frames alone, so that held-out frames stay unseen).
+    `effects`: image effects undone on the measured values first (a frame's exposure).
     """
     camera = capture.camera
     maps, views = [], []
     for _, rows, cols, albedo, seen_count, _ in _frames_of(
-        capture, brdf, light, frames, per_point, neighbours, tolerance, dtype, among
+        capture,
+        brdf,
+        light,
+        frames,
+        per_point,
+        neighbours,
+        tolerance,
+        dtype,
+        among,
+        effects=effects,
     ):
         full = np.full((camera.height, camera.width, 3), np.nan, np.float32)
         full[rows, cols] = albedo
@@ -176,6 +187,7 @@ def albedo_samples(
     per_point: int = 0,
     neighbours: int | None = DEFAULT_NEIGHBOURS,
     dtype=None,
+    effects=(),
 ):
     """`albedo_maps` at every frame's pixels with geometry on every `stride`-th row and
     column: per frame, their albedo (N, 3; NaN where not estimated) and view count (N,).
@@ -183,7 +195,16 @@ def albedo_samples(
     return [
         (albedo, seen_count)
         for _, _, _, albedo, seen_count, _ in _frames_of(
-            capture, brdf, light, None, per_point, neighbours, None, dtype, stride=stride
+            capture,
+            brdf,
+            light,
+            None,
+            per_point,
+            neighbours,
+            None,
+            dtype,
+            stride=stride,
+            effects=effects,
         )
     ]
 

@@ -28,6 +28,7 @@ from .._right_views import with_right_views
 from .._status import Status
 from .._threads import started
 from .._tracks import DEFAULT_NEIGHBOURS, require_poses
+from ..effects import FrameExposure
 from ..lights import ColocatedLight, SpotFalloff
 from ..lobes import Lambertian
 from ..observations import Observations
@@ -39,6 +40,7 @@ from ._branch_and_bound_map import (
 )
 from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, diffuse_alone, diffuse_note
 from ._dense_maps import albedo_maps, albedo_samples
+from ._frame_exposure import fit_frame_exposure, in_recorded_levels, undo_gains
 from ._sensitivity import specular_change
 from ._uniform_fit import (
     BROAD_LOBE,
@@ -91,10 +93,15 @@ class _AlbedoMaps(collections.abc.Mapping):
     """`Estimate.arrays` of the map fit: "albedo/NAME" is frame NAME's albedo map (H, W, 3),
     every frame's estimated at the first read (`albedo_maps`)."""
 
-    def __init__(self, capture, brdf, per_point: int, neighbours):
+    def __init__(self, capture, brdf, per_point: int, neighbours, effects=()):
         self._keys = [f"albedo/{f.name}" for f in capture.frames]
         self._compute = functools.partial(
-            albedo_maps, capture, brdf, per_point=per_point, neighbours=neighbours
+            albedo_maps,
+            capture,
+            brdf,
+            per_point=per_point,
+            neighbours=neighbours,
+            effects=effects,
         )
         self._maps = None
 
@@ -226,6 +233,7 @@ def fit_albedo_map(
     max_points: int | None = None,
     neighbours: int | None = DEFAULT_NEIGHBOURS,
     right_views: bool = False,
+    frame_exposure: bool = False,
 ) -> Estimate:
     """The BRDF with an albedo map (see the module doc), under the paper's light (L = V).
 
@@ -241,6 +249,9 @@ def fit_albedo_map(
     `right_views`: a stereo capture's right images too (`ctjax._right_views`): each
     tracked point also seen from the right camera at the same instants, V moved and L kept
     (the left frames alone never separate them: the light moves with the camera).
+    `frame_exposure`: a gain per frame too (a scope's auto-exposure, `FrameExposure` in the
+    model; `_frame_exposure.py`): the Lambertian fit, the halves and the checks see the
+    views with the gains undone.
     """
     masks = MaskOptions() if masks is None else masks
     obs = Observations.of(capture, masks)
@@ -260,11 +271,21 @@ def fit_albedo_map(
     # Padded here to the fitters' bucket size (`ctjax._buckets`), once for every fit below.
     padded_tracks = tracks.padded(bucket(len(tracks)))
     shading = track_shading(padded_tracks)
+    frame = _left_frames(padded_tracks, right)
+    undo, effects = (lambda s: s), ()
     # The search on every track, not only those anchored near the highlights: with exact
     # geometry the others change nothing (same sigma and F_tilde on 6 captures), but with
     # SfM's (the demo's capture) sigma went from +4.1% to +5.8% without them.
     try:
-        fit = fit_brdf_map(shading, family, tolerance=tolerance)
+        if frame_exposure:
+            fit, shading, log_exposure, rounds = fit_frame_exposure(
+                shading, frame, len(capture), family, tolerance
+            )
+            gain = np.exp(np.concatenate([[0.0], log_exposure]))
+            undo = functools.partial(undo_gains, frame=frame, gain=gain)
+            effects = (FrameExposure(log_exposure.astype(np.asarray(fit.params).dtype)),)
+        else:
+            fit = fit_brdf_map(shading, family, tolerance=tolerance)
     except CtjaxError as error:
         apart = _apart(tracks, capture)
         raise CtjaxError(f"{obs.root}: {error}{apart}{obs.clipped_note()}") from None
@@ -278,6 +299,10 @@ def fit_albedo_map(
         if family.diffuse is Lambertian
         else fit_brdf_map(shading, diffuse_alone(family), tolerance=tolerance)
     )
+    if effects:  # their RMSEs in the recorded levels, as the fit's
+        same = plain is lambertian
+        lambertian = in_recorded_levels(lambertian, shading, frame, gain)
+        plain = lambertian if same else in_recorded_levels(plain, shading, frame, gain)
     for result in (fit, lambertian, plain):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
@@ -285,7 +310,12 @@ def fit_albedo_map(
             raise CtjaxError("the BRDF fit with an albedo map did not produce finite estimates")
     stride = summary_stride(capture.camera)
     samples = albedo_samples(
-        capture, fit.brdf, stride=stride, per_point=per_point, neighbours=neighbours
+        capture,
+        fit.brdf,
+        stride=stride,
+        per_point=per_point,
+        neighbours=neighbours,
+        effects=effects,
     )
     median, coverage, median_views = _summary(capture, samples)
     weights = np.asarray(fit.weights).copy()
@@ -335,9 +365,11 @@ def fit_albedo_map(
         **clipping_to_json(capture),
     }
     warnings = _warnings(capture, fit, per_point, len(tracks), coverage, details["normals"])
-    arrays = _AlbedoMaps(capture, fit.brdf, per_point, neighbours)
+    arrays = _AlbedoMaps(capture, fit.brdf, per_point, neighbours, effects)
+    if effects:
+        details["frame_exposure_rounds"] = rounds
     estimate = Estimate(
-        ShadingModel(brdf, ColocatedLight()),
+        ShadingModel(brdf, ColocatedLight(), effects),
         {"calibration": float(fit.rgb_rmse)},
         warnings=warnings,
         details=details,
@@ -362,8 +394,19 @@ def fit_albedo_map(
     gain, shows = lobe_gain_where_it_shows(fit, shading)
     estimate.details["lobe_gain"], estimate.details["lobe_shows_observations"] = gain, shows
     estimate = flag_brdf_fit(estimate, fit, per_point, plain, halves, gain)
-    _check_frames_brightness(estimate, fit, shading, padded_tracks, right, capture, tolerance)
-    return _checked_against_the_lights_cone(estimate, fit, padded_tracks, tolerance)
+    _check_frames_brightness(estimate, fit, shading, frame, capture, tolerance)
+    return _checked_against_the_lights_cone(estimate, fit, padded_tracks, tolerance, undo)
+
+
+def _left_frames(tracks, right) -> np.ndarray:
+    """The frame of each of the (padded) tracks' views, (M, P) as their shading; -1 for
+    none and for the right camera's views (the same instants, another sensor)."""
+    frame = np.array(tracks.frame).T
+    if right is not None:
+        seen = np.zeros(frame.shape, bool)
+        seen[: right.shape[1], : right.shape[0]] = right.T
+        frame[seen] = -1
+    return frame
 
 
 # Undoing the frames' brightness moving a roughness or a lobe's F_tilde by more than this
@@ -371,9 +414,7 @@ def fit_albedo_map(
 BRIGHTNESS_MOVES_LOBE = 0.1
 
 
-def _check_frames_brightness(
-    estimate: Estimate, fit, shading, tracks, right, capture, tolerance
-) -> None:
+def _check_frames_brightness(estimate: Estimate, fit, shading, frame, capture, tolerance) -> None:
     """Each frame's brightness against what the other frames predict under the fit
     (`frame_brightness`; the left views only) in `details`. Where frames are off by more
     than `BRIGHTNESS_OFF_LOG`, the fit again with each frame's brightness undone
@@ -386,11 +427,6 @@ def _check_frames_brightness(
     off, and with their brightness undone sigma 0.196 and F_tilde 0.33-0.34 (RMSE 14.75 ->
     2.97 levels). On SCARED 61-84 (24 frames, da Vinci) two frames 12% darker; undone,
     sigma 0.247 -> 0.255 and F_tilde within 2%: not absorbed by the lobe."""
-    frame = np.array(tracks.frame).T  # (M, P) as the shading
-    if right is not None:  # the right camera's views: the same instants, another sensor
-        seen = np.zeros(frame.shape, bool)
-        seen[: right.shape[1], : right.shape[0]] = right.T
-        frame[seen] = -1
     names = [f.name for f in capture.frames]
     brightness = frame_brightness(fit, shading, frame)
     off = {
@@ -405,9 +441,10 @@ def _check_frames_brightness(
     if not off or not fit.family.names:
         return
     per_point = fit.family.weight_names.index("rho_tilde")
-    undone = fit_brdf_map(
-        _with_frames_brightness_undone(shading, frame, brightness), fit.family, tolerance=tolerance
-    )
+    gain = np.ones(len(names))
+    for f, g in brightness.items():
+        gain[f] = g if g > 0 and math.isfinite(g) else 1.0
+    undone = fit_brdf_map(undo_gains(shading, frame, gain), fit.family, tolerance=tolerance)
     estimate.details["brightness_undone"] = fit_to_json(undone, per_point)
     moved = _lobe_moved(fit, undone, per_point)
     listed = ", ".join(f"{n} {g:.2f}x" for n, g in sorted(off.items())[:6])
@@ -422,9 +459,9 @@ def _check_frames_brightness(
         return
     reason = (
         f"{found}: an exposure change between frames (a scope's auto-exposure) or a falloff "
-        "with distance that the paper's model lacks, which the lobe absorbs; `ctjax "
-        "calibrate-light --effects frame_exposure` and `ctjax evaluate --effects "
-        "frame_exposure` fit each frame's exposure with a near light"
+        "with distance that the paper's model lacks, which the lobe absorbs; `ctjax fit "
+        "--effects frame_exposure` fits a gain per frame (`calibrate-light` and `evaluate` "
+        "take it too, with a near light and its falloff)"
     )
     add_undetermined(estimate, Undetermined(fit.family.names[0], Status.brightness_off, reason))
 
@@ -450,28 +487,13 @@ def _lobe_text(fit, per_point: int) -> str:
     )
 
 
-def _with_frames_brightness_undone(shading, frame, brightness: dict):
-    """`shading` with each frame's values over its brightness (`frame_brightness`) and
-    their weights times its square (the noise scaled alike)."""
-    gain = np.ones(frame.shape)
-    for f, g in brightness.items():
-        if g > 0 and math.isfinite(g):
-            gain[frame == f] = g
-    values = np.asarray(shading.values) / gain[None]
-    weight = np.asarray(shading.weight) * gain**2
-    dtype = shading.weight.dtype
-    return eqx.tree_at(
-        lambda s: (s.values, s.weight),
-        shading,
-        (on_device(values, dtype), on_device(weight, dtype)),
-    )
-
-
 # The spot falloffs a broad lobe is checked against (cos^k about the optical axis).
 SPOT_EXPONENTS = (1.0, 2.0, 4.0, 8.0, 16.0)
 
 
-def _checked_against_the_lights_cone(estimate: Estimate, fit, tracks, tolerance) -> Estimate:
+def _checked_against_the_lights_cone(
+    estimate: Estimate, fit, tracks, tolerance, undo=lambda shading: shading
+) -> Estimate:
     """A determined lobe of sigma >= `BROAD_LOBE`, fitted again under the paper's light with
     a spot falloff (cos^k about the optical axis, the k of `SPOT_EXPONENTS` that fits best):
     with the light at the lens the two are alike where the tissue faces the scope. Where
@@ -480,7 +502,8 @@ def _checked_against_the_lights_cone(estimate: Estimate, fit, tracks, tolerance)
 
     Measured on the real cholecystectomy video (one normal per point): sigma 0.391, F_tilde
     [0.085, 0.026, 0.029] passed every other check (gain 1.1% where it shows); the near
-    light's fit (`calibrate-light`, spot falloff) put its gain at 0.04%."""
+    light's fit (`calibrate-light`, spot falloff) put its gain at 0.04%. `undo`: the fitted
+    frames' gains undone on each shading (`undo_gains`)."""
     names = fit.family.names
     broad = any(
         n.startswith("sigma") and float(np.asarray(fit.params)[d]) >= BROAD_LOBE
@@ -491,7 +514,7 @@ def _checked_against_the_lights_cone(estimate: Estimate, fit, tracks, tolerance)
     fits = []
     for exponent in SPOT_EXPONENTS:
         light = ColocatedLight(falloff=(SpotFalloff(exponent),))
-        shading = track_shading(tracks, light)
+        shading = undo(track_shading(tracks, light))
         fits.append((fit_brdf_map(shading, fit.family, tolerance=tolerance), shading, exponent))
     spotted, shading, exponent = min(fits, key=lambda f: float(f[0].cost))
     gain, shows = lobe_gain_where_it_shows(spotted, shading)
