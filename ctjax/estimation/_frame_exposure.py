@@ -9,7 +9,9 @@ frame's gain from its brightness against what the other frames predict under tha
 until no frame's brightness moves by more than `EXPOSURE_TOLERANCE` (in log).
 
 On `ctjax synth --exposure 0.1` (128x96 x 5) the first step alone took F_tilde from
-0.19-0.25 to 0.31-0.32 (truth 0.3); the rounds after it bring the gains to the truth.
+0.19-0.25 to 0.31-0.32 (truth 0.3); five fits in all brought the exposures within 0.001 of
+the truth (log), sigma to 0.19996 and F_tilde to 0.298-0.299. On SCARED 61-84 (24 frames of
+a da Vinci, 640 px) 11 fits, the gains 0.82-1.05.
 """
 
 import math
