@@ -15,6 +15,8 @@ rho_tilde, the held-out RMSE and noise floor of the light, the light offset, the
 - A capture that fails is reported (its row says why) and the others go on.
 - Rerunning skips the captures whose `done.json` is there: delete it, or the folder, to
   run one again.
+- `effects`: image effects (`--effects`, by name) given to the steps that take them:
+  `fit` (frame_exposure only), `calibrate-light` and `evaluate`.
 """
 
 import contextlib
@@ -33,6 +35,9 @@ from ._errors import CtjaxError
 from .io._atomic import atomic_write_bytes, atomic_write_json
 
 STEPS = ("reconstruct", "fit", "calibrate-light", "diagnose", "evaluate")
+# The steps that fit image effects (`--effects`), and those `fit` takes.
+EFFECT_STEPS = ("fit", "calibrate-light", "evaluate")
+FIT_EFFECTS = ("frame_exposure",)
 DEFAULT_STEPS = ("fit", "calibrate-light", "diagnose")
 COLUMNS = (
     "capture",
@@ -60,6 +65,7 @@ class CaptureJob:
     capture: Path
     out: Path
     steps: tuple[str, ...]
+    effects: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -70,11 +76,12 @@ class CaptureJob:
         return self.out / self.name
 
 
-def _step_argv(step: str, capture: Path, folder: Path) -> list[str]:
+def _step_argv(step: str, capture: Path, folder: Path, effects: tuple[str, ...] = ()) -> list[str]:
     json_path = str(folder / f"{step}.json")
     if step == "reconstruct":
         return [step, str(capture), "--out", str(folder / "capture"), "--json", json_path]
-    return [step, str(capture), "--json", json_path]
+    extra = ["--effects", *effects] if effects and step in EFFECT_STEPS else []
+    return [step, str(capture), "--json", json_path, *extra]
 
 
 def _run_step(argv: list[str]) -> int:
@@ -96,7 +103,7 @@ def run_job(job: CaptureJob) -> dict:
         stderr = io.StringIO()
         try:
             with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
-                status = _run_step(_step_argv(step, capture, job.folder))
+                status = _run_step(_step_argv(step, capture, job.folder, job.effects))
         except Exception as failure:  # one capture must not stop the batch
             status, error = 1, f"{step}: {type(failure).__name__}: {failure}".splitlines()[0]
         if status != 0:
@@ -176,10 +183,11 @@ def run_batch(
     workers: int = 2,
     scheduler: str | None = None,
     progress: Callable[[str], None] = lambda message: None,
+    effects: Sequence[str] = (),
 ) -> list[dict]:
     """Run `steps` on every capture (see the module doc); returns the summary rows, in the
     order of `captures`, and writes `out/summary.csv` and `out/summary.html`."""
-    jobs, rows = _jobs(captures, Path(out), tuple(steps)), {}
+    jobs, rows = _jobs(captures, Path(out), tuple(steps), tuple(effects)), {}
     if workers != 0 or scheduler is not None:
         _require_dask()  # before any work, not when the first capture is submitted
     todo = [job for job in jobs if not (job.folder / "done.json").is_file()]
@@ -195,7 +203,8 @@ def run_batch(
     return ordered
 
 
-def _jobs(captures, out: Path, steps) -> list[CaptureJob]:
+def _jobs(captures, out: Path, steps, effects=()) -> list[CaptureJob]:
+    _check_effects(steps, effects)
     unknown = [s for s in steps if s not in STEPS]
     if unknown:
         raise CtjaxError(f"unknown step(s) {', '.join(unknown)}; the steps are {', '.join(STEPS)}")
@@ -206,7 +215,7 @@ def _jobs(captures, out: Path, steps) -> list[CaptureJob]:
     missing = [str(c) for c in captures if not Path(c).is_dir()]
     if missing:  # before any work, not as a failed row after the others ran
         raise CtjaxError(f"not a capture folder: {', '.join(missing)}")
-    jobs = [CaptureJob(Path(c).resolve(), out.resolve(), steps) for c in captures]
+    jobs = [CaptureJob(Path(c).resolve(), out.resolve(), steps, effects) for c in captures]
     names = [job.name for job in jobs]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
@@ -215,6 +224,25 @@ def _jobs(captures, out: Path, steps) -> list[CaptureJob]:
             "folder: rename them"
         )
     return jobs
+
+
+def _check_effects(steps, effects) -> None:
+    """The effects' names, before any work (not as the same failure in every row)."""
+    from .effects import image_effect_names
+
+    names = image_effect_names()
+    unknown = [e for e in effects if e not in names]
+    if unknown:
+        raise CtjaxError(
+            f"effects {', '.join(unknown)}: not image effects; they are {', '.join(names)}"
+        )
+    if "fit" in steps and any(e not in FIT_EFFECTS for e in effects):
+        raise CtjaxError(
+            f"--effects {' '.join(effects)} with the fit step: fit takes {', '.join(FIT_EFFECTS)} "
+            "only (calibrate-light and evaluate take every image effect)"
+        )
+    if effects and not any(s in EFFECT_STEPS for s in steps):
+        raise CtjaxError(f"--effects is for the steps {', '.join(EFFECT_STEPS)}")
 
 
 def _run(jobs: list[CaptureJob], workers: int, scheduler: str | None, progress):

@@ -50,6 +50,14 @@ def test_a_failed_capture_is_reported_and_the_others_kept(captures, tmp_path, ca
     assert len(messages) == 2 and "broken failed" in messages[1]
 
 
+def test_the_effects_reach_the_steps_that_fit_them(captures, tmp_path):
+    good, _ = captures
+    rows = run_batch([good], tmp_path / "out", ["fit"], workers=0, effects=["frame_exposure"])
+    assert rows[0]["status"] == "ok", rows[0]["error"]
+    fit = json.loads((tmp_path / "out" / "good" / "fit.json").read_text())
+    assert len(fit["log_exposure"]) == 1 and abs(fit["log_exposure"][0]) < 0.01  # none here
+
+
 def test_captures_run_on_dask_workers(captures, tmp_path):
     good, _ = captures
     rows = run_batch([good], tmp_path / "out", ["fit"], workers=1)
@@ -64,6 +72,9 @@ def test_captures_run_on_dask_workers(captures, tmp_path):
         (["--steps", " , "], "no step given"),
         (["--steps", "fit", "--scheduler", "notanaddress"], "Dask scheduler at notanaddress"),
         (["{missing}", "--steps", "fit"], "not a capture folder: {missing}"),
+        (["--steps", "fit", "--effects", "vignetting"], "fit takes frame_exposure only"),
+        (["--effects", "glare"], "glare: not image effects"),
+        (["--steps", "diagnose", "--effects", "frame_exposure"], "--effects is for the steps"),
     ],
 )
 def test_bad_batch_options_are_one_line(captures, tmp_path, capsys, extra, message):

@@ -40,6 +40,14 @@ def add_batch_parser(commands) -> None:
     batch.add_argument(
         "--scheduler", help="address of an existing Dask scheduler (e.g. tcp://host:8786)"
     )
+    batch.add_argument(
+        "--effects",
+        nargs="+",
+        default=[],
+        metavar="EFFECT",
+        help="image effects for the steps that fit them: fit (frame_exposure only), "
+        "calibrate-light and evaluate (e.g. frame_exposure: a scope's auto-exposure)",
+    )
     batch.set_defaults(run=run_batch)
 
 
@@ -56,6 +64,7 @@ def run_batch(args: argparse.Namespace) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         progress=lambda m: print(f"[ctjax batch] {m}", flush=True),
+        effects=tuple(args.effects),
     )
     failed = [row["capture"] for row in rows if row["status"] != "ok"]
     print(
