@@ -13,6 +13,7 @@ import pytest
 
 from ctjax import CtjaxError, Vec3, shade
 from ctjax.cli import main
+from ctjax.estimation import fit_capture
 from ctjax.evaluation import evaluate
 from ctjax.heldout import RightViews
 from ctjax.io import load_capture
@@ -246,3 +247,18 @@ def test_a_right_views_excluded_pixels_are_not_observed(stereo, tmp_path):
     assert 0.2 < lost.sum() / right.sum() < 0.8
     kept = right & masked.observed
     np.testing.assert_array_equal(plain.values[kept], masked.values[kept])
+
+
+def test_the_right_views_take_their_instants_exposure(tmp_path):
+    """`fit --right-views --effects frame_exposure`: one gain per instant, for both cameras'
+    views (the synthetic stereo scope's right images share the left's exposure)."""
+    options = SynthOptions(
+        width=128, height=96, frames=4, seed=3, stereo_mm=5.0, effects={"frame_exposure": 0.1}
+    )
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    fit = fit_capture(capture, right_views=True, effects=("frame_exposure",)).to_json()
+    truth = capture.truth["effects"]["frame_exposure"]["effects[0].log_exposure"]
+    assert fit["n_right_views"] > 1000
+    np.testing.assert_allclose(fit["log_exposure"], truth, atol=0.01)
+    assert fit["sigma"] == pytest.approx(options.sigma, rel=0.03)
+    np.testing.assert_allclose(fit["F_tilde"], options.F_tilde, rtol=0.05)

@@ -53,16 +53,24 @@ def undo_gains(shading: TrackShading, frame: np.ndarray, gain: np.ndarray) -> Tr
 
 
 def fit_frame_exposure(
-    shading: TrackShading, frame: np.ndarray, frames: int, family: BRDFFamily, tolerance: float
+    shading: TrackShading,
+    frame: np.ndarray,
+    frames: int,
+    family: BRDFFamily,
+    tolerance: float,
+    instant: np.ndarray | None = None,
 ) -> tuple[AlbedoMapFit, TrackShading, np.ndarray, int]:
     """The BRDF with an albedo map and a gain per frame (see the module doc). `frame`: the
-    frame of each view (M, P; -1: no gain), `frames` their number. Returns the fit, the
-    shading with the gains undone, the gains' logs over the first frame's (frames - 1,)
-    and the number of fits."""
+    frame of each view (M, P; -1: not counted in a frame's brightness), `frames` their
+    number; `instant`: the frame whose gain each view takes (default `frame`; a stereo
+    capture's right views take their instant's, as one exposure for both cameras).
+    Returns the fit, the shading with the gains undone, the gains' logs over the first
+    frame's (frames - 1,) and the number of fits."""
+    instant = frame if instant is None else instant
     gain, rounds = np.ones(frames), 0
     while rounds < EXPOSURE_ROUNDS:
         rounds += 1
-        undone = undo_gains(shading, frame, gain)
+        undone = undo_gains(shading, instant, gain)
         fit = fit_brdf_map(undone, family, tolerance=tolerance)
         brightness = frame_brightness(fit, undone, frame)
         step = np.ones(frames)
@@ -77,7 +85,7 @@ def fit_frame_exposure(
         if np.max(np.abs(np.log(step / step[0]))) <= EXPOSURE_TOLERANCE:
             break
         gain = gain * step / step[0]
-    return in_recorded_levels(fit, undone, frame, gain), undone, np.log(gain[1:]), rounds
+    return in_recorded_levels(fit, undone, instant, gain), undone, np.log(gain[1:]), rounds
 
 
 def in_recorded_levels(

@@ -272,6 +272,7 @@ def fit_albedo_map(
     padded_tracks = tracks.padded(bucket(len(tracks)))
     shading = track_shading(padded_tracks)
     frame = _left_frames(padded_tracks, right)
+    instant = np.array(padded_tracks.frame).T  # a right view's gain: its instant's
     undo, effects = (lambda s: s), ()
     # The search on every track, not only those anchored near the highlights: with exact
     # geometry the others change nothing (same sigma and F_tilde on 6 captures), but with
@@ -279,10 +280,10 @@ def fit_albedo_map(
     try:
         if frame_exposure:
             fit, shading, log_exposure, rounds = fit_frame_exposure(
-                shading, frame, len(capture), family, tolerance
+                shading, frame, len(capture), family, tolerance, instant
             )
             gain = np.exp(np.concatenate([[0.0], log_exposure]))
-            undo = functools.partial(undo_gains, frame=frame, gain=gain)
+            undo = functools.partial(undo_gains, frame=instant, gain=gain)
             effects = (FrameExposure(log_exposure.astype(np.asarray(fit.params).dtype)),)
         else:
             fit = fit_brdf_map(shading, family, tolerance=tolerance)
@@ -301,8 +302,8 @@ def fit_albedo_map(
     )
     if effects:  # their RMSEs in the recorded levels, as the fit's
         same = plain is lambertian
-        lambertian = in_recorded_levels(lambertian, shading, frame, gain)
-        plain = lambertian if same else in_recorded_levels(plain, shading, frame, gain)
+        lambertian = in_recorded_levels(lambertian, shading, instant, gain)
+        plain = lambertian if same else in_recorded_levels(plain, shading, instant, gain)
     for result in (fit, lambertian, plain):
         if not np.all(np.isfinite(np.asarray(result.weights))) or not np.isfinite(
             float(result.cost)
@@ -394,7 +395,7 @@ def fit_albedo_map(
     gain, shows = lobe_gain_where_it_shows(fit, shading)
     estimate.details["lobe_gain"], estimate.details["lobe_shows_observations"] = gain, shows
     estimate = flag_brdf_fit(estimate, fit, per_point, plain, halves, gain)
-    _check_frames_brightness(estimate, fit, shading, frame, capture, tolerance)
+    _check_frames_brightness(estimate, fit, shading, frame, instant, capture, tolerance)
     return _checked_against_the_lights_cone(estimate, fit, padded_tracks, tolerance, undo)
 
 
@@ -414,7 +415,9 @@ def _left_frames(tracks, right) -> np.ndarray:
 BRIGHTNESS_MOVES_LOBE = 0.1
 
 
-def _check_frames_brightness(estimate: Estimate, fit, shading, frame, capture, tolerance) -> None:
+def _check_frames_brightness(
+    estimate: Estimate, fit, shading, frame, instant, capture, tolerance
+) -> None:
     """Each frame's brightness against what the other frames predict under the fit
     (`frame_brightness`; the left views only) in `details`. Where frames are off by more
     than `BRIGHTNESS_OFF_LOG`, the fit again with each frame's brightness undone
@@ -444,7 +447,7 @@ def _check_frames_brightness(estimate: Estimate, fit, shading, frame, capture, t
     gain = np.ones(len(names))
     for f, g in brightness.items():
         gain[f] = g if g > 0 and math.isfinite(g) else 1.0
-    undone = fit_brdf_map(undo_gains(shading, frame, gain), fit.family, tolerance=tolerance)
+    undone = fit_brdf_map(undo_gains(shading, instant, gain), fit.family, tolerance=tolerance)
     estimate.details["brightness_undone"] = fit_to_json(undone, per_point)
     moved = _lobe_moved(fit, undone, per_point)
     listed = ", ".join(f"{n} {g:.2f}x" for n, g in sorted(off.items())[:6])
