@@ -25,6 +25,28 @@ NOT_PREDICTED_FACTOR = 1.5
 BRIGHTNESS_OFF_LOG = 0.1
 
 
+def frame_gains(model, samples, judged=None) -> dict[int, float]:
+    """Each frame's measured over predicted brightness under `model`, by frame index: the
+    gain g minimising sum w |measured - g predicted|^2 over the frame's `judged` views of
+    `samples` (a `TrackSamples`; all observed by default), each view predicted from its
+    point's albedo in its other views (`heldout_map_residuals`); NaN for a frame none of
+    whose views is predicted."""
+    from .fitting._map_least_squares import heldout_map_residuals
+
+    residual, weight = heldout_map_residuals(model, samples, judged)
+    measured = 255 * np.asarray(samples.values, float)
+    predicted = measured - residual
+    frame = np.asarray(samples.site.frame)
+    across = np.sum(measured * predicted, axis=0) * weight
+    power = np.sum(predicted * predicted, axis=0) * weight
+    out = {}
+    for f in sorted({int(f) for f in np.unique(frame) if f >= 0}):
+        here = (frame == f) & (weight > 0)
+        total = float(np.sum(power[here]))
+        out[f] = float(np.sum(across[here])) / total if total > 0 else math.nan
+    return out
+
+
 def frames_not_predicted(
     frame_rmse: dict[int, float], calibration: Sequence[int], factor: float = NOT_PREDICTED_FACTOR
 ) -> tuple[list[int], float]:

@@ -18,6 +18,7 @@ from ._errors import CtjaxError
 from ._frame_consistency import BRIGHTNESS_OFF_LOG as BRIGHTNESS_OFF_LOG
 from ._frame_consistency import NOT_PREDICTED_FACTOR as NOT_PREDICTED_FACTOR
 from ._frame_consistency import frame_consistency as frame_consistency
+from ._frame_consistency import frame_gains
 from ._frame_consistency import frames_not_predicted as frames_not_predicted
 from ._noise_floor import noise_floor_levels as noise_floor_levels
 from ._noise_floor import noise_floor_map_levels as noise_floor_map_levels
@@ -371,20 +372,12 @@ class HeldOutTracks:
         accounts for it; a spread across frames is an exposure change it lacks (a scope's
         auto-exposure, `FrameExposure`)."""
         out = {}
-        for samples, judged, tested in (
-            (self.train, None, model),
-            (self.test, self.judged, self.with_heldout_frames(model)),
+        for samples, judged, tested, frames in (
+            (self.train, None, model, self.calibration),
+            (self.test, self.judged, self.with_heldout_frames(model), self.heldout),
         ):
-            residual, weight = heldout_map_residuals(tested, samples, judged)
-            measured = 255 * np.asarray(samples.values, float)
-            predicted = measured - residual
-            frame = np.asarray(samples.site.frame)
-            across = np.sum(measured * predicted, axis=0) * weight
-            power = np.sum(predicted * predicted, axis=0) * weight
-            for f in self.calibration if judged is None else self.heldout:
-                here = (frame == f) & (weight > 0)
-                total = float(np.sum(power[here]))
-                out[f] = float(np.sum(across[here])) / total if total > 0 else math.nan
+            gains = frame_gains(tested, samples, judged)
+            out |= {f: gains.get(f, math.nan) for f in frames}
         return out
 
     def heldout_errors(self, model) -> SampleErrors:

@@ -232,6 +232,18 @@ def test_evaluate_fits_the_exposure_in_both_models_and_judges_the_facets_in_radi
         evaluate(exposed, cook_torrance=fit_colocated, sfs=False, effects=("frame_exposure",))
 
 
+def test_the_near_lights_lobe_that_absorbs_the_exposure_is_flagged(exposed):
+    """`calibrate_near_light` without the exposure: the frames' brightness names it, and
+    the model refitted with it undone moves its lobe towards the truth: no measurement.
+    (The exposure also drew the light ~18 mm off the lens here: F_tilde 0.04-0.05.)"""
+    fit = calibrate_near_light(exposed, calibration=3, falloff=[()], max_samples=3000)
+    assert fit.status.name == "brightness_off" and fit.details["brightness_off"]
+    undone, f_tilde = fit.details["brightness_undone"], np.asarray(exposed.truth["F_tilde"])
+    error = lambda f: np.max(np.abs(np.asarray(f) / f_tilde - 1))  # noqa: E731
+    assert error(undone["F_tilde"]) < 0.5 * error(fit.to_json()["F_tilde"])
+    assert undone["sigma"] == pytest.approx(exposed.truth["sigma"], rel=0.05)
+
+
 def test_the_commands_take_image_effects_by_name(exposed, tmp_path, capsys):
     """`--effects` reaches `evaluate` and `calibrate_near_light` (a name that is not an image
     effect is refused there, before any fit) and is refused where no estimator takes it."""

@@ -44,6 +44,7 @@ from ..lobes import BRDF, Lambertian
 from ..observations import Observations
 from ..solvers import Solver
 from ..specular import flag_misoriented
+from ._frames_brightness import check_frames_brightness
 from ._near_light_models import (
     OFFSET_AXES,
     at_the_lens,
@@ -457,7 +458,19 @@ def near_light_map(
     # The bound by the light's own parameter (in the lens plane: x and y).
     name = paper_names(result.model).get(position_name(result.model), "offset_mm")
     bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
-    return flag_model(result, None if detected else {name: bound}, lobe_gain=gain)
+    result = flag_model(result, None if detected else {name: bound}, lobe_gain=gain)
+    if np.isfinite(every.cost):
+        say("each frame's brightness against the other frames'")
+        check_frames_brightness(
+            result,
+            result.model,
+            tracks,
+            lambda undone: fit(
+                [result.model], undone, freeze=() if detected else (position_name(result.model),)
+            ),
+            [frame.name for frame in capture.capture.frames],
+        )
+    return result
 
 
 def _lobe_gain(result, every, tracks) -> float | None:
