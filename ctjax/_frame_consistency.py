@@ -4,11 +4,13 @@ brightness against what the other frames predict (`HeldOutTracks.frame_rmse` and
 what `ctjax evaluate` prints beside its RMSEs (`frames_rmse` in its JSON)."""
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ._determined import Undetermined, add_undetermined
 from ._result import finite_or_none
+from ._status import Status
 
 # A calibration frame whose views its neighbours predict this many times worse than the
 # calibration frames' median is one the others do not predict (`frames_not_predicted`):
@@ -45,6 +47,83 @@ def frame_gains(model, samples, judged=None) -> dict[int, float]:
         total = float(np.sum(power[here]))
         out[f] = float(np.sum(across[here])) / total if total > 0 else math.nan
     return out
+
+
+# Undoing the frames' brightness moving a roughness or a lobe's F_tilde (its channels' sum)
+# by more than this (relative) flags the lobe (`judge_frames_brightness`).
+BRIGHTNESS_MOVES_LOBE = 0.1
+
+
+def lobe_moved(before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> float:
+    """The largest relative change from `before` to `after` of a lobe's values by name (a
+    roughness; a weight's channels' sum, an F_tilde's against at least 0.01)."""
+    return max(
+        abs(float(np.sum(after[k])) - float(np.sum(before[k])))
+        / max(abs(float(np.sum(before[k]))), 0.01 if k.startswith("F") else 1e-12)
+        for k in before
+    )
+
+
+def _lobe_text(lobe: dict[str, np.ndarray]) -> str:
+    return ", ".join(f"{k} {np.round(np.asarray(v, float), 3).tolist()}" for k, v in lobe.items())
+
+
+def judge_frames_brightness(
+    result,
+    brightness: dict[int, float],
+    names: Sequence[str],
+    lobe: dict[str, np.ndarray],
+    refit: "Callable[[np.ndarray], tuple[dict, dict] | None] | None",
+    *,
+    remedy: str,
+    parameter: str = "sigma",
+    under: str = "this fit",
+) -> None:
+    """Whether a lobe absorbed a change of brightness between frames: `brightness` (each
+    frame's measured over predicted, by frame index) in `result.details` by frame name
+    (`frames_brightness`) with the frames off by more than `BRIGHTNESS_OFF_LOG`
+    (`brightness_off`). Where frames are off, `refit(gain)` (a gain per frame, 1 for a frame
+    not measured) fits again with each frame's brightness undone and returns the lobe's
+    values by name and what to record (`brightness_undone`), or None (not refitted: the
+    model fits the gains itself, or the refit failed). A lobe (`lobe`: its values here)
+    that moves by more than `BRIGHTNESS_MOVES_LOBE` is no measurement: `parameter` gets
+    `Status.brightness_off`, with `remedy` in its reason; else a warning only. The paper's
+    model and the near light's lack a scope's auto-exposure (`ctjax fit`, `ctjax
+    calibrate-light`)."""
+    off = {
+        names[f]: g
+        for f, g in brightness.items()
+        if g > 0 and abs(math.log(g)) > BRIGHTNESS_OFF_LOG
+    }
+    result.details["frames_brightness"] = {
+        names[f]: finite_or_none(g) for f, g in brightness.items()
+    }
+    result.details["brightness_off"] = sorted(off)
+    if not off or refit is None:
+        return
+    gain = np.ones(len(names))
+    for f, g in brightness.items():
+        gain[f] = g if g > 0 and math.isfinite(g) else 1.0
+    undone = refit(gain)
+    if undone is None:
+        return
+    after, record = undone
+    result.details["brightness_undone"] = record
+    listed = ", ".join(f"{n} {g:.2f}x" for n, g in sorted(off.items())[:6])
+    found = (
+        f"{len(off)} of {len(brightness)} frames are brighter or darker than the other frames "
+        f"predict under {under} by more than a factor of {math.exp(BRIGHTNESS_OFF_LOG):.2f} "
+        f"({listed}{', ...' if len(off) > 6 else ''}); with each frame's brightness undone "
+        f"the lobe is {_lobe_text(after)} (here {_lobe_text(lobe)})"
+    )
+    if lobe_moved(lobe, after) <= BRIGHTNESS_MOVES_LOBE:
+        result.warnings.append(f"{found}: the lobe does not absorb it")
+        return
+    reason = (
+        f"{found}: an exposure change between frames (a scope's auto-exposure) or a falloff "
+        f"with distance that the model lacks, which the lobe absorbs; {remedy}"
+    )
+    add_undetermined(result, Undetermined(parameter, Status.brightness_off, reason))
 
 
 def frames_not_predicted(

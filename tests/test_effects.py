@@ -119,6 +119,39 @@ def test_fit_names_the_frames_an_exposure_change_brightens_and_flags_the_lobe(ex
     assert not Status.brightness_off.determined and Status.brightness_off.converged
 
 
+@pytest.mark.parametrize("exposure", [0.0, 0.1])
+def test_the_papers_fit_with_one_albedo_checks_the_frames_brightness_too(tmp_path, exposure):
+    """`fit --albedo uniform` (the paper's fit on the rings, the default without poses):
+    each frame's brightness on its ring against the fit's prediction follows the true
+    exposure about the frames' mean, and a lobe that absorbed it is flagged; without an
+    exposure every frame reads 1 and the fit stays `successful`."""
+    effects = {"frame_exposure": exposure} if exposure else {}
+    options = SynthOptions(width=128, height=96, frames=5, seed=3, texture=False, effects=effects)
+    capture = load_capture(synthesize(tmp_path / "c", options))
+    result = fit_capture(capture, albedo="uniform").to_json()
+    log_brightness = np.log([result["frames_brightness"][f.name] for f in capture.frames])
+    if not exposure:
+        np.testing.assert_allclose(log_brightness, 0.0, atol=0.005)
+        assert result["status"] == "successful" and result["brightness_off"] == []
+        assert "brightness_undone" not in result
+        return
+    truth = capture.truth["effects"]["frame_exposure"]["effects[0].log_exposure"]
+    truth = np.concatenate([[0.0], truth])
+    # measured: within 0.031 (the lobe and the albedo take part of it)
+    np.testing.assert_allclose(log_brightness, truth - truth.mean(), atol=0.04)
+    off = [f.name for f, g in zip(capture.frames, log_brightness, strict=True) if abs(g) > 0.1]
+    assert off and result["brightness_off"] == off
+    assert result["status"] == "brightness_off"
+    # Undone, the lobe moves towards the truth (sigma 0.231 -> 0.205, F_tilde 0.16-0.20 ->
+    # 0.26-0.27 for 0.2 and 0.3): it had absorbed the exposure.
+    undone, f_tilde = result["brightness_undone"], np.asarray(capture.truth["F_tilde"])
+    assert np.all(
+        np.abs(np.asarray(undone["F_tilde"]) - f_tilde) < np.abs(result["F_tilde"] - f_tilde)
+    )
+    assert undone["sigma"] == pytest.approx(capture.truth["sigma"], rel=0.05)
+    assert any("--albedo map --effects frame_exposure" in w for w in result["warnings"])
+
+
 def test_fit_fits_each_frames_exposure_in_the_branch_and_bound(exposed, tmp_path, capsys):
     """`fit --effects frame_exposure`: a gain per frame alternated with the branch and bound
     recovers the exposures and the lobe, and its frames then agree in brightness."""

@@ -237,6 +237,21 @@ def _fit(samples, count, family, tolerance, grid, candidates, zoom):
     return params, weights, best_cost, rmse, params_stderr, weights_stderr, half_width
 
 
+@persistent_jit
+def _brightness_sums(samples, family, params, weights):
+    predicted = design_matrix(family, params, samples) @ weights
+    return jnp.sum(samples.values * predicted, -1), jnp.sum(predicted * predicted, -1)
+
+
+def brightness_sums(fit: BRDFFit, samples: ShadingSamples) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, measured times predicted and predicted squared under `fit` (summed over
+    the channels), (N,) each: a group of samples' gain (measured over predicted brightness,
+    least squares) is the ratio of their sums."""
+    across, power = _brightness_sums(_padded(samples), fit.family, fit.params, fit.weights)
+    n = len(samples)
+    return np.asarray(across, float)[:n], np.asarray(power, float)[:n]
+
+
 def fit_brdf(
     samples: ShadingSamples,
     family: BRDFFamily = PAPER,

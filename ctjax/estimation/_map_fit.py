@@ -20,7 +20,7 @@ from .._buckets import bucket
 from .._convert import on_device
 from .._determined import MIN_LOBE_GAIN, Undetermined, add_undetermined
 from .._errors import CtjaxError
-from .._frame_consistency import BRIGHTNESS_OFF_LOG
+from .._frame_consistency import judge_frames_brightness
 from .._model import ShadingModel
 from .._point_normals import frames_disagree_deg
 from .._result import Estimate, finite_or_none
@@ -48,6 +48,7 @@ from ._uniform_fit import (
     MaskOptions,
     clipping_to_json,
     fit_to_json,
+    fitted_lobe,
     flag_brdf_fit,
     poorly_determined,
     require_geometry,
@@ -410,83 +411,33 @@ def _left_frames(tracks, right) -> np.ndarray:
     return frame
 
 
-# Undoing the frames' brightness moving a roughness or a lobe's F_tilde by more than this
-# (relative) flags the lobe (`_check_frames_brightness`).
-BRIGHTNESS_MOVES_LOBE = 0.1
-
-
 def _check_frames_brightness(
     estimate: Estimate, fit, shading, frame, instant, capture, tolerance
 ) -> None:
     """Each frame's brightness against what the other frames predict under the fit
-    (`frame_brightness`; the left views only) in `details`. Where frames are off by more
-    than `BRIGHTNESS_OFF_LOG`, the fit again with each frame's brightness undone
-    (`brightness_undone`); where that moves a roughness or a lobe's F_tilde (its channels'
-    sum) by more than `BRIGHTNESS_MOVES_LOBE`, the lobe absorbed a change of brightness the
-    paper's model lacks and is flagged (`Status.brightness_off`); else a warning only.
+    (`frame_brightness`; the left views only), judged by `judge_frames_brightness`: the
+    fit again with each frame's brightness undone where frames are off.
 
     Measured (192x160 x 6, seed 3): `ctjax synth --exposure 0.15` gave sigma 0.231 and
     F_tilde 0.13-0.18 for 0.2 and 0.3, `successful` before this check; three frames 14-31%
     off, and with their brightness undone sigma 0.196 and F_tilde 0.33-0.34 (RMSE 14.75 ->
     2.97 levels). On SCARED 61-84 (24 frames, da Vinci) two frames 12% darker; undone,
     sigma 0.247 -> 0.255 and F_tilde within 2%: not absorbed by the lobe."""
-    names = [f.name for f in capture.frames]
-    brightness = frame_brightness(fit, shading, frame)
-    off = {
-        names[f]: g
-        for f, g in brightness.items()
-        if g > 0 and abs(math.log(g)) > BRIGHTNESS_OFF_LOG
-    }
-    estimate.details["frames_brightness"] = {
-        names[f]: finite_or_none(g) for f, g in brightness.items()
-    }
-    estimate.details["brightness_off"] = sorted(off)
-    if not off or not fit.family.names:
-        return
     per_point = fit.family.weight_names.index("rho_tilde")
-    gain = np.ones(len(names))
-    for f, g in brightness.items():
-        gain[f] = g if g > 0 and math.isfinite(g) else 1.0
-    undone = fit_brdf_map(undo_gains(shading, instant, gain), fit.family, tolerance=tolerance)
-    estimate.details["brightness_undone"] = fit_to_json(undone, per_point)
-    moved = _lobe_moved(fit, undone, per_point)
-    listed = ", ".join(f"{n} {g:.2f}x" for n, g in sorted(off.items())[:6])
-    found = (
-        f"{len(off)} of {len(brightness)} frames are brighter or darker than the other frames "
-        f"predict under this fit by more than a factor of {math.exp(BRIGHTNESS_OFF_LOG):.2f} "
-        f"({listed}{', ...' if len(off) > 6 else ''}); with each frame's brightness undone "
-        f"the lobe is {_lobe_text(undone, per_point)} (here {_lobe_text(fit, per_point)})"
-    )
-    if moved <= BRIGHTNESS_MOVES_LOBE:
-        estimate.warnings.append(f"{found}: the lobe does not absorb it")
-        return
-    reason = (
-        f"{found}: an exposure change between frames (a scope's auto-exposure) or a falloff "
-        "with distance that the paper's model lacks, which the lobe absorbs; `ctjax fit "
-        "--effects frame_exposure` fits a gain per frame (`calibrate-light` and `evaluate` "
-        "take it too, with a near light and its falloff)"
-    )
-    add_undetermined(estimate, Undetermined(fit.family.names[0], Status.brightness_off, reason))
 
+    def undone(gain):
+        again = fit_brdf_map(undo_gains(shading, instant, gain), fit.family, tolerance=tolerance)
+        return fitted_lobe(again), fit_to_json(again, per_point)
 
-def _lobe_moved(fit, other, per_point: int) -> float:
-    """The largest relative change from `fit` to `other` of a roughness or a lobe's
-    F_tilde (its channels' sum, against at least 0.01)."""
-    a, b = np.asarray(fit.params, float), np.asarray(other.params, float)
-    changes = list(np.abs(b - a) / np.maximum(np.abs(a), 1e-12))
-    wa, wb = np.asarray(fit.weights, float), np.asarray(other.weights, float)
-    for k in range(wa.shape[0]):
-        if k != per_point:
-            changes.append(abs(wb[k].sum() - wa[k].sum()) / max(wa[k].sum(), 0.01))
-    return float(max(changes))
-
-
-def _lobe_text(fit, per_point: int) -> str:
-    values = fit_to_json(fit, per_point)
-    return ", ".join(
-        f"{name} {np.round(np.asarray(values[name], float), 3).tolist()}"
-        for name in (*fit.family.names, *fit.family.weight_names)
-        if name != "rho_tilde" and name in values
+    judge_frames_brightness(
+        estimate,
+        frame_brightness(fit, shading, frame),
+        [f.name for f in capture.frames],
+        fitted_lobe(fit),
+        undone if fit.family.names else None,
+        remedy="`ctjax fit --effects frame_exposure` fits a gain per frame (`calibrate-light` "
+        "and `evaluate` take it too, with a near light and its falloff)",
+        parameter=fit.family.names[0] if fit.family.names else "rho_tilde",
     )
 
 

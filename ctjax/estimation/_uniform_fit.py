@@ -4,10 +4,13 @@ ring S~ of every frame; and the checks and flags the albedo map's fit (`_map_fit
 import dataclasses
 
 import cv2
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from .._determined import flag
 from .._errors import CtjaxError
+from .._frame_consistency import judge_frames_brightness
 from .._model import ShadingModel
 from .._result import Estimate, finite_or_none
 from ..io import Capture
@@ -16,7 +19,16 @@ from ..lights import ColocatedLight
 from ..lobes import Lambertian
 from ..observations import Observations, usable_mask
 from ..specular import MaskOptions, SpecularSets
-from ._brdf import LAMBERTIAN, PAPER, BRDFFamily, BRDFFit, diffuse_alone, diffuse_note, fit_brdf
+from ._brdf import (
+    LAMBERTIAN,
+    PAPER,
+    BRDFFamily,
+    BRDFFit,
+    brightness_sums,
+    diffuse_alone,
+    diffuse_note,
+    fit_brdf,
+)
 
 # S and S~ as `ctjax masks` finds them by default.
 DEFAULT_MASKS = MaskOptions()
@@ -255,7 +267,64 @@ def fit_uniform(
         details=details,
         cost=float(fit.cost),
     )
-    return flag_brdf_fit(estimate, fit, lambertian=plain)
+    estimate = flag_brdf_fit(estimate, fit, lambertian=plain)
+    counts = [int(s.ring.sum()) for s in sets]
+    _check_ring_brightness(estimate, fit, samples, counts, capture, tolerance)
+    return estimate
+
+
+def _check_ring_brightness(estimate, fit, samples, counts, capture, tolerance) -> None:
+    """Each frame's brightness on its ring against the fit's prediction (one albedo: the
+    gain g minimising sum |measured - g predicted|^2 over the frame's ring pixels), judged
+    by `judge_frames_brightness`: the fit again with each frame's brightness undone (its
+    ring's irradiance times g) where frames are off. On textured tissue each ring sees
+    other tissue, so a frame can read off by its albedo alone: the albedo map's check
+    (`ctjax fit --albedo map`, leave-one-out by surface point) tells the two apart."""
+    across, power = brightness_sums(fit, samples)
+    ends = np.cumsum(counts)
+    brightness = {}
+    for f, (end, n) in enumerate(zip(ends, counts, strict=True)):
+        if n:
+            total = float(np.sum(power[end - n : end]))
+            brightness[f] = float(np.sum(across[end - n : end])) / total if total > 0 else np.nan
+    ringed = [f for f, n in enumerate(counts) if n]
+
+    def undone(gain):
+        per_sample = np.repeat(gain[ringed], [counts[f] for f in ringed])
+        irradiance = np.asarray(samples.irradiance) * per_sample
+        again = fit_brdf(
+            eqx.tree_at(
+                lambda s: s.irradiance,
+                samples,
+                jnp.asarray(irradiance, samples.irradiance.dtype),
+            ),
+            fit.family,
+            tolerance=tolerance,
+        )
+        return fitted_lobe(again), fit_to_json(again)
+
+    judge_frames_brightness(
+        estimate,
+        brightness,
+        [f.name for f in capture.frames],
+        fitted_lobe(fit),
+        undone if fit.family.names and len(ringed) > 1 else None,
+        remedy="`ctjax fit --albedo map --effects frame_exposure` fits a gain per frame "
+        "(the albedo map needs poses: `ctjax reconstruct`), as `calibrate-light` and "
+        "`evaluate` with `--effects frame_exposure`",
+        parameter=fit.family.names[0] if fit.family.names else "rho_tilde",
+    )
+
+
+def fitted_lobe(fit) -> dict[str, np.ndarray]:
+    """A BnB fit's nonlinear parameters and its weights but the albedo's, by name: what a
+    change of the frames' brightness must not move (`judge_frames_brightness`)."""
+    lobe = {name: np.asarray(fit.params, float)[d] for d, name in enumerate(fit.family.names)}
+    weights = np.asarray(fit.weights, float)
+    for k, name in enumerate(fit.family.weight_names):
+        if name != "rho_tilde":
+            lobe[name] = weights[k]
+    return lobe
 
 
 def flag_brdf_fit(
