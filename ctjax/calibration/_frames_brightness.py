@@ -14,7 +14,7 @@ import numpy as np
 from .._convert import on_device
 from .._frame_consistency import frame_gains, judge_frames_brightness
 from .._json import named_parameters
-from ..fitting import TrackSamples
+from ..fitting import TrackSamples, frame_gains_of_pixels, pixel_predict
 
 
 def check_frames_brightness(result, model, tracks, refit, names: list[str]) -> None:
@@ -46,6 +46,33 @@ def check_frames_brightness(result, model, tracks, refit, names: list[str]) -> N
     judge_frames_brightness(
         result,
         frame_gains(model, samples),
+        names,
+        _lobe(model),
+        None if tuple(getattr(model, "effects", ())) else undone,
+        remedy="`--effects frame_exposure` fits a gain per frame",
+        under="this model",
+    )
+
+
+def check_pixel_brightness(result, model, samples, refit, names: list[str]) -> None:
+    """The same with one albedo (`near_light_uniform`) on pixel `samples` (the calibration
+    frames'): each frame's brightness against `model`'s prediction
+    (`frame_gains_of_pixels`), and where frames are off and `model` has no image effects,
+    `refit(samples)` on the samples with each frame's brightness undone."""
+
+    def undone(gain):
+        values = np.asarray(samples.values) / gain[np.asarray(samples.frame)][:, None]
+        again = refit(
+            eqx.tree_at(lambda s: s.values, samples, on_device(values, samples.values.dtype))
+        )
+        if not np.isfinite(again.cost):
+            return None
+        after = _lobe(again.model)
+        return after, {k: v.tolist() for k, v in after.items()}
+
+    judge_frames_brightness(
+        result,
+        frame_gains_of_pixels(model, samples, pixel_predict),
         names,
         _lobe(model),
         None if tuple(getattr(model, "effects", ())) else undone,

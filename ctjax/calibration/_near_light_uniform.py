@@ -26,6 +26,7 @@ from ..lights import AbstractFalloff, LensPlaneLight
 from ..lobes import Lambertian
 from ..observations import Observations
 from ..solvers import Solver
+from ._frames_brightness import check_pixel_brightness
 from ._near_light_models import (
     at_the_lens,
     falloff_name,
@@ -143,8 +144,27 @@ def near_light_uniform(
     if not result.converged:
         result.warnings.append(f"the solver did not converge: {result.status.message}")
     if detected:
-        return flag_model(result)
-    # The bound by the light's own parameter (in the lens plane: x and y).
-    name = paper_names(result.model).get(position_name(result.model), "offset_mm")
-    bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
-    return flag_model(result, {name: bound})
+        result = flag_model(result)
+    else:
+        # The bound by the light's own parameter (in the lens plane: x and y).
+        name = paper_names(result.model).get(position_name(result.model), "offset_mm")
+        bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
+        result = flag_model(result, {name: bound})
+    calibrated = fits[chosen][0 if detected else 1].model
+    say("each calibration frame's brightness against the model's")
+    check_pixel_brightness(
+        result,
+        calibrated,
+        heldout.train,
+        lambda undone: fit_model(
+            calibrated,
+            undone,
+            pixel_predict,
+            columns=pixel_columns,
+            solver=solver,
+            max_steps=max_steps,
+            freeze=() if detected else (position_name(calibrated),),
+        ),
+        [frame.name for frame in capture.frames],
+    )
+    return result

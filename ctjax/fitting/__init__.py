@@ -17,6 +17,7 @@ from ._facets import FacetJudgement as FacetJudgement
 from ._facets import facet_heldout as facet_heldout
 from ._fit import LEVENBERG_MARQUARDT as LEVENBERG_MARQUARDT
 from ._fit import fit_model as fit_model
+from ._fit import frame_gains_of_pixels as frame_gains_of_pixels
 from ._fit import pixel_columns as pixel_columns
 from ._fit import pixel_predict as pixel_predict
 from ._fit import predictions as predictions

@@ -59,6 +59,34 @@ def squared_errors(model, samples, predict: Predict, scale: float = 255.0) -> np
     return np.asarray(_squared_errors(model, samples, mask, predict, float(scale)))[:count]
 
 
+def frame_gains_of_pixels(model, samples, predict: Predict) -> dict[int, float]:
+    """Each frame's measured over predicted brightness under `model` on pixel `samples`
+    (their `frame`), by frame index: the gain g minimising sum |measured - g predicted|^2
+    over the frame's samples (NaN where it predicts nothing). With one albedo the model's
+    own fit on these samples, so g follows each frame's brightness about the frames' mean
+    (`ctjax._frame_consistency.frame_gains` predicts each view from the other frames)."""
+    count = len(samples.values)
+    if count == 0:
+        return {}
+    padded_samples, mask = padded(samples, count)
+    across, power = (
+        np.asarray(a, float)[:count]
+        for a in _brightness_terms(model, padded_samples, mask, predict)
+    )
+    frame = np.asarray(samples.frame)
+    out = {}
+    for f in sorted({int(f) for f in np.unique(frame)}):
+        total = float(np.sum(power[frame == f]))
+        out[f] = float(np.sum(across[frame == f])) / total if total > 0 else math.nan
+    return out
+
+
+@persistent_jit
+def _brightness_terms(model, samples, mask, predict: Predict):
+    predicted = jnp.where(mask[:, None], predictions(model, samples, predict), 0)
+    return jnp.sum(samples.values * predicted, -1), jnp.sum(predicted * predicted, -1)
+
+
 def _masked_residuals(model, samples, mask, predict: Predict) -> Float[Array, "N 3"]:
     """Prediction minus measurement, 0 on the padding rows."""
     residual = predictions(model, samples, predict) - samples.values
