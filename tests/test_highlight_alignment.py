@@ -65,6 +65,30 @@ def test_a_tilted_shape_is_found_and_the_tilt_measured(tmp_path):
     before, after = result.later_angle_deg
     assert before > 15 and after < 8
     assert "one rotation of the normals by" in result.reason
+    assert "farther from N = H than the pixels at random" not in result.reason
+
+
+def test_highlights_where_the_shape_faces_away_are_said_to_be_so(tmp_path):
+    """Where the highlights' peaks lie farther from N = H than random pixels (a wall close
+    to the scope whose surface structure from motion extrapolated: the full-resolution
+    shared sinus), the reason says so, whatever the verdict."""
+    capture = sparkly_capture(tmp_path, 0.1, frames=8)
+    sets = capture_sets(capture)
+    frames = []
+    for frame, s in zip(capture.frames, sets, strict=True):
+        h, w = s.specular.shape
+        v, u = np.mgrid[0:h, 0:w]
+        cam = capture.camera
+        ray = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones((h, w))], -1)
+        grazing = np.cross(ray, [0.0, 1.0, 0.0])  # perpendicular to the view
+        grazing /= np.linalg.norm(grazing, axis=-1, keepdims=True)
+        normals = frame.normals.copy()
+        normals[s.specular] = grazing[s.specular]
+        frames.append(dataclasses.replace(frame, normals=normals.astype(np.float32)))
+    result = highlight_alignment(dataclasses.replace(capture, frames=tuple(frames)))
+    assert result.angle_deg > result.all_pixels_angle_deg
+    assert result.status in {"misoriented", "scattered"}
+    assert "farther from N = H than the pixels at random" in result.reason
 
 
 def test_normals_wrong_in_every_direction_are_scattered(tmp_path):

@@ -24,7 +24,11 @@ cholecystectomy video (monocular, guessed camera): 706 peaks, 34.0 degrees from 
 the later frames' from 36.2 to 13.6: `misoriented`; the SurgT da Vinci stereo clip (each
 frame's depth from its pair): 26.8 degrees (52.4 at random), the tilt fitted (12.2
 degrees) takes the later frames' from 26.6 to 30.4: `scattered`; the shared sinus: 10
-peaks in each part, too few to tell.
+peaks in each part, too few to tell. The shared sinus's 35 frames at 1920x1080: the moving
+highlight of frames 0-12 at 7-23 degrees, but from frame 13 a wall close to the scope,
+overexposed (its reconstructed depth a fifth of the scene's), and the bright rim beside it
+at 80-90 degrees: 85.3 degrees in all, 65.5 at random pixels, `misoriented` by a turn of
+86.5 degrees; the reason then says the peaks lie farther from N = H than random pixels.
 """
 
 import dataclasses
@@ -306,6 +310,15 @@ def highlight_alignment(
     turned = math.degrees(math.acos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0)))
     before = float(np.median(angles[~first]))
     after = float(np.median(peaks.angles_deg(rotation)[~first]))
+    # Peaks farther from N = H than the pixels at random: no lobe about these normals put
+    # them there, whatever its width.
+    away = (
+        "; they lie farther from N = H than the pixels at random: the shape is wrong where "
+        "they are (a wall close to the scope with no features for structure from motion, "
+        "its surface extrapolated) or they are not specular (a pale wall overexposed)"
+        if median > everywhere
+        else ""
+    )
     if median <= ALIGNED_DEG:
         status, reason = (
             "aligned",
@@ -322,7 +335,7 @@ def highlight_alignment(
                 f"{everywhere:.1f} at random pixels); one rotation of the normals by "
                 f"{turned:.1f} degrees, fitted on the first frames' peaks, brings the later "
                 f"frames' from {before:.1f} to {after:.1f}: the shape's orientation is off, and "
-                "a lobe about these normals is looked for in the wrong place"
+                f"a lobe about these normals is looked for in the wrong place{away}"
             ),
         )
     else:
@@ -333,6 +346,7 @@ def highlight_alignment(
                 f"{everywhere:.1f} at random pixels), not in one direction: the rotation fitted to "
                 f"the first frames' peaks ({turned:.1f} degrees) takes the later frames' from "
                 f"{before:.1f} to {after:.1f}; relief finer than the shape, or noisy normals"
+                f"{away}"
             ),
         )
     return HighlightAlignment(
