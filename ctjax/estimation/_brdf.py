@@ -14,6 +14,7 @@ from .._errors import CtjaxError
 from .._programs import persistent_jit
 from .._typing import Array, Float, Scalar
 from ..lobes import BRDF, Beckmann, Lambertian, Specular, cook_torrance_brdf
+from ..solvers._gram import gram
 from ._branch_and_bound import grid_search
 from ._closed_form import nnls_columns
 from ._samples import ShadingSamples
@@ -183,7 +184,7 @@ def _standard_errors(family, params, weights, samples, cost, count):
     theta = jnp.concatenate([weights.reshape(-1), params])
     jacobian = jax.jacfwd(residuals)(theta)
     dof = jnp.maximum(count - theta.shape[0], 1)
-    information = jacobian.T @ jacobian
+    information = gram(jacobian)
     covariance = cost / dof * jnp.linalg.pinv(information, hermitian=True)
     variance = jnp.diagonal(covariance)
     # A direction the data do not constrain (singular information) has no standard error.

@@ -19,6 +19,7 @@ from ..effects._effect import Site, undo_effects
 from ..estimation._closed_form import nnls
 from ..lobes import BRDF
 from ..solvers import DenseLM, Solver, least_squares
+from ..solvers._gram import gram
 from ._parameters import (
     Parameter,
     as_vector,
@@ -210,7 +211,7 @@ def _information(model, samples, mask, predict, names):
     jacobian = jax.jacfwd(residuals)(flat)
     residual = residuals(flat)
     dof = jnp.maximum(jnp.sum(mask) * samples.values.shape[-1] - flat.shape[0], 1)
-    return jnp.sum(residual * residual) / dof, jacobian.T @ jacobian
+    return jnp.sum(residual * residual) / dof, gram(jacobian)
 
 
 def standard_errors(model, samples, predict: Predict, freeze: Sequence[str] = ()) -> dict:

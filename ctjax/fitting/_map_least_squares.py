@@ -32,6 +32,7 @@ from ..estimation._variable_projection import (
 )
 from ..lobes import Lambertian
 from ..solvers import Solver, least_squares
+from ..solvers._gram import gram
 from ._fit import LEVENBERG_MARQUARDT, named_errors
 from ._parameters import as_vector, constrained, free_parameters, strongly_typed, unconstrained
 
@@ -466,8 +467,7 @@ def _covariance(model, samples, names, per_point):
     points = jnp.sum(jnp.any(samples.weight > 0, axis=0)) * samples.channels
     globals_ = (len(model.brdf.lobes) - 1) * samples.channels
     dof = jnp.maximum(observed - points - globals_ - flat.shape[0], 1)
-    information = jacobian.T @ jacobian
-    return jnp.sum(residual * residual) / dof, information
+    return jnp.sum(residual * residual) / dof, gram(jacobian)
 
 
 def _standard_errors(model, samples, names, per_point) -> dict[str, list | float]:
