@@ -157,3 +157,16 @@ def test_the_closed_form_solver_traces_the_residual_function_once():
     y, _, _ = solve(jnp.asarray([1.0, 0.5]))
     assert len(traces) == 1
     np.testing.assert_allclose(y, _TRUTH[:2], rtol=2e-3)
+
+
+def test_the_information_matrix_from_the_columns_is_jtj():
+    """`gram` (the standard errors' J^T J, built from the Jacobian's columns taken apart
+    for speed) is the same matrix as `jac.T @ jac`, in a jitted program as the covariance
+    programs use it, for a Jacobian from `jax.jacfwd`."""
+    from ctjax.solvers._gram import gram
+
+    y = jnp.asarray([2.0, 1.1, 0.3])
+    jacobian = jax.jacfwd(lambda y: _residuals(((y[0], y[1]), y[2])))(y)  # (200, 3)
+    both = jax.jit(lambda j: (gram(j), j.T @ j))(jacobian)
+    np.testing.assert_allclose(both[0], both[1], rtol=1e-12, atol=0)
+    assert both[0].shape == (3, 3) and np.allclose(both[0], both[0].T)
