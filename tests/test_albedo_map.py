@@ -14,7 +14,12 @@ from ctjax._tracks import views_first
 from ctjax.cli import main
 from ctjax.estimation import PAPER, fit_capture
 from ctjax.estimation._map_fit import fit_albedo_map, summary_stride
-from ctjax.estimation._variable_projection import project_weights
+from ctjax.estimation._variable_projection import (
+    over_views,
+    over_views_at_once,
+    project_weights,
+    projected_residuals,
+)
 from ctjax.io import load_capture
 from ctjax.synth import SynthOptions, synthesize
 
@@ -80,6 +85,25 @@ def test_projection_equals_the_joint_nonnegative_least_squares(seed, clamp):
     np.testing.assert_allclose(np.asarray(albedo), joint[:-1], atol=2e-5)
     np.testing.assert_allclose(np.asarray(weights[1]), joint[-1], atol=2e-5)
     assert float(cost) == pytest.approx(joint_cost, rel=1e-4)
+
+
+@pytest.mark.parametrize("over", [over_views, over_views_at_once])
+def test_projected_residuals_are_the_joint_fits_either_way_of_summing(over):
+    """The LM fitters sum over views at once, the branch and bound by adds of slices
+    (faster under `vmap` over sigmas): the same residuals, those of the joint NNLS, and the
+    same forward-mode Jacobian."""
+    a, b, values, weight = _problem(3, clamp=True)
+    columns = (jnp.asarray(a.T), jnp.asarray(b.T))
+    measured, observed = jnp.asarray(views_first(values)), jnp.asarray(weight.T)
+    residual = jax.jit(lambda s: projected_residuals(columns, measured * s, observed, 0, over)[2])
+    joint, _ = _joint(a, b, values, weight)
+    predicted = a[..., None] * joint[:-1][:, None] + b[..., None] * joint[-1]
+    expected = views_first((values - predicted) * np.sqrt(weight)[..., None])
+    np.testing.assert_allclose(np.asarray(residual(1.0)), expected, atol=1e-9)
+    slope = jax.jit(jax.jacfwd(residual))(1.0)
+    other = over_views_at_once if over is over_views else over_views
+    again = jax.jacfwd(lambda s: projected_residuals(columns, measured * s, observed, 0, other)[2])
+    np.testing.assert_allclose(np.asarray(slope), np.asarray(jax.jit(again)(1.0)), atol=1e-12)
 
 
 def test_projected_cost_gradient_matches_finite_differences():

@@ -28,6 +28,7 @@ from ..effects import AbstractImageEffect
 from ..effects._effect import Site, apply_effects, undo_effects
 from ..estimation._variable_projection import (
     albedo_from_other_views,
+    over_views_at_once,
     projected_residuals,
 )
 from ..lobes import Lambertian
@@ -180,14 +181,16 @@ def _root(weight):
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, weight, 1)), 0)
 
 
-def _projected(model, samples: TrackSamples, per_point: int):
+def _projected(model, samples: TrackSamples, per_point: int, over=over_views_at_once):
     """`projected_residuals` of `model` on `samples`. With image effects the albedos and
     global weights are eliminated where the model is linear (the measurements with the
     effects undone, `_linear`), and the residuals are the image's: the effects applied to
-    that prediction, minus the measurements, weighted as observed."""
+    that prediction, minus the measurements, weighted as observed. `over`: the sums over
+    views, as one reduction (one model and its forward-mode Jacobian: 2-5x faster than
+    the branch and bound's adds, `over_views_at_once`)."""
     values, weight = _linear(model, samples)
     columns = _columns(model, samples)
-    albedo, weights, residual = projected_residuals(columns, values, weight, per_point)
+    albedo, weights, residual = projected_residuals(columns, values, weight, per_point, over)
     if not tuple(getattr(model, "effects", ())):
         return albedo, weights, residual
     linear = sum(
