@@ -73,11 +73,14 @@ def over_views(x: Float[Array, "M ..."]) -> Float[Array, "..."]:
 
 def over_views_at_once(x: Float[Array, "M ..."]) -> Float[Array, "..."]:
     """The sum over the leading axis as one reduction: for one model and its forward-mode
-    Jacobian (the LM fitters), where `over_views`' adds are the slow way. Measured on a
-    near light with a gain per frame (12 frames, 16384 points, 14 parameters, XLA:CPU's
-    loop emitters): the Jacobian 3.80 s with adds against 0.83 s, the residuals 0.093
-    against 0.049 s, without the gains (3 parameters) 0.48 against 0.20 s; the same
-    values (`benchmarks/projection_sums.py`). Under `vmap` over many nonlinear parameters
+    Jacobian (the LM fitters), where `over_views`' adds are the slow way. On a near light
+    with a gain per frame (12 frames, 16384 points, 590k residuals; XLA:CPU's loop
+    emitters, as the fitters compile): the Jacobian as one `jax.jacfwd` program 3.66 s with
+    adds against 0.77 s, 0.49 against 0.19 s without the gains (3 parameters), the
+    residuals 0.081 against 0.037 s, the same values within 1e-15
+    (`benchmarks/projection_sums.py`). Inside DenseLM's loop the adds were less slow: that
+    capture's `ctjax calibrate-light --effects frame_exposure` ran its LM fits 12-17%
+    faster, with bitwise the same results. Under `vmap` over many nonlinear parameters
     (the branch and bound) the adds stay faster: its map fit 1.07 s against 1.71 s
     (`benchmarks/albedo_map.py`, 320x256 x 8)."""
     return jnp.sum(x, axis=0)
