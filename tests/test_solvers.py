@@ -7,7 +7,7 @@ import optimistix as optx
 import pytest
 
 from ctjax import CtjaxError, Status
-from ctjax.solvers import DenseLM, least_squares
+from ctjax.solvers import DenseLM, JacobianBlocks, least_squares
 
 # A decay a * exp(-b t) + c sampled at 200 times, with a little deterministic noise.
 _TIMES = jnp.linspace(0.0, 4.0, 200)
@@ -100,6 +100,37 @@ def test_dense_lm_settings_are_checked():
         DenseLM(rtol=-1)
     with pytest.raises(CtjaxError, match="atol must be a nonnegative number, got 'x'"):
         DenseLM(atol="x")
+
+
+def test_jacobian_blocks_give_the_same_solve():
+    """A `JacobianBlocks` start: each block's columns in a pass of its own (the map fitter's
+    shading and image effects), the same steps to the same solution as one pass, and the
+    same to any other solver (a tuple of its blocks)."""
+
+    def with_aux(y):
+        r = _residuals(y)
+        return r, jnp.sum(r * r)
+
+    start = _start(jnp.float64)
+    solve = jax.jit(lambda y0: least_squares(with_aux, DenseLM(), y0, 100, has_aux=True))
+    y, status, steps, aux = solve(start)
+    blocked = solve(JacobianBlocks(start))
+    assert isinstance(blocked[0], JacobianBlocks) and len(blocked[0]) == 2
+    assert int(blocked[1]) == int(status) and int(blocked[2]) == int(steps) > 0
+    np.testing.assert_allclose(blocked[0][0], y[0], rtol=1e-12)
+    np.testing.assert_allclose(blocked[0][1], y[1], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(blocked[3], aux, rtol=1e-12)
+    # One block with unknowns: one pass, as without blocks; optimistix takes the tuple.
+    lone = JacobianBlocks((start[0], ()))
+    y_lone = jax.jit(
+        lambda y0: least_squares(lambda b: _residuals((b[0], start[1])), DenseLM(), y0, 100)
+    )(lone)[0]
+    assert y_lone[1] == ()
+    other = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
+    y_other = jax.jit(lambda y0: least_squares(_residuals, other, y0, 200))(JacobianBlocks(start))[
+        0
+    ]
+    np.testing.assert_allclose(y_other[0], y[0], rtol=1e-6)
 
 
 def test_the_aux_at_the_solution_comes_from_the_loop():

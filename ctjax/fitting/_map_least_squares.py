@@ -32,7 +32,7 @@ from ..estimation._variable_projection import (
     projected_residuals,
 )
 from ..lobes import Lambertian
-from ..solvers import Solver, least_squares
+from ..solvers import JacobianBlocks, Solver, least_squares
 from ..solvers._gram import gram
 from ._fit import LEVENBERG_MARQUARDT, named_errors
 from ._parameters import as_vector, constrained, free_parameters, strongly_typed, unconstrained
@@ -335,6 +335,29 @@ def heldout_map_errors(
     )
 
 
+def _blocks(parameters, start):
+    """The unknowns as DenseLM's `JacobianBlocks` where the model has image effects: the
+    shading's (light, BRDF) and the effects' (applied to the shaded image: their columns
+    need no pass through the shading); and the map from that start's shape back to the
+    parameters' list. Without effects: `start` as it is."""
+    of_effects = [p.name.startswith("effects") for p in parameters]
+    if all(of_effects) or not any(of_effects):
+        return start, lambda y: y
+    shading = [i for i, e in enumerate(of_effects) if not e]
+    effects = [i for i, e in enumerate(of_effects) if e]
+
+    def as_list(y):
+        merged = [None] * len(start)
+        for indices, block in zip((shading, effects), y, strict=True):
+            for i, value in zip(indices, block, strict=True):
+                merged[i] = value
+        return merged
+
+    return JacobianBlocks(
+        (tuple(start[i] for i in shading), tuple(start[i] for i in effects))
+    ), as_list
+
+
 @persistent_jit
 def _least_squares(model, samples, names, per_point, solver, max_steps, held):
     """LM over the parameters not frozen by `names`; those flagged in `held` (a bool per
@@ -346,22 +369,23 @@ def _least_squares(model, samples, names, per_point, solver, max_steps, held):
         done = jnp.asarray(Status.successful.value)
         return model, albedo, weights, jnp.sum(residual * residual), done, jnp.asarray(0)
     start = unconstrained(model, parameters)
+    y0, as_list = _blocks(parameters, start)
 
     def kept(u):  # a held parameter's step has a zero Jacobian column: it never moves
         return [jnp.where(held[i], s, v) for i, (s, v) in enumerate(zip(start, u, strict=True))]
 
-    def residuals(u):
+    def residuals(y):
         """In 8-bit levels (so are the tolerances); the eliminated albedos and weights and
         the sum of squares as aux."""
         albedo, weights, residual = _projected(
-            constrained(model, parameters, kept(u)), samples, per_point
+            constrained(model, parameters, kept(as_list(y))), samples, per_point
         )
         return 255 * residual.reshape(-1), (albedo, weights, jnp.sum(residual * residual))
 
     value, status, steps, (albedo, weights, cost) = least_squares(
-        residuals, solver, start, max_steps, has_aux=True
+        residuals, solver, y0, max_steps, has_aux=True
     )
-    fitted = constrained(model, parameters, kept(value))
+    fitted = constrained(model, parameters, kept(as_list(value)))
     return fitted, albedo, weights, cost, status, steps
 
 
