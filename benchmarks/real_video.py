@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/real_video.py [SOURCE ...] [--frames 12] [--width 640]
         [--work DIR] [--skip-diagnose] [--skip-evaluate] [--max-rounds 4] [--focal refine]
         [--camera CALIBRATION] [--layout side-by-side|top-bottom] [--excluded MASKS]
+        [--fit-effects EFFECT ...]
 
 Each SOURCE is a capture folder (images/ and camera.json) or a video (imported with
 `ctjax import`, a guessed pinhole camera: fx = fy = 0.8 width, the principal point at the
@@ -11,7 +12,8 @@ centre, unless a camera.json lies beside it). Without SOURCE: every sequence of
 `--frames` frames `--width` pixels wide, then run through the user guide's commands, as a user
 would: `reconstruct` -> `masks` -> `fit` (and `fit` on the even and the odd frames apart:
 is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate` ->
-`diagnose --loop`. It prints, per sequence:
+`diagnose --loop`; `--fit-effects frame_exposure` fits the scope's auto-exposure in `fit`
+and its even / odd frames (the remedy `fit`'s `brightness_off` names). It prints, per sequence:
 
 - masks: S's share of the field of view, and the recall of the near-white cores (every
   channel >= 230 recorded, away from the rim of the field of view) with S's area over
@@ -208,10 +210,11 @@ def run_sequence(source: Path, work: Path, args) -> dict:
     if recon.is_dir():
         shutil.rmtree(recon)
     reconstruct = ["reconstruct", capture, "--out", recon]
+    fit_effects = ["--effects", *args.fit_effects] if args.fit_effects else []
     steps = [
         ("reconstruct", [*reconstruct, "--json", out / "recon.json", "--focal", args.focal]),
         ("masks", ["masks", recon, "--out", out / "masks"]),
-        ("fit", ["fit", recon, "--json", out / "fit.json"]),
+        ("fit", ["fit", recon, "--json", out / "fit.json", *fit_effects]),
         ("light", ["calibrate-light", recon, "--model", "near", "--json", out / "light.json"]),
     ]
     if (capture / "right").is_dir():  # stereo: the right views fitted too
@@ -235,7 +238,8 @@ def run_sequence(source: Path, work: Path, args) -> dict:
             break
         half = subset(recon, out / f"{label}_frames", parity)
         status, seconds[f"fit_{label}"] = _run(
-            ["fit", half, "--json", out / f"fit_{label}.json"], out / f"fit_{label}.log"
+            ["fit", half, "--json", out / f"fit_{label}.json", *fit_effects],
+            out / f"fit_{label}.log",
         )
     return _table(source, out, capture, seconds, failed)
 
@@ -423,6 +427,13 @@ def main(argv=None):
         "--layout",
         choices=("side-by-side", "top-bottom"),
         help="a stereo video's frames hold both images (SCARED's rgb.mp4: top-bottom)",
+    )
+    parser.add_argument(
+        "--fit-effects",
+        nargs="+",
+        default=[],
+        metavar="EFFECT",
+        help="image effects fitted in fit and its even / odd frames (fit's --effects)",
     )
     parser.add_argument("--max-rounds", type=int, default=4)
     parser.add_argument("--skip-diagnose", action="store_true")

@@ -365,6 +365,33 @@ def _tissue_samples(rng, n, ceiling=None):
     return np.clip(np.round(codes), 0, 255).astype(np.uint8)
 
 
+def _white_samples(rng, n, white=238):
+    """(n, 3) codes of pale tissue lit from dim to overexposed by a camera whose white lies
+    below full scale: every channel stops at `white`, give or take JPEG's chroma noise."""
+    light = rng.uniform(0.05, 2.0, n)
+    colour = np.array([1.0, 0.8, 0.75]) * rng.uniform(0.95, 1.05, (n, 3))
+    codes = np.minimum(light[:, None] * colour * 250, white + rng.normal(0, 1.5, (n, 3)))
+    return np.clip(np.round(codes + rng.normal(0, 1.5, (n, 3))), 0, 255).astype(np.uint8)
+
+
+def test_a_camera_white_below_full_scale_reads_as_clipped_in_every_channel():
+    """Every channel piling up at one code short of full scale is the camera's white: each
+    reads as clipped from the pile's lower edge, 8- or 16-bit. One channel piling up alone
+    (a red ceiling), the light rising to full scale, or a flat image's one colour is none."""
+    from ctjax.io._channel_ceiling import channel_ceilings, white_level
+
+    rng = np.random.default_rng(1)
+    samples = _white_samples(rng, 200_000)
+    ceilings = channel_ceilings(samples, 255)
+    assert len(set(ceilings)) == 1 and 226 <= ceilings[0] <= 238
+    wide = white_level(samples.astype(np.uint16) * 257, 65535)
+    assert abs(wide - ceilings[0] * 257) <= 257
+    assert white_level(_tissue_samples(rng, 100_000), 255) is None
+    assert white_level(_tissue_samples(rng, 100_000, ceiling=170), 255) is None
+    assert white_level(np.full((10_000, 3), 230, np.uint8), 255) is None
+    assert white_level(_white_samples(rng, 150), 255) is None  # too few samples to say
+
+
 def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
     """A channel that tops out below full scale while the others still rise (a white
     balance gain or colour matrix after the sensor clipped) is clipped there: its ceiling is

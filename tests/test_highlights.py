@@ -154,6 +154,34 @@ def test_a_pale_wall_is_not_a_highlight_but_the_highlights_on_it_and_beside_it_a
     np.testing.assert_array_equal(mask, expected)
 
 
+def test_a_channel_at_the_cameras_ceiling_reads_as_clipped_for_s_too():
+    """A camera whose white lies below full scale (a second sinus video: every channel stops
+    at 233-239 of 255) writes a wall close to the scope, overexposed, at its ceiling with a
+    few codes of JPEG's chroma noise, never at full scale: S's clip rule does not see it,
+    and the pale ramp that leads up to it is nearly as bright, so the rest of the rule takes
+    only part of it (93.7% here; 92.7% of that video's cores, `benchmarks/real_video.py`).
+    With the capture's ceilings (`Capture.saturation`) the channels there read as clipped,
+    and S takes all of it but isolated specks; below the ceiling the sets are as without."""
+    rng = np.random.default_rng(2)
+    image = _sinus_like()
+    gain = np.linspace(0.6, 2.4, image.shape[1] - image.shape[1] // 2)[None, :, None]
+    image[:, image.shape[1] // 2 :] = np.array([0.6, 0.44, 0.47]) * gain  # up to the scope
+    image *= (1 + 0.03 * rng.normal(size=(*image.shape[:2], 1))).astype(np.float32)
+    white = 0.84 * (1 + 0.02 * rng.normal(size=image.shape))  # 236 of 255, sRGB-decoded
+    image = np.clip(np.minimum(image, white), 0, 1).astype(np.float32)
+    ceiling = 0.80  # ~231 of 255
+    at_ceiling = np.all(image >= ceiling, axis=-1)
+    visible = np.ones(image.shape[:2], bool)
+    plain = specular_sets(image, visible=visible)
+    read = specular_sets(image, visible=visible, saturation_level=ceiling)
+    assert plain.specular[at_ceiling].mean() < 0.97
+    assert read.specular[at_ceiling].mean() > 0.99
+    assert not (read.specular & ~at_ceiling & ~plain.specular).any()
+    dark = image.max(axis=-1) < 0.6  # far below the ceiling: the same sets
+    np.testing.assert_array_equal(plain.ring[dark], read.ring[dark])
+    assert read.clipped.any(axis=-1)[at_ceiling & ~read.specular].all()
+
+
 def test_a_white_patch_larger_than_the_window_is_found_whole():
     """White is not a tissue colour: a white patch wider than the median's window does not
     become its own surroundings (it is judged against the wall around it)."""

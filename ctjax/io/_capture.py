@@ -449,9 +449,10 @@ def _saturation(frames, samples, encoding, declared) -> tuple[tuple[float, ...],
             described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
     found = "found on the frames" if declared == AUTO_CEILINGS else "camera.json's ceilings"
     return levels, (
-        "a channel of the frames stops following the others below full scale (the camera's "
-        f"ceiling, {found}): read as clipped there, {'; '.join(described)}; camera.json's "
-        '"ceilings": "none" reads every channel to full scale'
+        "a channel of the frames stops below full scale (the camera's ceiling, where it stops "
+        f"following the others or the camera's white, {found}): read as clipped there, "
+        f'{"; ".join(described)}; camera.json\'s "ceilings": "none" reads every channel to '
+        "full scale"
     )
 
 

@@ -1,4 +1,4 @@
-"""A channel that stops following the others below full scale: read as clipped there.
+"""A channel that stops below full scale, or a camera white below it: read as clipped there.
 
 A camera clips each channel of its sensor at full scale, and then processes the three: a
 white balance gain under one and a colour matrix move a clipped channel's top below the
@@ -27,6 +27,25 @@ as recorded). The sinus's red: a knot at 202-203 of 255 (12 frames at 640 px, al
 full size). The cholecystectomy video's red (rising 1 code per code up to 236, then to 253
 next to full scale) and a da Vinci's channels (rising to full scale, SCARED) have none;
 nor has any channel of a synthetic capture.
+
+A camera's white can lie below full scale too, in every channel at once: its processing
+maps the sensor's clipped white to a grey short of the file's top (and a knee rounds what
+leads there), so green and blue, not only red, pile up at one code and stop. Beside each
+other, no channel stops following the others, and the hinge sees nothing. A second sinus
+video of the same dataset shows it (`lppllppl920/DenseDescriptorLearning-Pytorch`, frames
+2739-2834 at 640 px): each channel's histogram piles up at 233-239 of 255 and falls five
+times from 239 to 240, where an overexposed wall close to the scope and the highlights sit,
+most of it not within one code of grey (JPEG's chroma noise). Read as light, those values
+(3% of each channel's) held half of Lambert's squared error there (`ctjax fit`: RMSE 29.5
+levels with them, 20.9 without; docs/real-video.md). So each channel's own histogram is
+searched, from the top down, for a *pile-up*: a code holding at least `PILE_SHARE` of the
+samples (over `PILE_SMOOTH` codes) whose next codes up hold at most `PILE_DROP` of it and
+the codes a few dozen below it at most 1 / `PILE_RISE` of it. Where two channels or more
+pile up within `PILE_AGREE` codes of each other, that is the camera's white: every channel
+reads as clipped from the pile-up's lower edge (the lowest code down to which the smoothed
+histogram stays at half the peak or more, at most `PILE_WIDTH` codes below the peak), or
+from its own hinge where that is lower. One channel alone piling up (the sinus's red at
+225, beside its hinge at 203) is not a white.
 """
 
 import numpy as np
@@ -52,6 +71,20 @@ BRIGHT = 0.5
 # ...but below this one: a plateau just under full scale is the sensor's own clipping, the
 # values next to it spread by noise and compression below the full-scale samples left out.
 BELOW_FULL_SCALE = 0.95
+
+
+# The camera's white: a channel's pile-up holds at least this share of the samples...
+PILE_SHARE = 1e-3
+# ...in the mean over this many codes (of 255) about its peak...
+PILE_SMOOTH = 5
+# ...the 3rd to 8th codes above it at most this share of it (a sharp top)...
+PILE_DROP = 0.35
+# ...and it at least this many times the 24th to 40th codes below it (a pile, not a slope);
+PILE_RISE = 2.0
+# two channels' peaks within this many codes are one white; its lower edge at most this
+# many codes below its peak (the noise and the resampling about the camera's white).
+PILE_AGREE = 3
+PILE_WIDTH = 12
 
 
 def samples_of(raw: np.ndarray, clipped: np.ndarray) -> np.ndarray:
@@ -87,8 +120,52 @@ def channel_profile(samples: np.ndarray, top: int, channel: int):
 
 def channel_ceilings(samples: np.ndarray, top: int) -> list[int | None]:
     """Per channel, the code value from which it reads as clipped, or None where it follows
-    the others up to the brightest samples (the module doc). `samples`: (N, 3) codes."""
-    return [_ceiling(*channel_profile(samples, top, c), top) for c in range(samples.shape[-1])]
+    the light up to the brightest samples (the module doc): where it stops following the
+    others, or the camera's white (`white_level`), whichever is lower. `samples`: (N, 3)
+    codes."""
+    hinges = [_ceiling(*channel_profile(samples, top, c), top) for c in range(samples.shape[-1])]
+    white = white_level(samples, top)
+    if white is None:
+        return hinges
+    return [white if code is None else min(code, white) for code in hinges]
+
+
+def white_level(samples: np.ndarray, top: int) -> int | None:
+    """The code value from which every channel reads as clipped where two channels or more
+    pile up at one code below full scale (the camera's white, the module doc), or None.
+    `samples`: (N, 3) codes."""
+    step = top / 255  # 16-bit codes on the 8-bit scale of the constants
+    piles = [_pile_up(np.round(samples[:, c] / step)) for c in range(samples.shape[-1])]
+    piles = sorted(pile for pile in piles if pile is not None)
+    agreeing = [
+        edge
+        for k, (peak, edge) in enumerate(piles)
+        if any(abs(peak - other) <= PILE_AGREE for j, (other, _) in enumerate(piles) if j != k)
+    ]
+    return round(min(agreeing) * step) if agreeing else None
+
+
+def _pile_up(codes: np.ndarray) -> tuple[int, int] | None:
+    """The highest pile-up below full scale of one channel's 8-bit `codes` (the module
+    doc): its peak's code and its lower edge, or None."""
+    counts = np.bincount(codes.astype(np.int64), minlength=256).astype(np.float64)
+    smooth = np.convolve(counts, np.ones(PILE_SMOOTH) / PILE_SMOOTH, mode="same")
+    lowest = int(BRIGHT * 255)
+    for peak in range(int(BELOW_FULL_SCALE * 255) - 1, lowest, -1):
+        height = smooth[peak]
+        if height < PILE_SHARE * len(codes) or height * PILE_SMOOTH < MIN_SAMPLES:
+            continue
+        below = counts[peak - 40 : peak - 23].mean()
+        if (
+            counts[peak + 3 : peak + 9].mean() <= PILE_DROP * height
+            and height >= PILE_RISE * below
+            and below > 0  # a pile the light leads up to, not a flat image's one colour
+        ):
+            edge = peak
+            while edge > max(lowest, peak - PILE_WIDTH) and smooth[edge - 1] >= 0.5 * height:
+                edge -= 1
+            return peak, edge
+    return None
 
 
 def hinge(centres, medians, weights) -> tuple[int, float, float, float] | None:

@@ -6,7 +6,10 @@ than the local tissue, or clipped; `HLSThresholds` is the paper's ".95" rule; se
 specular frontier, found with a distance transform, with a valid normal and no channel at
 the sensor's maximum. Clipping is per channel (`SpecularSets.clipped`): a channel at full
 scale records "at least this bright", which the model cannot predict (on red tissue the red
-clips first, and the green and blue of the same pixel are still measurements).
+clips first, and the green and blue of the same pixel are still measurements). A channel
+at its ceiling below full scale (`Capture.saturation`: where it stops following the others,
+or the camera's white) is clipped the same way, and S's rule sees it at full scale: an
+overexposed patch at a camera's white of 238 of 255 is S whole, as one at 255 is.
 """
 
 import dataclasses
@@ -90,8 +93,12 @@ def specular_sets(
     ring_px = min(float(ring_px), float(np.hypot(*image.shape[:2])))  # wider: the same ring
     visible = _check_mask("visible", visible, image, default=True)
     valid = _check_mask("valid", valid, image, default=True)
-    specular = specular_mask(image, highlights, min_speck_px, visible)
-    clipped = (image >= saturation_level) & (~specular & visible)[..., None]
+    at_ceiling = image >= saturation_level
+    # The rule reads a channel at its ceiling as at full scale: clipped, as it is (a camera
+    # whose white lies below full scale clips there; `ctjax.io._channel_ceiling`).
+    seen = np.where(at_ceiling, np.float32(1.0), image) if np.any(at_ceiling) else image
+    specular = specular_mask(seen, highlights, min_speck_px, visible)
+    clipped = at_ceiling & (~specular & visible)[..., None]
     if specular.any():
         distance = cv2.distanceTransform(
             (~specular).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
