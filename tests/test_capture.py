@@ -459,3 +459,32 @@ def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
     stereo = load_capture(tmp_path / "s")
     assert stereo.saturation == (1.0, 1.0, 1.0)
     assert stereo.right_saturation == pytest.approx(capture.saturation)
+
+
+def test_frames_reconstruct_did_not_register_are_left_out_with_a_note(tmp_path, capsys):
+    """`ctjax reconstruct` keeps the images of the frames it could not register and lists
+    them in reconstruction.json: the commands that fit leave them out and say which (they
+    ended in "no depth or normals ...; reconstruct it first"); `masks` keeps every frame."""
+    import argparse
+
+    from ctjax._commands._args import load_capture as command_capture
+    from ctjax.io import registered_frames
+
+    rng = np.random.default_rng(0)
+    camera = Camera(16, 16, 16.0, 16.0, 7.5, 7.5)
+    images = [rng.uniform(0.2, 0.8, (16, 16, 3)) for _ in range(3)]
+    depth = np.full((16, 16), 50.0, np.float32)
+    frames = [Frame("a", images[0], depth), Frame("b", images[1]), Frame("c", images[2], depth)]
+    write_capture(tmp_path / "c", camera, frames)
+    capture = load_capture(tmp_path / "c")
+    assert registered_frames(capture) == (capture, None)  # no report: as it is
+    (tmp_path / "c" / "reconstruction.json").write_text(json.dumps({"unregistered": ["b"]}))
+    kept, note = registered_frames(load_capture(tmp_path / "c"))
+    assert [f.name for f in kept.frames] == ["a", "c"] and "1 of 3 frames" in note and "b" in note
+    args = argparse.Namespace(capture=tmp_path / "c", command="fit")
+    assert len(command_capture(args)) == 2
+    assert "did not register in ctjax reconstruct (b;" in capsys.readouterr().err
+    assert len(command_capture(args, registered_only=False)) == 3
+    # A frame without its shape that the report does not list is the user's: as it is.
+    (tmp_path / "c" / "reconstruction.json").write_text(json.dumps({"unregistered": []}))
+    assert len(registered_frames(load_capture(tmp_path / "c"))[0]) == 3

@@ -51,12 +51,19 @@ def _check_parent_folders(path: Path, text: str) -> None:
             return
 
 
-def load_capture(args: argparse.Namespace):
-    """`args.capture` loaded, with its notes (how its images were decoded) on stderr."""
+def load_capture(args: argparse.Namespace, registered_only: bool = True):
+    """`args.capture` loaded, with its notes (how its images were decoded) on stderr;
+    `registered_only`: without the frames `ctjax reconstruct` did not register, with a note
+    (`ctjax.io.registered_frames`)."""
     from ..io import load_capture as load
+    from ..io import registered_frames
 
     capture = load(args.capture)
-    for note in capture.notes:
+    notes = list(capture.notes)
+    if registered_only:
+        capture, left_out = registered_frames(capture)
+        notes += [left_out] if left_out else []
+    for note in notes:
         print(f"ctjax {args.command}: note: {note}", file=sys.stderr)
     return capture
 

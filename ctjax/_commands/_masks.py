@@ -20,7 +20,7 @@ def run_masks(args: argparse.Namespace) -> int:
     from ..io._images import write_mask
     from ..specular import capture_sets
 
-    capture = load_capture(args)
+    capture = load_capture(args, registered_only=False)  # S of every frame
     sets = capture_sets(capture, mask_options(args))
     for frame, s in zip(capture.frames, sets, strict=True):
         for kind in ("specular", "ring"):

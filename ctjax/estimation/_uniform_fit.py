@@ -88,7 +88,9 @@ def require_geometry(capture: Capture) -> None:
     if missing:
         raise CtjaxError(
             f"{capture.root}: no depth or normals for frame(s) {', '.join(missing[:5])}; "
-            "the BRDF fit needs the shape (add depth/ or normals/, or reconstruct it first)"
+            "the BRDF fit needs the shape (add depth/ or normals/, or reconstruct it first; "
+            "frames ctjax reconstruct did not register: leave them out, "
+            "ctjax.io.registered_frames)"
         )
     empty = [f.name for f in capture.frames if not f.geometry_mask.any()]
     if len(empty) == len(capture.frames):

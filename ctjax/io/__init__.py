@@ -14,5 +14,6 @@ from ._field_of_view import white_overlays as white_overlays
 from ._images import read_rgb as read_rgb
 from ._images import write_rgb as write_rgb
 from ._opencv_calibration import camera_json_from_opencv as camera_json_from_opencv
+from ._registered import registered_frames as registered_frames
 from ._video import ImportOptions as ImportOptions
 from ._video import import_video as import_video
