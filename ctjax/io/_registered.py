@@ -4,10 +4,11 @@
 the others in `reconstruction.json`'s `unregistered` (their images stay in the capture:
 it may write in place, and a user's images are not deleted). Every estimator needs each
 frame's shape, so the commands that fit leave those frames out and say which, as `ctjax
-fit` does on a capture of images only (`ctjax.sfm.with_reconstructed_shape`). On a second
-sinus video's 381 frames taken 31 apart (12 frames, `benchmarks/real_video.py`), 3 of 12
-registered, and `fit` ended in "no depth or normals for frame(s) ...; reconstruct it
-first" on a capture just reconstructed.
+fit` does on a capture of images only (`ctjax.sfm.with_reconstructed_shape`). Before,
+one frame short was enough to stop every command after `reconstruct`: on 12 frames of a
+second sinus video (every 10th of 120, `benchmarks/real_video.py`) 11 registered, and
+`fit` ended in "no depth or normals for frame(s) 00002721; ... reconstruct it first" on a
+capture just reconstructed (on the same video's 381 frames taken 31 apart, 3 of 12).
 """
 
 import dataclasses
