@@ -135,10 +135,11 @@ def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse, effects
     )
 
 
-def _near_highlight(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def _near_highlight(image: np.ndarray, mask: np.ndarray, saturation) -> np.ndarray:
     from ..specular import specular_sets
 
-    specular = specular_sets(image, mask).specular
+    # S as the fits find it: a channel at the camera's ceiling reads as clipped.
+    specular = specular_sets(image, mask, saturation_level=np.asarray(saturation)).specular
     if not specular.any():
         return np.zeros_like(mask)
     distance = cv2.distanceTransform((~specular).astype(np.uint8), cv2.DIST_L2, 5)
@@ -165,7 +166,7 @@ def frame_shapes(
     mask = block_reduce(valid, factor, np.all)
     image = block_reduce(frame.image, factor)
     reference = np.where(mask, block_reduce(np.where(valid, frame.depth, 0.0), factor), np.nan)
-    near = block_reduce(_near_highlight(frame.image, valid), factor, np.any)
+    near = block_reduce(_near_highlight(frame.image, valid, source.saturation), factor, np.any)
     if mask.sum() < 9:
         raise CtjaxError(f"frame {frame.name}: too few pixels with depth for SfS")
     volume = bounding_box_volume(reference, mask, camera)
