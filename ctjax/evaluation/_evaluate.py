@@ -135,7 +135,7 @@ def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse, effects
     )
 
 
-def _near_highlight(image: np.ndarray, mask: np.ndarray, saturation) -> np.ndarray:
+def _near_highlight(image: np.ndarray, mask: np.ndarray, saturation=1.0) -> np.ndarray:
     from ..specular import specular_sets
 
     # S as the fits find it: a channel at the camera's ceiling reads as clipped.

@@ -112,9 +112,10 @@ class Capture:
     # A stereo laparoscope's right camera (camera.json's "stereo"; `ctjax.io._stereo`).
     stereo: StereoRig | None = None
     # Per channel, the level (decoded, as `Frame.image`) from which a value reads as clipped:
-    # 1.0, or below it where the channel stops following the others (the camera's ceiling,
-    # `ctjax.io._channel_ceiling`). The estimators' observations (`ctjax._tracks`, the ring)
-    # leave out values at or above it; the images keep them, as recorded.
+    # 1.0, or below it where the channel stops following the others or at the camera's white
+    # below full scale (`ctjax.io._channel_ceiling`). The estimators' observations
+    # (`ctjax._tracks`, the ring) leave out values at or above it, and S's rule reads them as
+    # clipped; the images keep them, as recorded.
     saturation: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def right_image(self, name: str) -> np.ndarray | None:
