@@ -97,11 +97,19 @@ def exposed(tmp_path_factory):
 
 
 def test_fit_names_the_frames_an_exposure_change_brightens_and_flags_the_lobe(exposed):
-    """`fit` (the paper's model, no exposure) names the frames brighter or darker than the
-    others predict, following their true exposure, and its lobe is no measurement."""
+    """`fit` with one exposure (the paper's model, `effects=()`) names the frames brighter
+    or darker than the others predict, following their true exposure, and its lobe is no
+    measurement; by default the fit then fits a gain per frame instead, and says why."""
     truth = exposed.truth["effects"]["frame_exposure"]["effects[0].log_exposure"]
+    chosen = fit_capture(exposed).to_json()
+    assert chosen["exposure"]["fitted"] == "per_frame"
+    assert chosen["exposure"]["one_exposure"]["status"] == "brightness_off"
+    assert "frame_exposure" in chosen["exposure"]["why"]
+    np.testing.assert_allclose(chosen["log_exposure"], truth, atol=0.005)
+    assert chosen["status"] == "successful" and chosen["brightness_off"] == []
+    assert chosen["sigma"] == pytest.approx(exposed.truth["sigma"], rel=0.01)
     truth = np.concatenate([[0.0], truth])
-    result = fit_capture(exposed).to_json()
+    result = fit_capture(exposed, effects=()).to_json()
     log_brightness = np.log([result["frames_brightness"][f.name] for f in exposed.frames])
     # Each frame's against the others' (each point's albedo comes from its other frames).
     others = np.asarray([np.delete(truth, f).mean() for f in range(len(truth))])

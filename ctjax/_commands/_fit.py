@@ -105,12 +105,14 @@ def add_fit_parser(commands) -> None:
     fit.add_argument(
         "--effects",
         nargs="+",
-        default=[],
-        choices=("frame_exposure",),
+        default=None,
+        choices=("frame_exposure", "none"),
         metavar="EFFECT",
         help="image effects fitted with the BRDF: frame_exposure (a scope's auto-exposure: a "
         "gain per frame over the first's, with the albedo map; the other image effects: "
-        "calibrate-light --effects)",
+        "calibrate-light --effects), or none (one exposure, the paper's). Default: a gain "
+        "per frame where the frames are brighter or darker than the others predict and the "
+        "lobe moves with it, else none",
     )
     add_mask_arguments(fit)
     fit.set_defaults(run=run_fit)
@@ -168,7 +170,7 @@ def run_fit(args: argparse.Namespace) -> int:
         albedo=args.albedo,
         max_points=args.max_tracks,
         right_views=args.right_views,
-        effects=tuple(args.effects),
+        effects=None if args.effects is None else tuple(e for e in args.effects if e != "none"),
     )
     if args.albedo_maps is not None:
         if "albedo" not in estimate.details or estimate.details["albedo"] != "map":
@@ -219,6 +221,17 @@ def run_fit(args: argparse.Namespace) -> int:
     )
     if effects_line(estimate.model):
         print(effects_line(estimate.model))
+    exposure = result.get("exposure", {})
+    if exposure.get("fitted") == "per_frame":
+        one = exposure["one_exposure"]
+        print(
+            "ctjax fit: note: a gain per frame fitted (a scope's auto-exposure): with one "
+            f"exposure the frames {', '.join(one['brightness_off'][:6])} are off in brightness "
+            f"and the lobe moves with it (sigma {one.get('sigma', float('nan')):.4g}, "
+            f"{one['status']}); "
+            "--effects none keeps one exposure",
+            file=sys.stderr,
+        )
     halves = result.get("halves", {})
     if halves:
         names = [n for n in family.names if n in halves["even_frames"]]

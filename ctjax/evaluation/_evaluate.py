@@ -86,12 +86,13 @@ def fit_lambertian(
 def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None) -> Estimate:
     """The paper's estimate (`ctjax fit`: BnB on the ring, L = V) on the first
     `calibration` frames, with a 10 px ring (the paper's 3 px is thin on bright tissue);
-    `albedo` as `fit_capture`'s."""
+    `albedo` as `fit_capture`'s; one exposure (`evaluate --effects` fits the frames' in both
+    models)."""
     from ..estimation import MaskOptions, fit_capture
 
     capture = Observations.of(capture).capture
     subset = dataclasses.replace(capture, frames=capture.frames[:calibration])
-    fit = fit_capture(subset, MaskOptions(ring_px=10), albedo=albedo)
+    fit = fit_capture(subset, MaskOptions(ring_px=10), albedo=albedo, effects=())
     fit.details["light"] = "colocated"
     return fit
 
