@@ -12,8 +12,9 @@ centre, unless a camera.json lies beside it). Without SOURCE: every sequence of
 `--frames` frames `--width` pixels wide, then run through the user guide's commands, as a user
 would: `reconstruct` -> `masks` -> `fit` (and `fit` on the even and the odd frames apart:
 is sigma stable across frame subsets?) -> `calibrate-light` (near) -> `evaluate` ->
-`diagnose --loop`; `--fit-effects frame_exposure` fits the scope's auto-exposure in `fit`
-and its even / odd frames (the remedy `fit`'s `brightness_off` names). It prints, per sequence:
+`diagnose --loop`; `fit` fits a gain per frame where the frames' brightness moves its lobe
+(a scope's auto-exposure), `--fit-effects frame_exposure` always and `--fit-effects none`
+never, in `fit` and its even / odd frames. It prints, per sequence:
 
 - masks: S's share of the field of view, and the recall of the near-white cores (every
   channel >= 230 recorded, away from the rim of the field of view) with S's area over
