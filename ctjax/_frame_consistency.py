@@ -123,7 +123,9 @@ def judge_frames_brightness(
         f"the lobe is {_lobe_text(after)} (here {_lobe_text(lobe)})"
     )
     if lobe_moved(lobe, after) <= BRIGHTNESS_MOVES_LOBE:
-        result.warnings.append(f"{found}: the lobe does not absorb it")
+        result.warnings.append(
+            f"{found}: the lobe does not absorb it, the fit's error does ({remedy})"
+        )
         return
     reason = (
         f"{found}: an exposure change between frames (a scope's auto-exposure) or a falloff "
