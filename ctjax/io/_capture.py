@@ -117,6 +117,9 @@ class Capture:
     # (`ctjax._tracks`, the ring) leave out values at or above it, and S's rule reads them as
     # clipped; the images keep them, as recorded.
     saturation: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    # The code values of the recorded images those levels come from (None: full scale), as
+    # camera.json's "ceilings" takes them: what `reconstruct --out` pins in its copy.
+    ceilings: tuple[int | None, int | None, int | None] = (None, None, None)
 
     def right_image(self, name: str) -> np.ndarray | None:
         """Frame `name`'s right image as recorded (encoded, float in [0, 1], the right
@@ -382,9 +385,9 @@ def load_capture(
             "channels within one code value, in frames of coloured tissue): read as clipped",
         )
     declared_ceilings = read_ceilings(root / "camera.json")
-    saturation, ceilings = _saturation(frames, samples, encoding, declared_ceilings)
-    if ceilings:
-        notes = (*notes, ceilings)
+    saturation, ceilings, said = _saturation(frames, samples, encoding, declared_ceilings)
+    if said:
+        notes = (*notes, said)
     if facing_notes:
         notes = (
             *notes,
@@ -408,7 +411,9 @@ def load_capture(
             )
         if not BASELINE_MM[0] <= stereo.baseline_mm <= BASELINE_MM[1]:
             notes = (*notes, unlikely_baseline(root, stereo.baseline_mm))
-    return Capture(root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation)
+    return Capture(
+        root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation, ceilings
+    )
 
 
 def _ceiling_levels(
@@ -437,11 +442,12 @@ def _decoded(recorded: float, encoding: str) -> float:
     return float(srgb_to_linear(np.float64(recorded))) if encoding == SRGB else recorded
 
 
-def _saturation(frames, samples, encoding, declared) -> tuple[tuple[float, ...], str | None]:
-    """`Capture.saturation` of the frames, and a note naming the ceilings (None without)."""
+def _saturation(frames, samples, encoding, declared) -> tuple[tuple, tuple, str | None]:
+    """`Capture.saturation` of the frames, `Capture.ceilings` and a note naming them (None
+    without)."""
     levels, ceilings, top = _ceiling_levels(samples, encoding, declared)
     if all(code is None for code in ceilings):
-        return levels, None
+        return levels, (None, None, None), None
     values = len(frames) * frames[0].image[..., 0].size
     described = []
     for c, code in enumerate(ceilings):
@@ -449,11 +455,15 @@ def _saturation(frames, samples, encoding, declared) -> tuple[tuple[float, ...],
             read = sum(int(np.count_nonzero(f.image[..., c] >= levels[c])) for f in frames)
             described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
     found = "found on the frames" if declared == AUTO_CEILINGS else "camera.json's ceilings"
-    return levels, (
-        "a channel of the frames stops below full scale (the camera's ceiling, where it stops "
-        f"following the others or the camera's white, {found}): read as clipped there, "
-        f'{"; ".join(described)}; camera.json\'s "ceilings": "none" reads every channel to '
-        "full scale"
+    return (
+        levels,
+        tuple(ceilings),
+        (
+            "a channel of the frames stops below full scale (the camera's ceiling, where it stops "
+            f"following the others or the camera's white, {found}): read as clipped there, "
+            f'{"; ".join(described)}; camera.json\'s "ceilings": "none" reads every channel to '
+            "full scale"
+        ),
     )
 
 

@@ -25,6 +25,7 @@ from .._errors import CaptureError, CtjaxError, ParameterError, ReconstructionEr
 from .._units import unit_of_reconstruction
 from ..io import Capture, load_capture
 from ..io._atomic import atomic_write_json, atomic_write_npy
+from ..io._camera_json import AUTO_CEILINGS, read_ceilings
 from ..io._excluded import EXCLUDED
 from ._agreement import refinement_agreement
 from ._checks import check_knots, check_scale
@@ -398,6 +399,8 @@ def reconstruct(
     if result.report["focal"]["status"] == "refined":
         camera_json = json.loads((root / "camera.json").read_text())
         atomic_write_json(out / "camera.json", with_focal(camera_json, result.report["focal"]))
+    if copies:
+        result.report["ceilings_pinned"] = _pin_ceilings(capture, out)
     distorted = _distorted_pixels(root, capture.camera)
     for name in names:
         view = result.views.get(name)
@@ -423,6 +426,24 @@ def reconstruct(
         )
     atomic_write_json(out / "reconstruction.json", report)
     return report
+
+
+def _pin_ceilings(capture: Capture, out: Path) -> list[int | None] | None:
+    """The channels' ceilings found on every frame of `capture` (`Capture.ceilings`), written
+    as `out`'s camera.json's "ceilings" where camera.json leaves them to be found ("auto")
+    and some were found (a stereo capture's right camera finds its own: not pinned): a
+    subset of the frames (the even or the odd ones, fitted apart) then reads its values as
+    the whole did. On a second sinus video's 12 frames (docs/real-video.md) red's ceiling at
+    211 was found on all of them and missed on halves of six, whose RMSE doubled. Returns
+    the codes written, or None."""
+    if capture.stereo is not None or all(code is None for code in capture.ceilings):
+        return None
+    path = out / "camera.json"
+    if read_ceilings(path) != AUTO_CEILINGS:
+        return None
+    codes = [None if code is None else int(code) for code in capture.ceilings]
+    atomic_write_json(path, {**json.loads(path.read_text()), "ceilings": codes})
+    return codes
 
 
 # The lights `reconstruct(shading=...)` refines the shape under (the command line's
