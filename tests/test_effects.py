@@ -109,7 +109,8 @@ def test_fit_names_the_frames_an_exposure_change_brightens_and_flags_the_lobe(ex
     assert chosen["status"] == "successful" and chosen["brightness_off"] == []
     assert chosen["sigma"] == pytest.approx(exposed.truth["sigma"], rel=0.01)
     truth = np.concatenate([[0.0], truth])
-    result = fit_capture(exposed, effects=()).to_json()
+    one = fit_capture(exposed, effects=())
+    result = one.to_json()
     log_brightness = np.log([result["frames_brightness"][f.name] for f in exposed.frames])
     # Each frame's against the others' (each point's albedo comes from its other frames).
     others = np.asarray([np.delete(truth, f).mean() for f in range(len(truth))])
@@ -125,6 +126,16 @@ def test_fit_names_the_frames_an_exposure_change_brightens_and_flags_the_lobe(ex
     assert result["status"] == "brightness_off"
     assert any("frame_exposure" in w for w in result["warnings"])
     assert not Status.brightness_off.determined and Status.brightness_off.converged
+    # Where the gains cannot be fitted, the flagged fit stands and says why.
+    from ctjax.estimation._capture_fit import with_exposure_where_needed
+
+    def failing():
+        raise CtjaxError("too few views per frame")
+
+    kept = with_exposure_where_needed(one, failing)
+    assert kept is one and kept.status.name == "brightness_off"
+    assert kept.details["exposure"]["fitted"] == "one"
+    assert "too few views per frame" in kept.warnings[-1]
 
 
 @pytest.mark.parametrize("exposure", [0.0, 0.1])

@@ -150,7 +150,12 @@ def with_exposure_where_needed(fit: Estimate, with_exposure) -> Estimate:
                 "absorb what differs",
             }
         return fit
-    again = with_exposure()
+    try:
+        again = with_exposure()
+    except CtjaxError as error:  # the flagged fit stands, and says why it was not redone
+        fit.details["exposure"] = {"fitted": "one", "why": f"a gain per frame failed: {error}"}
+        fit.warnings.append(f"a gain per frame (frame_exposure) could not be fitted: {error}")
+        return fit
     one = fit.to_json()
     again.details["exposure"] = {
         "fitted": "per_frame",
