@@ -436,29 +436,28 @@ def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):
         clipped = (recorded[..., 0] >= code) | np.any(recorded[..., 1:] == 255, axis=-1)
         assert np.array_equal(usable[1:-1, 1:-1], ~clipped[1:-1, 1:-1])  # normals: not the rim
     assert capture.ceilings == (code, None, None)
-    # `reconstruct --out` pins what every frame showed in its copy's camera.json, so that a
-    # subset of the frames (even or odd, fitted apart) reads its values as the whole did.
-    from ctjax.sfm._reconstruct import _pin_ceilings
-
-    (tmp_path / "out").mkdir()
-    shutil.copy(tmp_path / "c" / "camera.json", tmp_path / "out" / "camera.json")
-    assert _pin_ceilings(capture, tmp_path / "out") == [code, None, None]
-    pinned = json.loads((tmp_path / "out" / "camera.json").read_text())
-    assert pinned["ceilings"] == [code, None, None] and pinned["fx"] == 150.0
-    # A frame whose own values show no ceiling reads the pinned one.
+    # `reconstruct` keeps what every frame showed in reconstruction.json, and a subset of
+    # the frames (even or odd, fitted apart) reads its values as the whole did, even a
+    # frame whose own values show no ceiling; camera.json's, where given, come first.
     strip = _tissue_samples(rng, 160 * 160).reshape(160, 160, 3)
     write_capture(tmp_path / "few", camera, [Frame("f0", strip / 255.0)])
-    shutil.copy(tmp_path / "out" / "camera.json", tmp_path / "few" / "camera.json")
+    assert load_capture(tmp_path / "few").ceilings == (None, None, None)
+    report = {"length_unit": "mm", "ceilings": [code, None, None]}
+    (tmp_path / "few" / "reconstruction.json").write_text(json.dumps(report))
     few = load_capture(tmp_path / "few")
     assert few.saturation == pytest.approx(capture.saturation)
     assert few.ceilings == (code, None, None)
-    assert _pin_ceilings(few, tmp_path / "few") is None  # given there: not written again
+    assert any("reconstruction.json's ceilings" in note for note in few.notes)
+    assert load_capture(tmp_path / "few", reconstructed_ceilings=False).ceilings == (None,) * 3
+    described = json.loads((tmp_path / "few" / "camera.json").read_text())
+    (tmp_path / "few" / "camera.json").write_text(json.dumps(described | {"ceilings": "none"}))
+    assert load_capture(tmp_path / "few").ceilings == (None, None, None)
     plain = [_tissue_samples(rng, 160 * 160).reshape(160, 160, 3) for _ in range(6)]
     plain_frames = [Frame(f"f{k}", f / 255.0) for k, f in enumerate(plain)]
     write_capture(tmp_path / "p", camera, plain_frames)
     plain = load_capture(tmp_path / "p")
     assert not any("ceiling" in note for note in plain.notes)
-    assert plain.ceilings == (None, None, None) and _pin_ceilings(plain, tmp_path / "p") is None
+    assert plain.ceilings == (None, None, None)
     assert plain.saturation == (1.0, 1.0, 1.0) == plain.right_saturation
     # camera.json's "ceilings": none, or given (codes of the images; null: full scale).
     described = json.loads((tmp_path / "c" / "camera.json").read_text())

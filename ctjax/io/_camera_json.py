@@ -145,7 +145,8 @@ def read_ceilings(path: Path) -> str | list[int | None]:
     """`camera.json`'s `"ceilings"`: "auto" (the default: each channel's ceiling found on the
     frames, `ctjax.io._channel_ceiling`), "none" (every channel clips at full scale) or
     [R, G, B], each a code value of the images (from which that channel reads as clipped)
-    or null (full scale)."""
+    or null (full scale). The same of reconstruction.json, where `ctjax reconstruct` keeps
+    the ceilings it found on every frame."""
     path = Path(path)
     try:
         data = json.loads(path.read_text())

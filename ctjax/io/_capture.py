@@ -118,7 +118,7 @@ class Capture:
     # clipped; the images keep them, as recorded.
     saturation: tuple[float, float, float] = (1.0, 1.0, 1.0)
     # The code values of the recorded images those levels come from (None: full scale), as
-    # camera.json's "ceilings" takes them: what `reconstruct --out` pins in its copy.
+    # camera.json's "ceilings" takes them: what `reconstruct` keeps in reconstruction.json.
     ceilings: tuple[int | None, int | None, int | None] = (None, None, None)
 
     def right_image(self, name: str) -> np.ndarray | None:
@@ -267,7 +267,11 @@ def _undistort(camera: Camera, frame: Frame) -> Frame:
 
 
 def load_capture(
-    path: str | Path, *, undistort: bool = True, field_of_view: bool = True
+    path: str | Path,
+    *,
+    undistort: bool = True,
+    field_of_view: bool = True,
+    reconstructed_ceilings: bool = True,
 ) -> Capture:
     """Load a capture folder (see the module docstring for the format).
 
@@ -281,7 +285,11 @@ def load_capture(
     the scene: the pixels inside the endoscope's image circle or polygon and off overlays
     constant over the video (`ctjax.io.visible_masks`); None where that is every pixel.
     Pixels `excluded/NAME.png` marks (instruments: `ctjax.io._excluded`), or `excluded.png`
-    in every frame, are never in it.
+    in every frame, are never in it. The channels' ceilings (`Capture.saturation`) are
+    camera.json's where it gives them, else those `ctjax reconstruct` found on every frame it
+    read (reconstruction.json's `ceilings`, with `reconstructed_ceilings`: a subset of a
+    reconstructed capture's frames reads its values as the whole did), else found on these
+    frames.
     """
     root = Path(path)
     if not root.exists():
@@ -362,6 +370,7 @@ def load_capture(
             raise CaptureError(f"{root / 'truth.json'}: not valid JSON ({error})") from None
     _refuse_duplicates(root, frames)
     unit = METRIC
+    declared_ceilings, source = read_ceilings(root / "camera.json"), "camera.json's ceilings"
     if (root / "reconstruction.json").is_file():
         try:
             unit = unit_of_reconstruction(json.loads((root / "reconstruction.json").read_text()))
@@ -369,6 +378,9 @@ def load_capture(
             raise CaptureError(
                 f"{root / 'reconstruction.json'}: not a reconstruction report"
             ) from None
+        if declared_ceilings == AUTO_CEILINGS and reconstructed_ceilings:
+            declared_ceilings = read_ceilings(root / "reconstruction.json")
+            source = "reconstruction.json's ceilings, found on every frame ctjax reconstruct read"
     encoding = encodings.pop()
     notes = ()
     if declared is None and encoding == SRGB:
@@ -384,8 +396,7 @@ def load_capture(
             f"{share:.2%} of the frames' pixels are near-white that the camera turned grey (its "
             "channels within one code value, in frames of coloured tissue): read as clipped",
         )
-    declared_ceilings = read_ceilings(root / "camera.json")
-    saturation, ceilings, said = _saturation(frames, samples, encoding, declared_ceilings)
+    saturation, ceilings, said = _saturation(frames, samples, encoding, declared_ceilings, source)
     if said:
         notes = (*notes, said)
     if facing_notes:
@@ -442,9 +453,9 @@ def _decoded(recorded: float, encoding: str) -> float:
     return float(srgb_to_linear(np.float64(recorded))) if encoding == SRGB else recorded
 
 
-def _saturation(frames, samples, encoding, declared) -> tuple[tuple, tuple, str | None]:
+def _saturation(frames, samples, encoding, declared, source) -> tuple[tuple, tuple, str | None]:
     """`Capture.saturation` of the frames, `Capture.ceilings` and a note naming them (None
-    without)."""
+    without); `source`: where `declared` ceilings come from."""
     levels, ceilings, top = _ceiling_levels(samples, encoding, declared)
     if all(code is None for code in ceilings):
         return levels, (None, None, None), None
@@ -454,7 +465,7 @@ def _saturation(frames, samples, encoding, declared) -> tuple[tuple, tuple, str 
         if code is not None:
             read = sum(int(np.count_nonzero(f.image[..., c] >= levels[c])) for f in frames)
             described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
-    found = "found on the frames" if declared == AUTO_CEILINGS else "camera.json's ceilings"
+    found = "found on the frames" if declared == AUTO_CEILINGS else source
     return (
         levels,
         tuple(ceilings),

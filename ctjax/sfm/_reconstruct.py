@@ -359,7 +359,7 @@ def reconstruct(
     if shading not in (None, False, True, *SHADING_LIGHTS):
         raise CaptureError(f"shading must be one of {', '.join(SHADING_LIGHTS)}, got {shading!r}")
     root = Path(capture_dir)
-    capture = load_capture(root)
+    capture = load_capture(root, reconstructed_ceilings=False)  # found on these frames
     out = root if out is None else Path(out)
     names = [f.name for f in capture.frames]
     copies = []
@@ -399,8 +399,6 @@ def reconstruct(
     if result.report["focal"]["status"] == "refined":
         camera_json = json.loads((root / "camera.json").read_text())
         atomic_write_json(out / "camera.json", with_focal(camera_json, result.report["focal"]))
-    if copies:
-        result.report["ceilings_pinned"] = _pin_ceilings(capture, out)
     distorted = _distorted_pixels(root, capture.camera)
     for name in names:
         view = result.views.get(name)
@@ -420,30 +418,17 @@ def reconstruct(
     atomic_write_json(out / "poses.json", poses)
     report = {**result.report, "capture": str(root), "out": str(out)}
     report |= {"encoding": capture.encoding, "notes": list(capture.notes)}
+    if read_ceilings(root / "camera.json") == AUTO_CEILINGS:
+        # What every frame showed, for a subset of them to read as the whole (`load_capture`):
+        # a second sinus video's red ceiling at 211 was found on 12 frames and missed on their
+        # even and odd six, whose RMSE doubled (docs/real-video.md).
+        report["ceilings"] = [None if c is None else int(c) for c in capture.ceilings]
     if shading:
         report["surface"]["shading"] = _refine_by_shading(
             out, distorted is not None, progress, "camera" if shading is True else shading
         )
     atomic_write_json(out / "reconstruction.json", report)
     return report
-
-
-def _pin_ceilings(capture: Capture, out: Path) -> list[int | None] | None:
-    """The channels' ceilings found on every frame of `capture` (`Capture.ceilings`), written
-    as `out`'s camera.json's "ceilings" where camera.json leaves them to be found ("auto")
-    and some were found (a stereo capture's right camera finds its own: not pinned): a
-    subset of the frames (the even or the odd ones, fitted apart) then reads its values as
-    the whole did. On a second sinus video's 12 frames (docs/real-video.md) red's ceiling at
-    211 was found on all of them and missed on halves of six, whose RMSE doubled. Returns
-    the codes written, or None."""
-    if capture.stereo is not None or all(code is None for code in capture.ceilings):
-        return None
-    path = out / "camera.json"
-    if read_ceilings(path) != AUTO_CEILINGS:
-        return None
-    codes = [None if code is None else int(code) for code in capture.ceilings]
-    atomic_write_json(path, {**json.loads(path.read_text()), "ceilings": codes})
-    return codes
 
 
 # The lights `reconstruct(shading=...)` refines the shape under (the command line's
