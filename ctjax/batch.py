@@ -50,6 +50,7 @@ COLUMNS = (
     "rho_tilde",
     "albedo",
     "fit_status",
+    "fit_exposure",
     "light_status",
     "light_heldout_rmse",
     "light_noise_floor",
@@ -138,6 +139,9 @@ def figures(folder: Path) -> dict:
         "albedo": fit.get("albedo", ""),
         # Not "successful" where the data do not determine the lobe (`ctjax._determined`).
         "fit_status": fit.get("status", ""),
+        # "per_frame" where the fit took a gain per frame (the frames' brightness moved its
+        # lobe: a scope's auto-exposure), "one" else (`ctjax.estimation.fit_capture`).
+        "fit_exposure": (fit.get("exposure") or {}).get("fitted", ""),
         "light_status": light.get("status", ""),
         "light_heldout_rmse": light.get("rgb_rmse_heldout", ""),
         "light_noise_floor": light.get("noise_floor", ""),

@@ -37,6 +37,7 @@ def test_a_failed_capture_is_reported_and_the_others_kept(captures, tmp_path, ca
     # The fit's own status (a measured lobe on this synthetic capture) beside its figures.
     fit = json.loads((out / "good" / "fit.json").read_text())
     assert rows["good"]["fit_status"] == fit["status"] != ""
+    assert rows["good"]["fit_exposure"] == fit["exposure"]["fitted"] == "one"
     assert (
         rows["broken"]["status"] == "failed" and "camera.json not found" in rows["broken"]["error"]
     )
