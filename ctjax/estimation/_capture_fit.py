@@ -1,6 +1,8 @@
 """`ctjax fit`: the BRDF of a capture, by the albedo map (`_map_fit.py`) or the paper's one
 albedo (`_uniform_fit.py`)."""
 
+import functools
+
 from .._errors import CtjaxError
 from .._result import Estimate
 from .._status import Status
@@ -98,28 +100,18 @@ def fit_capture(
         raise CtjaxError("frame_exposure is fitted with the albedo map (--albedo map)")
     obs = Observations.of(capture, masks)
     if albedo == "map":
-        fit = fit_albedo_map(
+        mapped = functools.partial(
+            fit_albedo_map,
             obs,
             masks,
             family,
             tolerance=tolerance,
             max_points=max_points,
             right_views=right_views,
-            frame_exposure=bool(effects),
         )
+        fit = mapped(frame_exposure=bool(effects))
         if auto:
-            fit = with_exposure_where_needed(
-                fit,
-                lambda: fit_albedo_map(
-                    obs,
-                    masks,
-                    family,
-                    tolerance=tolerance,
-                    max_points=max_points,
-                    right_views=right_views,
-                    frame_exposure=True,
-                ),
-            )
+            fit = with_exposure_where_needed(fit, lambda: mapped(frame_exposure=True))
     else:
         fit = fit_uniform(obs, masks, family, tolerance=tolerance)
     estimate = flag_misoriented(fit, obs.capture, obs.sets)
