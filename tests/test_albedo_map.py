@@ -214,8 +214,12 @@ def test_fit_command_writes_the_albedo_maps(textured, tmp_path, capsys):
     assert "albedo" in capsys.readouterr().out
 
 
+def _not_called(*args, **kwargs):
+    raise AssertionError("called where the options were to be refused first")
+
+
 def test_map_without_poses_or_with_uniform_is_one_clear_error(
-    textured, tmp_path, capsys, coarse_facets
+    textured, tmp_path, capsys, coarse_facets, monkeypatch
 ):
     root = textured[(2, 0.5)]
     out = tmp_path / "fit.json"
@@ -261,6 +265,8 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
     # Without poses the default is the paper's uniform albedo.
     assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--ring-px", "10"]) == 0
     assert json.loads(out.read_text())["albedo"] == "uniform"
+    # The facets refused before any fit (a fit of a 640 px capture takes a minute).
+    monkeypatch.setattr("ctjax.estimation._capture_fit.fit_capture", _not_called)
     assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--facets"]) == 2
     assert "--facets needs the albedo map" in capsys.readouterr().err
     nopose = ["fit", str(root.parent / "nopose"), "--json", str(out), "--facet-marginal"]

@@ -184,7 +184,7 @@ def test_fit_with_the_oren_nayar_diffuse_recovers_the_lobe_under_flattened_shadi
     assert result["lambertian"]["rgb_rmse"] > result["diffuse_alone"]["rgb_rmse"]
 
 
-def test_evaluate_splits_the_gain_into_light_diffuse_term_and_lobe(rough):
+def test_evaluate_splits_the_gain_into_light_diffuse_term_and_lobe(rough, monkeypatch):
     """With an Oren-Nayar diffuse term, evaluate fits that term alone under the same light
     too: the test frames' gain is the light's, the diffuse term's and the lobe's, and the
     near light's fit recovers the roughness and the lobe."""
@@ -196,7 +196,8 @@ def test_evaluate_splits_the_gain_into_light_diffuse_term_and_lobe(rough):
 
     root, options = rough
     capture = load_capture(root)
-    near = functools.partial(calibrate_near_light, falloff=())
+    # At the fit test's 4000 tracks (its programs serve again).
+    near = functools.partial(calibrate_near_light, falloff=(), max_samples=4000)
     evaluation = evaluate(capture, cook_torrance=near, sfs=False, diffuse=OrenNayar)
     result = evaluation.to_json()
     fitted = result["models"]["cook_torrance"]
@@ -210,7 +211,14 @@ def test_evaluate_splits_the_gain_into_light_diffuse_term_and_lobe(rough):
     assert parts == pytest.approx(gain["total_levels"], abs=1e-9)
     alone = result["models"]["diffuse_same_light"]
     assert "oren_nayar_roughness" in alone and "F_tilde" not in alone
-    # An estimator that takes no diffuse term is refused by name, not silently Lambertian.
+
+    # An estimator that takes no diffuse term is refused by name, not silently Lambertian,
+    # and before any fit.
+    def not_called(*args, **kwargs):
+        raise AssertionError("a fit before the estimator's options were checked")
+
+    monkeypatch.setattr("ctjax.evaluation._evaluate.fit_lambertian", not_called)
+    monkeypatch.setattr("ctjax.evaluation._evaluate.HeldOutTracks.split", not_called)
     with pytest.raises(CtjaxError, match="takes no diffuse term"):
         evaluate(capture, cook_torrance=lambda c, calibration: None, sfs=False, diffuse=OrenNayar)
 

@@ -124,7 +124,7 @@ def run_fit(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .._threads import started
-    from ..estimation import PAPER, TWO_SCALES, with_diffuse
+    from ..estimation import PAPER, TWO_SCALES, default_albedo, with_diffuse
     from ..estimation._capture_fit import fit_capture
     from ..io._atomic import atomic_write_json, atomic_write_npy
     from ..lobes import diffuse_lobe_named
@@ -154,6 +154,9 @@ def run_fit(args: argparse.Namespace) -> int:
         raise CtjaxError("--max-tracks is for the albedo map (--albedo map)")
     if args.right_views and args.albedo == "uniform":
         raise CtjaxError("--right-views is for the albedo map (--albedo map)")
+    if (args.facets or args.facet_marginal) and (args.albedo or default_albedo(capture)) != "map":
+        option = "--facets" if args.facets else "--facet-marginal"  # refused before the fit
+        raise CtjaxError(f"{option} needs the albedo map (depth and poses in every frame)")
     masks = mask_options(args)
     # The sets S and S~ found once: the intensity fit's, then the sparkle density's.
     observations = Observations.of(capture, masks)
@@ -192,9 +195,6 @@ def run_fit(args: argparse.Namespace) -> int:
     if shape is not None:
         result["shape"] = {"source": "ctjax reconstruct (structure-from-motion)", **shape}
     if args.facets or args.facet_marginal:
-        if result["albedo"] != "map":
-            option = "--facets" if args.facets else "--facet-marginal"
-            raise CtjaxError(f"{option} needs the albedo map (depth and poses in every frame)")
         from ..heldout import HeldOutTracks
 
         split = HeldOutTracks.split(observations)

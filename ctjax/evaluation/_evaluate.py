@@ -97,16 +97,18 @@ def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None)
     return fit
 
 
-def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse, effects) -> Estimate:
+def _cook_torrance(cook_torrance, albedo, diffuse, effects) -> Callable[..., Estimate]:
+    """Cook-Torrance's fit as a function of (capture, calibration), its options checked
+    here: before any fit, so that a wrong one is refused in a second, not after two fits."""
     if effects and isinstance(cook_torrance, Estimate | ShadingModel):
         raise CtjaxError(
             "effects are fitted by Cook-Torrance's estimator: a fitted model is used as it is "
             "(give the estimator, e.g. calibrate_near_light, or the model with its effects)"
         )
     if isinstance(cook_torrance, Estimate):
-        return cook_torrance
+        return lambda capture, calibration: cook_torrance
     if isinstance(cook_torrance, ShadingModel):
-        return Estimate(cook_torrance, status=Status.given)
+        return lambda capture, calibration: Estimate(cook_torrance, status=Status.given)
     if callable(cook_torrance):
         try:
             parameters = inspect.signature(cook_torrance).parameters
@@ -129,7 +131,9 @@ def _cook_torrance(capture, calibration, cook_torrance, albedo, diffuse, effects
                     "(calibrate_near_light does)"
                 )
             options["effects"] = effects
-        return cook_torrance(capture, calibration=calibration, **options)
+        return lambda capture, calibration: cook_torrance(
+            capture, calibration=calibration, **options
+        )
     raise CtjaxError(
         "cook_torrance must be a fitted ShadingModel, an Estimate or an estimator "
         f"(capture, calibration=N) -> Estimate, got {type(cook_torrance).__name__}"
@@ -276,6 +280,7 @@ def evaluate(
     if sfs:  # before any fit: a capture SfS cannot be scored on fails in a second
         for index in test:
             _check_sfs_reference((reference or capture).frames[index], capture.camera)
+    fit_cook_torrance = _cook_torrance(cook_torrance, albedo, diffuse, effects)
     tracks = HeldOutTracks.split(capture, len(calib)) if albedo == "map" else None
     timings, notes = {}, [unmapped] if unmapped else []
     tic = time.perf_counter()
@@ -284,7 +289,7 @@ def evaluate(
     timings["lambertian_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     progress(f"fitting Cook-Torrance with its light on frames {calib}...")
-    fitted = _cook_torrance(capture, len(calib), cook_torrance, albedo, diffuse, effects)
+    fitted = fit_cook_torrance(capture, len(calib))
     timings["cook_torrance_fit"] = time.perf_counter() - tic
     tic = time.perf_counter()
     same_light = same_diffuse = None
