@@ -519,17 +519,16 @@ def test_the_shape_refined_by_the_shading_gives_the_brdf(reconstructed, tmp_path
     }
 
 
-def test_fit_on_images_only_refines_the_shape_by_the_shading(tmp_path, monkeypatch):
+def test_fit_on_images_only_refines_the_shape_by_the_shading(small_images, tmp_path, monkeypatch):
     """`ctjax fit` on a capture with images only: SfM, the texture, then the shading (its
     plumbing here, with few points and one iteration; its accuracy is the test above)."""
     from ctjax.sfm import _shading
 
     monkeypatch.setattr(_shading, "MAX_POINTS", 500)
     monkeypatch.setattr(_shading, "ITERATIONS", 1)
-    options = SynthOptions(width=192, height=160, frames=4, seed=0, texture_contrast=1.0)
-    images = _images_only(synthesize(tmp_path / "c", options), tmp_path / "images-only")
     out = tmp_path / "fit.json"
-    assert main(["fit", str(images), "--json", str(out)]) == 0
+    assert main(["fit", str(small_images.root), "--json", str(out)]) == 0
+    assert not (small_images.root / "poses.json").exists()  # in memory: the capture as it was
     shading = json.loads(out.read_text())["shape"]["surface"]["shading"]
     assert shading["refined"] and shading["cost_after"] <= shading["cost_before"]
 
