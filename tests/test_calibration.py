@@ -52,7 +52,7 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     assert at_lens.heldout_rmse <= 1.15 * NOISE_FLOOR
 
 
-def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets):
+def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets, monkeypatch):
     options = SynthOptions(
         **SMALL,
         effects={"light_offset": (-3.0, 7.0, 1.0), "inverse_square": True, "spot_falloff": 3.0},
@@ -80,6 +80,15 @@ def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets):
     assert "--facets is for the near light" in capsys.readouterr().err
     assert main([*argv[:-2], "--model", "field", "--json", str(out), "--offset", "free"]) == 2
     assert "--offset is for the near light" in capsys.readouterr().err
+    # The facets without the albedo map: refused before the calibration runs.
+    import ctjax.calibration
+
+    def not_called(*args, **kwargs):
+        raise AssertionError("the calibration ran before its options were checked")
+
+    monkeypatch.setattr(ctjax.calibration, "calibrate_near_light", not_called)
+    assert main([*argv, "--albedo", "uniform", "--facet-marginal"]) == 2
+    assert "--facet-marginal needs the albedo map" in capsys.readouterr().err
     np.testing.assert_allclose(result["offset_mm"], [-3.0, 7.0, 1.0], atol=1.0)
     assert set(result["falloff"]) == {"inverse_square", "spot"}
     assert result["falloff"]["spot"]["exponent"] == pytest.approx(3.0, rel=0.1)

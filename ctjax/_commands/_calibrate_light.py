@@ -88,6 +88,7 @@ def add_calibrate_light_parser(commands) -> None:
 
 def run_calibrate_light(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_near_light, named_falloff
+    from ..estimation import default_albedo
     from ..io._atomic import atomic_write_json
     from ..lobes import diffuse_lobe_named
     from ..specular import highlight_alignment_line
@@ -114,6 +115,11 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         return _calibrate_light_field(args)
     observations = load_observations(args)
     capture = observations.capture
+    if (args.facets or args.facet_marginal) and (
+        args.albedo or default_albedo(observations)
+    ) != "map":  # refused before the calibration (minutes on a 640 px capture)
+        option = "--facets" if args.facets else "--facet-marginal"
+        raise CtjaxError(f"{option} needs the albedo map (depth and poses in every frame)")
     falloff = named_falloff(args.falloff, observations)
     result = calibrate_near_light(
         observations,
@@ -129,9 +135,6 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
     )
     summary = result.to_json()
     if args.facets or args.facet_marginal:
-        if summary["albedo"] != "map":
-            option = "--facets" if args.facets else "--facet-marginal"
-            raise CtjaxError(f"{option} needs the albedo map (depth and poses in every frame)")
         from ..heldout import HeldOutTracks
 
         split = HeldOutTracks.split(observations, args.calib)
