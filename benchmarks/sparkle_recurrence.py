@@ -17,7 +17,8 @@ Measured (2026-12-05, 8e0baf3; 640 px, reconstructions from `benchmarks/real_vid
 calibrating; the facet lobe 0.966x Lambert's) 56.4% within 1 px, 72.0% within 3 px (tracked
 in a calibration frame: 93.4%; calibration views in S recurring: 88.7%); SCARED 61-84 (24
 frames; the facet lobe 0.73x) 69.1% / 85.7% (94.0%; 94.3%); the shared cholecystectomy (12
-frames, 8 calibrating; the facet lobe 0.98x) 70.6% / 86.7% (99.9%; 79.9%).
+frames, 8 calibrating; the facet lobe 0.98x) 70.6% / 86.7% (99.9%; 79.9%); A at every
+2nd frame (the facet lobe 1.000x) 80.6% / 88.9% (90.7%; 95.6%).
 docs/real-video.md, "Do the test frames' highlights shine where the calibration frames'
 did?".
 """
