@@ -274,6 +274,10 @@ def test_cook_torrance_refinement_explains_the_pixels_better(capture):
     assert error["light"] > max(error["told"], np.median(angle(perturbed))) + 0.5, error
 
 
+def _not_called(*args, **kwargs):
+    raise AssertionError("a fit ran before the options were checked")
+
+
 def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coarse_facets):
     out = tmp_path / "evaluation.json"
     plots = tmp_path / "plots"
@@ -292,6 +296,11 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coar
     ]
     assert main([*argv[:-1], "--facets", "off", "--facet-marginal"]) == 2
     assert "--facet-marginal is for the facets judged" in capsys.readouterr().err
+    # The facets asked for without the albedo map: refused before any fit.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("ctjax.evaluation._evaluate.fit_lambertian", _not_called)
+        assert main([*argv[:-1], "--facets", "on", "--albedo", "uniform"]) == 2
+    assert "the facets are judged with the albedo map" in capsys.readouterr().err
     assert main([*argv, "--facet-marginal"]) == 0
     summary = json.loads(out.read_text())
     # The lobe about every point's own facet, under the same light (tests/test_facets.py).

@@ -277,6 +277,11 @@ def evaluate(
                 f"own views of the tracked points): not with albedo {albedo!r}"
             )
         effects = image_effects(effects, paper_model(), capture.candidate_context())
+    if facets is True and albedo != "map":  # asked: refused before any fit, as fit does
+        raise CtjaxError(
+            "the facets are judged with the albedo map (each point's facet read from its own "
+            f"views): not with albedo {albedo!r}"
+        )
     if sfs:  # before any fit: a capture SfS cannot be scored on fails in a second
         for index in test:
             _check_sfs_reference((reference or capture).frames[index], capture.camera)
@@ -326,8 +331,7 @@ def evaluate(
         tic = time.perf_counter()
         marginal = ", and integrated out: minutes" if facet_marginal else ""
         progress(f"the lobe about every point's own facet (a grid of sigma, F_tilde{marginal})...")
-        facet, note = _facet_lobe(tracks, fitted.model, why, facet_marginal)
-        notes += [note] if note else []
+        facet = _facet_lobe(tracks, fitted.model, why, facet_marginal)
         timings["facets"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:
@@ -376,15 +380,13 @@ def evaluate(
     )  # fmt: skip
 
 
-def _facet_lobe(tracks, model, why=None, marginal=False) -> tuple[dict | None, str | None]:
+def _facet_lobe(tracks, model, why=None, marginal=False) -> dict:
     """`facet_lobe`'s JSON under `model`'s light, why it was judged (`why`, None: asked) and
-    with `marginal` the other `HeldOutTracks.facet_blocks` in it; or None and why not. A
-    model with image effects: on the views with its effects undone (`in_radiance`)."""
-    if tracks is None:
-        return None, "facets not judged: they need the albedo map (--albedo map)"
+    with `marginal` the other `HeldOutTracks.facet_blocks` in it. A model with image
+    effects: on the views with its effects undone (`in_radiance`)."""
     judged = "asked (facets=True)" if why is None else f"by itself: {why}"
     blocks = tracks.model_facet_blocks(model, marginal=marginal)
-    return blocks.pop("facets") | {"judged": judged} | blocks, None
+    return blocks.pop("facets") | {"judged": judged} | blocks
 
 
 def _budgets(tracks: HeldOutTracks, fits: dict) -> dict:
