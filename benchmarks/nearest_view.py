@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ctjax.estimation._variable_projection import OTHER_VIEWS_SHARE
 from ctjax.fitting._facet_geometry import half_vectors
 from ctjax.fitting._map_least_squares import (
-    OTHER_VIEWS_SHARE,
     TrackSamples,
     _apply_effects,
     _columns,

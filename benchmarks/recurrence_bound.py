@@ -35,24 +35,10 @@ import argparse
 import jax
 import numpy as np
 from _results import emit
+from sparkle_recurrence import distance_to_s
 
 FAR_PX = 20
 RADII_PX = (1, 3, 7)
-
-
-def _distance_to_s(observations, samples) -> np.ndarray:
-    """Every observed view's distance (px) to its frame's S; inf where unobserved."""
-    seen = np.asarray(samples.weight) > 0
-    frame = np.asarray(samples.site.frame)
-    u, v = (np.asarray(a) for a in samples.site.pixel)
-    distance = np.full(frame.shape, np.inf)
-    for f in np.unique(frame[seen]):
-        to_s = observations.specular_distance(int(f))
-        here = seen & (frame == f)
-        rows = np.clip(np.rint(v[here]).astype(int), 0, to_s.shape[0] - 1)
-        cols = np.clip(np.rint(u[here]).astype(int), 0, to_s.shape[1] - 1)
-        distance[here] = to_s[rows, cols]
-    return distance
 
 
 def _shone_in_another_view(near) -> np.ndarray:
@@ -106,7 +92,7 @@ def bounds(root, calibration: int | None = None) -> dict:
     calib = evaluation.calibration_frames
     tracks = HeldOutTracks.split(observations, len(calib))
     test = tracks.test
-    distance = _distance_to_s(observations, test)
+    distance = distance_to_s(observations, test)
     shone = {r: _shone_in_another_view(distance < r) for r in RADII_PX}
     out = {"capture": str(root), "frames": len(observations), "calibration_frames": len(calib)}
     same_light = evaluation.lambertian_same_light or evaluation.lambertian
@@ -156,7 +142,7 @@ def bounds(root, calibration: int | None = None) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("capture", help="a reconstructed capture (depth, normals, poses)")
-    parser.add_argument("--calib", type=int, default=None, help="calibration frames (60%)")
+    parser.add_argument("--calib", type=int, default=None, help="calibration frames (60%% of them)")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     found = bounds(args.capture, args.calib)

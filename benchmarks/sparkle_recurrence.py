@@ -29,6 +29,22 @@ import numpy as np
 from _results import emit
 
 
+def distance_to_s(observations, samples) -> np.ndarray:
+    """Every observed view's distance (px) to its frame's S (`TrackSamples`' (M, P)); inf
+    where unobserved."""
+    seen = np.asarray(samples.weight) > 0
+    frame = np.asarray(samples.site.frame)
+    u, v = (np.asarray(a) for a in samples.site.pixel)
+    distance = np.full(frame.shape, np.inf)
+    for f in np.unique(frame[seen]):
+        to_s = observations.specular_distance(int(f))
+        here = seen & (frame == f)
+        rows = np.clip(np.rint(v[here]).astype(int), 0, to_s.shape[0] - 1)
+        cols = np.clip(np.rint(u[here]).astype(int), 0, to_s.shape[1] - 1)
+        distance[here] = to_s[rows, cols]
+    return distance
+
+
 def recurrence(root, calibration: int | None = None) -> dict:
     from ctjax.fitting import TrackSamples
     from ctjax.heldout import split_frames
@@ -40,14 +56,7 @@ def recurrence(root, calibration: int | None = None) -> dict:
     samples = TrackSamples.of(observations.tracks())
     seen = np.asarray(samples.weight) > 0  # (views, points)
     frame = np.asarray(samples.site.frame)
-    u, v = (np.asarray(a) for a in samples.site.pixel)
-    distance = np.full(frame.shape, np.inf)
-    for f in np.unique(frame[seen]):
-        to_s = observations.specular_distance(int(f))
-        here = seen & (frame == f)
-        rows = np.clip(np.rint(v[here]).astype(int), 0, to_s.shape[0] - 1)
-        cols = np.clip(np.rint(u[here]).astype(int), 0, to_s.shape[1] - 1)
-        distance[here] = to_s[rows, cols]
+    distance = distance_to_s(observations, samples)
     in_calibration = seen & np.isin(frame, calib)
     in_s = seen & (distance < 1)
     test_in_s = in_s & ~in_calibration
@@ -73,7 +82,7 @@ def recurrence(root, calibration: int | None = None) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("capture", help="a reconstructed capture (depth, normals, poses)")
-    parser.add_argument("--calib", type=int, default=None, help="calibration frames (60%)")
+    parser.add_argument("--calib", type=int, default=None, help="calibration frames (60%% of them)")
     args = parser.parse_args()
     found = recurrence(args.capture, args.calib)
     print(
