@@ -87,6 +87,13 @@ class Undetermined:
         return {"parameter": self.parameter, "status": self.status.name, "reason": self.reason}
 
 
+def rmse_change(gain: float) -> str:
+    """`gain` (the RMSE's relative fall) in words: "lowers the RMSE by 0.16%", or "raises
+    the RMSE by 15.71%" where it is negative (the lobe made those views worse)."""
+    verb = "lowers" if not gain < 0 else "raises"
+    return f"{verb} the RMSE by {abs(100 * gain):.2f}%"
+
+
 def _suffix(name: str, prefix: str) -> str | None:
     """`"_2"` for `F_tilde_2` and prefix `F_tilde`; `""` for the name itself; None else."""
     if name == prefix:
@@ -151,8 +158,8 @@ def _absent_lobes(
         if small and not zero:
             why = (
                 f"not seen in the data: where it predicts at least one 8-bit level, the lobe "
-                f"lowers the RMSE by {100 * lobe_gain:.2f}% against the model without it "
-                f"(under {100 * MIN_LOBE_GAIN:g}%)"
+                f"{rmse_change(lobe_gain)} against the model without it "
+                f"(under {100 * MIN_LOBE_GAIN:g}% lower)"
             )
         elif coloured and not zero:
             why = (

@@ -100,6 +100,9 @@ def test_a_lobe_that_barely_lowers_the_rmse_is_no_lobe():
     found = undetermined(values, stderrs, lobe_gain=1 - 12.62 / 12.64)
     assert [(u.parameter, u.status) for u in found] == [("F_tilde", Status.no_lobe)]
     assert "lowers the RMSE by 0.16%" in found[0].reason
+    # A lobe that makes the views where it shows worse says so, not "lowers by -x%".
+    worse = undetermined(values, stderrs, lobe_gain=-0.1571)[0].reason
+    assert "raises the RMSE by 15.71%" in worse and "lowers" not in worse
     # The same red-only lobe is no highlight's whatever its gain (see the next test); a
     # grey one that lowers the RMSE is a lobe.
     assert _statuses(values | {"sigma": 0.3}, stderrs) == {"F_tilde": Status.no_lobe}

@@ -16,6 +16,7 @@ from .._determined import (
     PRIORITY,
     Undetermined,
     halves_apart,
+    rmse_change,
     undetermined,
 )
 from .._status import Status
@@ -90,9 +91,9 @@ def facet_status(
             Undetermined(
                 "F_tilde",
                 Status.no_lobe,
-                f"on the calibration frames the facet lobe lowers the RMSE by {gain:.2%} "
+                f"on the calibration frames the facet lobe {rmse_change(gain)} "
                 "against Lambert with its own normal chosen the same way (under "
-                f"{MIN_LOBE_GAIN:.1%}): no specular lobe is found, and sigma = {sigma:g} is "
+                f"{MIN_LOBE_GAIN:.1%} lower): no specular lobe is found, and sigma = {sigma:g} is "
                 "not determined by the data",
             ).to_json(),
         )
