@@ -41,6 +41,23 @@ def test_a_shifted_frame_is_read_as_misregistration(fitted):
     assert shifted.per_frame_share < 0.05 and max(shifted.smooth_share.values()) < 0.05
     assert set(shifted.to_json()["smooth_share"]) >= {"n_dot_v", "radius_px"}
     assert "px of misregistration" in shifted.summary()
+    # Where the distance to the light takes most, in the capture's length unit.
+    by_distance = shifted.smooth_share | {"light_distance_mm": 0.9}
+    relative = dataclasses.replace(shifted, smooth_share=by_distance, length_unit="median_depth")
+    assert "(distance to the light (median depths))" in relative.summary()
+
+
+def test_the_distance_to_the_light_is_named_in_the_captures_length_unit():
+    """A budget of a capture reconstructed up to scale names its distance to the light in
+    median depths: its lengths are not millimetres."""
+    from ctjax.diagnostics._variables import variable_label
+
+    metric = variable_label("light_distance_mm", "mm")
+    assert metric == "distance to the light (mm)"
+    assert variable_label("light_distance_mm", "median_depth") == (
+        "distance to the light (median depths)"
+    )
+    assert variable_label("radius_px", "median_depth") == "distance from the image centre (px)"
 
 
 def test_a_frame_brighter_than_the_model_is_a_gain_per_frame(fitted):

@@ -33,9 +33,10 @@ import itertools
 
 import numpy as np
 
+from .._units import METRIC, length_unit_of
 from .._vector import Vec3
 from ..observations import Observations
-from ._variables import VARIABLES, physical_variables
+from ._variables import VARIABLES, physical_variables, variable_label
 
 # "Near a highlight": within this many pixels of S (the evaluation's bound).
 NEAR_HIGHLIGHT_PX = 7
@@ -66,6 +67,8 @@ class ResidualBudget:
     highlight_excess_by_angle: dict[str, tuple[float | None, float]] = dataclasses.field(
         default_factory=dict
     )
+    # The capture's (`ctjax._units`): the distance to the light's unit in `summary`.
+    length_unit: str = METRIC
 
     def to_json(self) -> dict:
         return {
@@ -105,7 +108,7 @@ class ResidualBudget:
             f"{self.highlight_excess:+.1f} levels against the model"
             f"{excess_by_angle_text(self.to_json()['highlight_excess_by_angle'])}), "
             f"{100 * self.per_frame_share:.0f}% a gain per frame, at most {100 * smooth:.0f}% "
-            f"a function of one physical variable ({VARIABLES[variable]})"
+            f"a function of one physical variable ({variable_label(variable, self.length_unit)})"
         )
 
 
@@ -287,4 +290,5 @@ def _budget(observations, model, samples, residual, weight) -> ResidualBudget:
         smooth_share=smooth,
         samples=int(known.sum()),
         highlight_excess_by_angle=by_angle,
+        length_unit=length_unit_of(observations),
     )

@@ -6,10 +6,11 @@ import numpy as np
 
 from .._residuals import figure as _figure
 from .._residuals import plot_residual_maps
+from .._units import length_unit_of
 from ..fitting import pixel_predict, predictions
 from ..io import Capture
 from ..observations import Observations
-from ._variables import VARIABLES, binned, physical_variables
+from ._variables import VARIABLES, binned, physical_variables, variable_label
 
 
 def _map_residual(capture, frames, model, samples) -> np.ndarray:
@@ -89,7 +90,7 @@ def plot_binned_residuals(
                     label=f"{label} {channel}" if name == names[0] else None,
                 )
             ax.axhline(0, color="k", lw=0.5)
-            ax.set_xlabel(VARIABLES[name])
+            ax.set_xlabel(variable_label(name, length_unit_of(capture)))
             ax.set_ylabel("mean residual (levels)")
     for ax in axes[len(names) :]:
         ax.set_axis_off()

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 
 from .._numerics import safe_normalize
+from .._units import METRIC
 from .._vector import Vec3
 
 VARIABLES = {
@@ -16,6 +17,15 @@ VARIABLES = {
     "radius_px": "distance from the image centre (px)",
     "predicted": "predicted intensity (mean RGB)",
 }
+
+
+def variable_label(name: str, length_unit: str = METRIC) -> str:
+    """`VARIABLES[name]`, its length in `length_unit` (a capture reconstructed up to scale
+    measures the distance to the light in median depths, not millimetres)."""
+    label = VARIABLES[name]
+    if name.endswith("_mm") and length_unit != METRIC:
+        return label.replace("(mm)", "(median depths)")
+    return label
 
 
 def _angle(a: Vec3, b: Vec3):
