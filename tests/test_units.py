@@ -70,3 +70,51 @@ def test_the_near_light_says_its_unit(captures, tmp_path):
     offset = json.loads((tmp_path / "median_depth.json").read_text())["offset"]
     depth = float(np.nanmedian(load_capture(metric).frames[0].depth))
     assert np.linalg.norm(np.asarray(offset_mm) / depth - np.asarray(offset)) < 0.01
+
+
+def test_the_figures_name_lengths_in_the_captures_unit(tmp_path, monkeypatch):
+    """The evaluation's figures (Fig. 4-7) label depths and depth errors "mm" only where the
+    capture is metric: a shape reconstructed up to scale is in median depths."""
+    from types import SimpleNamespace
+
+    from matplotlib.figure import Figure
+
+    from ctjax.evaluation._plots import plot_error_bars, plot_shapes
+
+    drawn = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *a, **k: drawn.append(figure))
+    summary = {
+        f"{model}_{key}": 1.0
+        for model in ("lambertian", "cook_torrance")
+        for key in (
+            "rgb_rmse_calibration",
+            "rgb_rmse_test",
+            "sfs_error_mm",
+            "sfs_error_median_mm",
+            "sfs_error_near_highlights_mm",
+        )
+    }
+    evaluation = SimpleNamespace(to_json=lambda: summary)
+    depth = np.linspace(1.0, 2.0, 64).reshape(8, 8)
+    shape = SimpleNamespace(
+        name="f",
+        image=np.full((8, 8, 3), 0.5),
+        mask=np.ones((8, 8), bool),
+        near_highlight=np.zeros((8, 8), bool),
+        reference=depth,
+        lambertian=SimpleNamespace(depth=depth + 0.1),
+        cook_torrance=SimpleNamespace(depth=depth - 0.1),
+    )
+
+    def labels(figure):
+        return " ".join(a.get_title() + " " + a.get_ylabel() for a in figure.axes)
+
+    for unit, shown in (("mm", "(mm)"), ("median_depth", "(median depths (up to scale))")):
+        drawn.clear()
+        plot_error_bars(evaluation, tmp_path / "bars.png", unit)
+        plot_shapes(shape, tmp_path / "shapes.png", unit)
+        bars, shapes = (labels(figure) for figure in drawn)
+        assert f"|depth error| {shown}" in bars
+        assert f"reference depth {shown}" in shapes
+        assert f"Cook-Torrance error {shown}" in shapes
+        assert unit == "mm" or "(mm)" not in bars + shapes

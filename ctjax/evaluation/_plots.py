@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from .._residuals import plot_residual_maps
+from .._units import METRIC, label, length_unit_of
 from ..io import Capture
 
 _COLOURS = {"lambertian": "#9e9e9e", "cook_torrance": "#c0392b"}
@@ -18,8 +19,9 @@ def _figure(**kwargs):
     return Figure(layout="constrained", **kwargs)
 
 
-def plot_error_bars(evaluation, path: Path) -> Path:
-    """Fig. 4/6: RGB error on calibration and test frames, and SfS 3D error, per model."""
+def plot_error_bars(evaluation, path: Path, unit: str = METRIC) -> Path:
+    """Fig. 4/6: RGB error on calibration and test frames, and SfS 3D error, per model;
+    `unit` the capture's length unit (`ctjax._units`), the depth errors' on the axis."""
     summary = evaluation.to_json()
     fig = _figure(figsize=(10, 3.6))
     left, right = fig.subplots(1, 2)
@@ -47,15 +49,16 @@ def plot_error_bars(evaluation, path: Path) -> Path:
     left.set_title("RGB error")
     left.legend(loc="lower right")
     right.set_xticks(range(3), ["mean", "median", "mean near highlights"])
-    right.set_ylabel("|depth error| (mm)")
+    right.set_ylabel(f"|depth error| ({label(unit)})")
     right.set_title("shape from shading, test frames")
     fig.savefig(path, dpi=90)
     return path
 
 
-def plot_shapes(shape, path: Path) -> Path:
+def plot_shapes(shape, path: Path, unit: str = METRIC) -> Path:
     """Fig. 5/7: the image, the reference depth, SfS Lambertian and SfS Cook-Torrance, and
-    the two SfS error maps, one test frame."""
+    the two SfS error maps, one test frame; depths in `unit`, the capture's length unit."""
+    shown_unit = label(unit)
     fig = _figure(figsize=(15, 6.2))
     axes = fig.subplots(2, 4)
     depths = [shape.reference, shape.lambertian.depth, shape.cook_torrance.depth]
@@ -70,7 +73,7 @@ def plot_shapes(shape, path: Path) -> Path:
         strict=True,
     ):
         shown = ax.imshow(np.where(shape.mask, depth, np.nan), cmap="viridis", vmin=low, vmax=high)
-        ax.set_title(f"{title} (mm)")
+        ax.set_title(f"{title} ({shown_unit})")
         fig.colorbar(shown, ax=ax, shrink=0.8)
     errors = [np.abs(d - shape.reference) for d in depths[1:]]
     limit = np.nanpercentile(np.concatenate([e[shape.mask] for e in errors]), 98)
@@ -78,14 +81,14 @@ def plot_shapes(shape, path: Path) -> Path:
     axes[1, 0].set_title("near highlights (S dilated)")
     for ax, error, title in zip(axes[1, 1:3], errors, ("Lambertian", "Cook-Torrance"), strict=True):
         shown = ax.imshow(np.where(shape.mask, error, np.nan), cmap="magma", vmin=0, vmax=limit)
-        ax.set_title(f"|depth error|, {title} (mm)")
+        ax.set_title(f"|depth error|, {title} ({shown_unit})")
         fig.colorbar(shown, ax=ax, shrink=0.8)
     difference = errors[0] - errors[1]
     bound = np.nanpercentile(np.abs(difference[shape.mask]), 98) or 1.0
     shown = axes[1, 3].imshow(
         np.where(shape.mask, difference, np.nan), cmap="RdBu", vmin=-bound, vmax=bound
     )
-    axes[1, 3].set_title("Lambertian error - Cook-Torrance error (mm)")
+    axes[1, 3].set_title(f"Lambertian error - Cook-Torrance error ({shown_unit})")
     fig.colorbar(shown, ax=axes[1, 3], shrink=0.8)
     for ax in axes.ravel():
         ax.set_axis_off()
@@ -112,8 +115,9 @@ def evaluation_plots(capture: Capture, evaluation, out: Path) -> dict[str, Path]
     """Every figure of an evaluation into folder `out`; returns {name: path}."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"error_bars": plot_error_bars(evaluation, out / "errors.png")}
+    unit = length_unit_of(capture)
+    paths = {"error_bars": plot_error_bars(evaluation, out / "errors.png", unit)}
     paths["rgb_residuals"] = plot_rgb_residuals(capture, evaluation, out / "rgb_residuals.png")
     for shape in evaluation.shapes[:2]:
-        paths[f"sfs_{shape.name}"] = plot_shapes(shape, out / f"sfs_{shape.name}.png")
+        paths[f"sfs_{shape.name}"] = plot_shapes(shape, out / f"sfs_{shape.name}.png", unit)
     return paths
