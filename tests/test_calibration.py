@@ -306,6 +306,15 @@ def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light
     assert any("when every normal is tilted 0.5 degrees" in w for w in result.warnings)
 
 
+def test_the_offsets_warnings_show_two_significant_figures():
+    """A standard error of 0.003 median depths beside a change of 0.017 reads as such, not
+    as 0.0 beside 0.02 (the shared sinus's near light, printed to two decimals)."""
+    from ctjax.calibration._offset_checks import _two_figures
+
+    assert _two_figures(np.array([0.0123, 0.003, 0.0])) == "[0.012, 0.003, 0]"
+    assert _two_figures([1.234, 25.0, -0.5]) == "[1.2, 25, -0.5]"
+
+
 def test_tilted_normals_turn_toward_the_optical_axis_and_never_past_it():
     import dataclasses
 

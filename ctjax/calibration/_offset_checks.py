@@ -293,7 +293,13 @@ def _beyond_noise(result, change, reported, how: str, then: str) -> None:
     if np.any(change > HALVES_BEYOND_NOISE * noise):
         unit = label(result.details["length_unit"])
         result.warnings.append(
-            f"the light's offset moves by {np.round(change, 2).tolist()} {unit} {how}, more "
+            f"the light's offset moves by {_two_figures(change)} {unit} {how}, more "
             f"than {HALVES_BEYOND_NOISE:g} times its standard error "
-            f"{np.round(noise, 2).tolist()} {unit}{then}"
+            f"{_two_figures(noise)} {unit}{then}"
         )
+
+
+def _two_figures(values) -> str:
+    """Per axis, to two significant figures: a standard error of 0.003 median depths is not
+    shown as 0.0 beside an offset change of 0.01."""
+    return "[" + ", ".join(f"{float(v):.2g}" for v in np.ravel(values)) + "]"
