@@ -117,7 +117,8 @@ def judge_frames_brightness(
     result.details["brightness_undone"] = record
     listed = ", ".join(f"{n} {g:.2f}x" for n, g in sorted(off.items())[:6])
     found = (
-        f"{len(off)} of {len(brightness)} frames are brighter or darker than the other frames "
+        f"{len(off)} of {len(brightness)} frames {'is' if len(off) == 1 else 'are'} brighter "
+        "or darker than the other frames "
         f"predict under {under} by more than a factor of {math.exp(BRIGHTNESS_OFF_LOG):.2f} "
         f"({listed}{', ...' if len(off) > 6 else ''}); with each frame's brightness undone "
         f"the lobe is {_lobe_text(after)} (here {_lobe_text(lobe)})"

@@ -93,8 +93,8 @@ def facet_status(
                 Status.no_lobe,
                 f"on the calibration frames the facet lobe {rmse_change(gain)} "
                 "against Lambert with its own normal chosen the same way (under "
-                f"{MIN_LOBE_GAIN:.1%} lower): no specular lobe is found, and sigma = {sigma:g} is "
-                "not determined by the data",
+                f"{MIN_LOBE_GAIN:.1%} lower): no specular lobe is found, and sigma = "
+                f"{sigma:.3g} is not determined by the data",
             ).to_json(),
         )
     found = undetermined(
