@@ -337,17 +337,17 @@ def facet_lobe(
         shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
     )  # fmt: skip
     plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, across=(0.0,))
-    status, reasons = judged_status(status, reasons, lobe.rmse, plain.rmse)
+    turned = facet_heldout(
+        lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
+        refine_steps=refine_steps, across=across,
+    )  # fmt: skip
+    status, reasons = judged_status(status, reasons, lobe.rmse, plain.rmse, turned.rmse)
     control = math.nan  # the same lobe with every point's candidates another point's
     if shuffle_seed is None:
         control = facet_heldout(
             facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
             shuffle_seed=CONTROL_SEED, refine_steps=refine_steps, across=across,
         ).rmse  # fmt: skip
-    turned = facet_heldout(
-        lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
-        refine_steps=refine_steps, across=across,
-    )  # fmt: skip
     return FacetLobe(
         sigma,
         f,
