@@ -21,7 +21,8 @@ the point shone (3 px): where its gain lies.
 Measured (2026-12-05, c80d415; 640 px; 60% of the frames calibrating), of Lambert's squared
 residual on the test views in S at points with another view within 3 px of S, the share the
 facet lobe takes: SCARED 61-84 54% (the facet lobe 0.723x; views 0.016 rad apart in H), the
-second sinus video's A at every 2nd frame 44% (1.000x; 0.011 rad), A at every 5th frame 13%
+second sinus video's A at every 2nd frame 44% (1.000x; 0.011 rad), at every 3rd frame 33%
+(0.992x, 0.011 rad; measured later that day at 427f86c), at every 5th frame 13%
 (0.966x; 0.031 rad), the shared cholecystectomy 6% (0.983x; 0.076 rad). The bound at 3 px
 over those points: 0.668x, 0.826x, 0.848x, 0.800x. docs/real-video.md, "Where the facet
 lobe's gain lies" (the table).
