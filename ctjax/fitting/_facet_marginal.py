@@ -283,7 +283,8 @@ def noise_scale(train: TrackSamples, rotations, light, nu: float | None = None) 
 def _observed_points(train: TrackSamples) -> TrackSamples:
     """`train` with only its points that have a view, padded to a `bucket` with one that
     has none: a point without views adds nothing to the likelihood, and the tracks come
-    padded to a power of two (27% of a 256x192 capture's 16384 columns were empty). Every
+    padded (27% of a 256x192 capture's 16384 columns were empty when they came padded to
+    a power of two; to a `bucket` since 2026-12-06). Every
     array of `TrackSamples` has the points last, some flattened (4 M P); the columns are
     taken on the host."""
     seen = np.asarray(train.weight).sum(0) > 0
