@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sparse
 import scipy.sparse.linalg as sparse_linalg
 
+from .._buckets import bucket
 from .._camera import Camera
 from .._errors import CtjaxError
 from .._programs import fitter_jit
@@ -49,9 +50,6 @@ CURVATURE_WEIGHT = 30.0
 # The normal equations are symmetric positive definite: SuperLU's minimum-degree ordering on
 # A + A^T fills in less than its default COLAMD (measured 1.8x faster on 160x128 frames).
 _ORDERING = "MMD_AT_PLUS_A"
-# Pixel counts are padded up to a power of two (at least this) so that frames of one size
-# reuse the compiled linearisation.
-_MIN_BUCKET = 256
 
 
 def lambertian_reflectance(p, q, pixel, camera: Camera):
@@ -179,7 +177,10 @@ def solve_log_depth(
     pixel = (jnp.asarray(cols, np.float64), jnp.asarray(rows, np.float64))
     d_u, d_v, curvature = _difference_operators(mask, differences)
     count = len(rows)
-    padding = max(_MIN_BUCKET, 1 << (count - 1).bit_length()) - count
+    # Padded to a bucket size (`ctjax._buckets`), as the fitters' samples, so that frames of
+    # one size reuse the compiled linearisation; until 2026-12-06 to the next power of two
+    # (the demo's evaluate: shape from shading 22.1 -> 18.2 s, the same figures).
+    padding = bucket(count) - count
 
     def padded(x):
         return jnp.asarray(
