@@ -470,12 +470,19 @@ def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp
     assert not any("come from ctjax reconstruct" in w for w in estimate.warnings)
 
 
-def test_a_held_parameter_stays_at_its_start_and_the_rest_fit_as_if_frozen(textured):
+@pytest.mark.parametrize("frozen_from", [None, 0])
+def test_a_held_parameter_stays_at_its_start_and_the_rest_fit_as_if_frozen(
+    textured, monkeypatch, frozen_from
+):
     """`fit_model_map(hold=...)`: the held parameter keeps its start value (in the same
-    compiled program as the fit without it), the others reach what `freeze` gives."""
+    compiled program as the fit without it, or, from `FREEZE_HELD_FROM` observations on,
+    frozen), the others reach what `freeze` gives."""
     import equinox as eqx
 
-    from ctjax.fitting import fit_model_map, paper_model
+    from ctjax.fitting import _map_least_squares, fit_model_map, paper_model
+
+    if frozen_from is not None:
+        monkeypatch.setattr(_map_least_squares, "FREEZE_HELD_FROM", frozen_from)
     from ctjax.lights import PointLight
     from ctjax.observations import Observations
 

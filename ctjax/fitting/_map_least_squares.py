@@ -392,6 +392,15 @@ def _least_squares(model, samples, names, per_point, solver, max_steps, held):
     return fitted, albedo, weights, cost, status, steps
 
 
+# Observations (views x tracked points, `TrackSamples.weight.size`) from which `hold` freezes
+# instead: a held parameter still costs its Jacobian column in every LM step. The near
+# light's refits hold the light (most of the Jacobian's columns): `calibrate_near_light`
+# on the second sinus video (24 frames at 640 px, samples 13 x 12288) 130-139 -> 85 s warm
+# (its cold run 107 s, compiling the frozen programs included), the same fit to 1e-13. The
+# tests' captures (5k-40k) stay under it: one compiled program for both, as before.
+FREEZE_HELD_FROM = 65_536
+
+
 def fit_model_map(
     starts: eqx.Module | Sequence[eqx.Module],
     tracks: Tracks | TrackSamples,
@@ -407,8 +416,10 @@ def fit_model_map(
     points with one albedo per point (the diffuse lobe's weight) and the other lobes' weights
     shared, both eliminated in closed form; LM runs over the remaining parameters (`freeze`
     holds more fixed; `hold` too, in the same compiled program as without it: a model
-    with and without a parameter held costs one compilation, not two). Image effects (a
-    camera gamma, an ambient term) are undone on the measurements
+    with and without a parameter held costs one compilation, not two; from
+    `FREEZE_HELD_FROM` observations on, frozen: there a step costs more than a
+    compilation). Image effects (a camera gamma, an ambient term) are undone on the
+    measurements
     (`AbstractImageEffect.inverse`: the albedo is linear again there), each observation
     weighted by the effects' squared slope; an effect without an inverse is refused.
 
@@ -444,8 +455,12 @@ def fit_model_map(
     best = None
     free = lambda n: n in tuple(freeze) or _weights_frozen(n)  # noqa: E731
     held = np.array([p.name in hold for p in free_parameters(starts[0], free)], bool)
-    if held.size and held.all():  # nothing left to fit: the projection is the fit
-        freeze, held = (*freeze, *hold), held[:0]
+    if held.size and (held.all() or samples.weight.size >= FREEZE_HELD_FROM):
+        # Nothing left to fit (the projection is the fit), or samples large enough that
+        # a held parameter's Jacobian column costs more than compiling a second program.
+        freeze = (*freeze, *hold)
+        free = lambda n: n in freeze or _weights_frozen(n)  # noqa: E731
+        held = np.zeros(len(free_parameters(starts[0], free)), bool)
     for start in starts:
         fitted, albedo, weights, cost, result, steps = _least_squares(
             start, samples, tuple(freeze), per_point, solver, max_steps, held
@@ -464,7 +479,7 @@ def fit_model_map(
     fitted = eqx.tree_at(lambda m: m.brdf, fitted, brdf)
     total_weight = float(jnp.sum(samples.weight)) * samples.channels
     rmse = 255 * math.sqrt(cost / max(total_weight, 1e-300))
-    fixed = (*freeze, *hold)
+    fixed = tuple(dict.fromkeys((*freeze, *hold)))  # once each: a compiled program's key
     frozen = lambda n: n in fixed or _weights_frozen(n)  # noqa: E731
     parameters = [p.name for p in free_parameters(fitted, frozen)]
     errors = _standard_errors(fitted, samples, fixed, per_point) if standard_errors else {}
