@@ -95,6 +95,41 @@ def test_dense_lm_damps_where_gauss_newton_overshoots():
     np.testing.assert_allclose(jnp.sum(residuals(y) ** 2), 48.98425368, rtol=1e-9)
 
 
+def test_dense_lm_probes_before_it_stops_under_heavy_damping():
+    """The stopping test passed under a heavy damping (rejected trials, or a curved
+    valley's small gain ratios shrinking the steps) is not trusted at once: the next trial
+    is the step at the starting damping (a probe), and the solve goes on where it lowers
+    the cost by more than the tolerance. On a real sinus capture a near light's offset
+    stopped `successful` 1.9% above the cost a Gauss-Newton step reached from there."""
+    from ctjax.solvers._dense_lm import _DAMPING, _judged
+
+    solver = DenseLM()
+    one = lambda x: jnp.asarray([x], jnp.float64)  # noqa: E731
+    y, tiny = one(1.0), one(1e-9)
+
+    def judged(damping, trial_cost, probing, dy=tiny):
+        better, done, (new_damping, grow), probe = _judged(
+            solver, y, dy, jnp.asarray(True), jnp.asarray(1e-3), jnp.asarray(1.0),
+            jnp.asarray(trial_cost), jnp.asarray(damping), jnp.asarray(8.0), jnp.asarray(probing),
+        )  # fmt: skip
+        return bool(better), bool(done), float(new_damping), float(grow), bool(probe)
+
+    # A tiny rejected step: under a light damping the solve is done; under a heavy one
+    # (`_PROBE_FROM` on), the next trial is a probe at the starting damping.
+    assert judged(_DAMPING[0], 1.0 + 1e-12, False) == (False, True, 8 * _DAMPING[0], 16.0, False)
+    assert judged(1.0, 1.0 + 1e-12, False) == (False, True, 8.0, 16.0, False)
+    assert judged(1e3, 1.0 + 1e-12, False) == (False, False, _DAMPING[0], 2.0, True)
+    # A tiny accepted step, heavily damped: a probe too (the point is kept).
+    better, done, damping, _, probe = judged(1e3, 1.0 - 1e-9, False)
+    assert better and not done and probe and damping == _DAMPING[0]
+    # The probe: rejected, or lowering the cost by no more than the tolerance, ends the solve;
+    # lowering it by more goes on (with the damping by the gain ratio, no probe pending).
+    assert judged(_DAMPING[0], 1.0 + 1e-6, True)[1]
+    assert judged(_DAMPING[0], 1.0 - 1e-9, True)[:2] == (True, True)
+    better, done, _, _, probe = judged(_DAMPING[0], 0.98, True, dy=one(0.3))
+    assert better and not done and not probe
+
+
 def test_dense_lm_settings_are_checked():
     with pytest.raises(CtjaxError, match="rtol must be a nonnegative number, got -1"):
         DenseLM(rtol=-1)
