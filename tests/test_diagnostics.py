@@ -45,6 +45,9 @@ HIDDEN = {
     "light_guides": dict(effects={"light_guides": (6.0, 2)}),
     # Rough, flattened diffuse shading (Oren-Nayar; the da Vinci clip's tissue: 1.1).
     "oren_nayar": dict(effects={"oren_nayar": 0.5}),
+    # A camera's highlight compression, red's most (the second sinus video's red rises a
+    # third as fast as green and blue above 209 of 255).
+    "knee": dict(effects={"knee": (0.5, (0.3, 0.6, 0.9))}),
 }
 
 

@@ -8,6 +8,7 @@ from ._effect import Gain as Gain
 from ._effect import Site as Site
 from ._exposure import FrameExposure as FrameExposure
 from ._gamma import CameraGamma as CameraGamma
+from ._knee import Knee as Knee
 from ._named import image_effect_names as image_effect_names
 from ._named import image_effects as image_effects
 from ._srgb import SRGBResponse as SRGBResponse

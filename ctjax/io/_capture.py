@@ -36,7 +36,7 @@ from .._geometry import normals_from_depth
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._camera_json import AUTO_CEILINGS, read_camera, read_ceilings, read_encoding, read_stereo
-from ._channel_ceiling import channel_ceilings, samples_of
+from ._channel_ceiling import channel_ceilings, knee_note, samples_of
 from ._desaturated import desaturated
 from ._encoding import LINEAR, SRGB, decode, default_encoding, encode, srgb_to_linear
 from ._excluded import always_excluded, check_excluded_names, excluded_path, read_excluded
@@ -397,8 +397,7 @@ def load_capture(
             "channels within one code value, in frames of coloured tissue): read as clipped",
         )
     saturation, ceilings, said = _saturation(frames, samples, encoding, declared_ceilings, source)
-    if said:
-        notes = (*notes, said)
+    notes = (*notes, *filter(None, (said, knee_note(samples))))
     if facing_notes:
         notes = (
             *notes,

@@ -46,6 +46,11 @@ reads as clipped from the pile-up's lower edge (the lowest code down to which th
 histogram stays at half the peak or more, at most `PILE_WIDTH` codes below the peak), or
 from its own hinge where that is lower. One channel alone piling up (the sinus's red at
 225, beside its hinge at 203) is not a white.
+
+A channel whose second line still rises, by more than `PLATEAU_SLOPE` but at most half as
+fast as its first (`SOFT_KNEE_RATIO`), was compressed, not clipped: a camera's knee. Its
+values stay light; `knee_note` names it and the effect that models it
+(`ctjax.effects.Knee`).
 """
 
 import numpy as np
@@ -71,6 +76,12 @@ BRIGHT = 0.5
 # ...but below this one: a plateau just under full scale is the sensor's own clipping, the
 # values next to it spread by noise and compression below the full-scale samples left out.
 BELOW_FULL_SCALE = 0.95
+
+
+# A knee (not a ceiling): above the knot the channel still rises, by more than
+# `PLATEAU_SLOPE`, but at most 1 / this of its slope below (where the knot is bright, as a
+# ceiling's): the camera compressed it there (`ctjax.effects.Knee` models it).
+SOFT_KNEE_RATIO = 2.0
 
 
 # The camera's white: a channel's pile-up holds at least this share of the samples...
@@ -189,17 +200,53 @@ def hinge(centres, medians, weights) -> tuple[int, float, float, float] | None:
     return k, float(offset + slope * centres[k]), float(slope), float(slope + change)
 
 
-def _ceiling(centres, medians, weights, top: int) -> int | None:
-    """The hinge's level where its second line is a plateau (the module doc), or None."""
+def _bright_bend(centres, medians, weights, top: int) -> tuple[float, float, float] | None:
+    """The hinge's (level, slope below, slope above) where its knot is bright (`BRIGHT` up
+    to `BELOW_FULL_SCALE` of full scale) with `PLATEAU_SPAN` of the others' mean above it,
+    or None: where a ceiling or a knee may be."""
     fitted = hinge(centres, medians, weights)
     if fitted is None:
         return None
-    k, level, slope, plateau = fitted
-    if (
-        BRIGHT * top <= level < BELOW_FULL_SCALE * top
-        and centres[-1] - centres[k] >= PLATEAU_SPAN * top
-        and plateau <= PLATEAU_SLOPE
-        and slope >= KNEE_RATIO * max(plateau, 0.05)
+    k, level, slope, above = fitted
+    if BRIGHT * top <= level < BELOW_FULL_SCALE * top and (
+        centres[-1] - centres[k] >= PLATEAU_SPAN * top
     ):
+        return level, slope, above
+    return None
+
+
+def _ceiling(centres, medians, weights, top: int) -> int | None:
+    """The hinge's level where its second line is a plateau (the module doc), or None."""
+    bend = _bright_bend(centres, medians, weights, top)
+    if bend is None:
+        return None
+    level, slope, plateau = bend
+    if plateau <= PLATEAU_SLOPE and slope >= KNEE_RATIO * max(plateau, 0.05):
         return int(np.ceil(level))
     return None
+
+
+def knee_note(samples: list[np.ndarray]) -> str | None:
+    """A note naming the channels that rise markedly slower above a bright knot than below
+    it, though not to a plateau (`SOFT_KNEE_RATIO`; a camera's knee: a second sinus video's
+    red, 1.68 codes per code of green and blue's mean below 162 of 255 and 0.53 above,
+    where the shared sinus's has a ceiling, the cholecystectomy video's bends 1.22 -> 0.87
+    and a synthetic capture's not at all), or None. `samples`: each frame's (N, 3) codes."""
+    if not samples or len({part.dtype for part in samples}) != 1:
+        return None
+    codes, top = np.concatenate(samples), int(np.iinfo(samples[0].dtype).max)
+    found = []
+    for channel in range(codes.shape[-1]):
+        bend = _bright_bend(*channel_profile(codes, top, channel), top)
+        if bend is not None and PLATEAU_SLOPE < bend[2] <= bend[1] / SOFT_KNEE_RATIO:
+            level, slope, above = bend
+            found.append(
+                f"{'RGB'[channel]} rises {above:.2f} codes per code of the other channels' mean "
+                f"above {level:.0f} of {top}, {slope:.2f} below"
+            )
+    if not found:
+        return None
+    return (
+        f"{'; '.join(found)}: the camera compressed it there (a knee; not clipped, it still "
+        "rises): `--effects knee` fits it with the model (evaluate, calibrate-light)"
+    )
