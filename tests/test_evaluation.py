@@ -1,6 +1,7 @@
 """Evaluation (paper section 7): perspective normals, integration, Tsai-Shah SfS, the
 Cook-Torrance normal refinement, volume scaling and `ctjax evaluate`."""
 
+import dataclasses
 import json
 import re
 import types
@@ -563,3 +564,26 @@ def test_the_lobes_judged_side_by_side_name_the_best_determined_one():
     ]
     summary["models"]["cook_torrance"]["light"] = "ColocatedLight"
     assert lobes_judged(summary)["lobes"][0]["ratio"] == pytest.approx(10.43 / 12.86)
+
+
+def test_a_lobe_no_better_than_lambert_on_the_test_frames_is_no_lobe():
+    """`successful` on the calibration frames, yet no better than Lambert's model under the
+    same light on the test frames: `no_lobe`, the reason first (the facet lobe's rule). A
+    lobe that beats it, or a status already short of `successful`, is left as it is."""
+    from ctjax import Estimate, Status
+    from ctjax.evaluation._evaluate import _seen_in_new_frames
+
+    lambert = Estimate(paper_model(), rmse={"calibration": 6.0, "test": 5.78})
+    earlier = {"parameter": "sigma", "status": "imprecise", "reason": "wide"}
+    fitted = Estimate(
+        paper_model(), rmse={"calibration": 5.9, "test": 5.80}, details={"undetermined": [earlier]}
+    )
+    judged = _seen_in_new_frames(fitted, lambert)
+    assert judged.status == Status.no_lobe and judged.rmse == fitted.rmse
+    first, second = judged.details["undetermined"]
+    assert first["status"] == "no_lobe" and "1.003x as far off" in first["reason"]
+    assert second == earlier and judged.warnings == [first["reason"]]
+    better = dataclasses.replace(fitted, rmse={"calibration": 5.9, "test": 5.5})
+    assert _seen_in_new_frames(better, lambert) is better
+    unstable = dataclasses.replace(fitted, status=Status.unstable)
+    assert _seen_in_new_frames(unstable, lambert) is unstable

@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 import cv2
 import numpy as np
 
+from .._determined import Undetermined
 from .._errors import CtjaxError
 from .._json import named_parameters
 from .._result import Estimate
@@ -315,6 +316,7 @@ def evaluate(
     lambertian, fitted = (_judged(capture, e, calib, test, tracks) for e in (lambertian, fitted))
     if same_light is not None:
         same_light = _judged(capture, same_light, calib, test, tracks)
+        fitted = _seen_in_new_frames(fitted, same_light)
     if same_diffuse is not None:
         same_diffuse = _judged(capture, same_diffuse, calib, test, tracks)
     budgets = frames_rmse = None
@@ -437,6 +439,29 @@ def _on_right_views(capture: Observations, calib, fits: dict) -> tuple[dict | No
             "other views; left: the same points' left views the same way"
         ),
     }, None
+
+
+def _seen_in_new_frames(fitted: Estimate, same_light: Estimate) -> Estimate:
+    """`fitted` (judged) as `no_lobe` where its lobe, `successful` on the calibration frames,
+    predicts the test frames no better than Lambert's model under the same light: no lobe
+    is seen in new frames (the facet lobe's rule, `judged_status`). The second sinus video's
+    28 frames with red read as clipped from 209: 1.003x, said `successful` before this."""
+    rmse, reference = fitted.rmse["test"], same_light.rmse["test"]
+    if Status(fitted.status) != Status.successful or not rmse >= reference > 0:
+        return fitted
+    why = (
+        f"on the test frames Cook-Torrance predicts the views {rmse / reference:.3f}x as far "
+        "off as Lambert's model under the same light (no better): no specular lobe is seen "
+        "in new frames, however well the calibration frames chose it"
+    )
+    found = Undetermined("F_tilde", Status.no_lobe, why).to_json()
+    undetermined = [found, *fitted.details.get("undetermined", [])]
+    return dataclasses.replace(
+        fitted,
+        status=Status.no_lobe,
+        details={**fitted.details, "undetermined": undetermined},
+        warnings=[*fitted.warnings, why],
+    )
 
 
 def _judged(capture: Observations, fit: Estimate, calib, test, tracks) -> Estimate:
