@@ -1,6 +1,7 @@
 """Image effects that depend on where a value was recorded: the frame (auto-exposure) and
 the pixel (vignetting), applied through `effect.at(site)` everywhere a model predicts."""
 
+import argparse
 import dataclasses
 import functools
 import json
@@ -384,6 +385,15 @@ def test_the_knee_compresses_each_channel_above_it_and_is_undone():
     with pytest.raises(CtjaxError, match=r"Knee.knee must be in \(0, 1\]"):
         Knee(1.5, 0.5)
     assert "knee" in image_effect_names()
+    # `ctjax synth --knee KNEE SLOPE [SLOPE_G SLOPE_B]`
+    from ctjax.effects._knee import KneeCandidate
+
+    value = KneeCandidate().synth_value
+    assert value(argparse.Namespace(knee=[0.5, 0.3])) == (0.5, (0.3, 0.3, 0.3))
+    assert value(argparse.Namespace(knee=[0.5, 0.3, 0.6, 0.9])) == (0.5, (0.3, 0.6, 0.9))
+    assert value(argparse.Namespace(knee=None)) is None
+    with pytest.raises(CtjaxError, match="--knee: expected KNEE SLOPE"):
+        value(argparse.Namespace(knee=[0.5, 0.3, 0.6]))
 
 
 def test_a_knee_the_fit_lacks_takes_the_lobe_from_the_channel_it_compresses(tmp_path):
