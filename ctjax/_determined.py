@@ -393,9 +393,41 @@ def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=Non
     names = paper_names(estimate.model)
     nuisance = set(per_frame_names(estimate.model))
     stderr = estimate.details.get("stderr", {})
+    held = effects_at_domain_end(estimate.model, stderr)
+    if held:
+        estimate.details["at_domain_end"] = {names.get(k, k): v for k, v in held.items()}
+    nuisance |= set(held)
     by_name = {names[k]: v for k, v in stderr.items() if k in names and k not in nuisance}
     ranges = _diffuse_shape_ranges(estimate.model, names) | (ranges or {})
     return flag(estimate, by_name | (stderrs or {}), ranges, lobe_gain=lobe_gain)
+
+
+def effects_at_domain_end(model, stderr: dict) -> dict[str, str]:
+    """The image effects' parameters (dotted names) whose standard error could not be
+    computed only where they sit at an end of their domain (within `EDGE` of its width), with
+    why: an effect at its limit (a knee's slope at 1, a channel it does not compress) is
+    held there by its domain, a flat direction of the fit that says nothing about the
+    rest, so it flags nothing."""
+    from .fitting._parameters import free_parameters
+
+    out = {}
+    for p in free_parameters(model):
+        error = _array(stderr.get(p.name))
+        if not p.name.startswith("effects[") or error is None or np.all(np.isfinite(error)):
+            continue
+        value = np.asarray(p.get(model), float).reshape(-1)
+        lo, hi = p.domain
+        if not (math.isfinite(lo) or math.isfinite(hi)) or value.shape != error.shape:
+            continue
+        edge = EDGE * (hi - lo) if math.isfinite(hi - lo) else EDGE * max(abs(lo), abs(hi), 1)
+        ends = [end for end in (lo, hi) if math.isfinite(end)]
+        lost = value[~np.isfinite(error)]
+        if all(min(abs(v - end) for end in ends) <= edge for v in lost):
+            out[p.name] = (
+                f"{', '.join(f'{v:.4g}' for v in lost)} at the end of its domain ({lo:g}, "
+                f"{hi:g}): held there, no standard error (the effect at its limit)"
+            )
+    return out
 
 
 def _diffuse_shape_ranges(model, names: dict) -> dict[str, tuple[float, float]]:

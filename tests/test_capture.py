@@ -396,7 +396,7 @@ def test_a_channel_the_camera_compressed_above_a_knee_is_named_not_clipped():
     """Red rising a third as fast above 170 as below (a camera's knee): no ceiling, a note
     that names it and `--effects knee`; none where red follows the light or stops (a
     ceiling), nor where the frames mix bit depths."""
-    from ctjax.io._channel_ceiling import channel_ceilings, knee_note
+    from ctjax.io._channel_ceiling import channel_ceilings, channel_knees, knee_note
 
     rng = np.random.default_rng(2)
     light = rng.uniform(0.05, 1.4, 100_000)
@@ -405,14 +405,14 @@ def test_a_channel_the_camera_compressed_above_a_knee_is_named_not_clipped():
     codes[:, 0] = np.where(codes[:, 0] > 170, 170 + (codes[:, 0] - 170) / 3, codes[:, 0])
     kneed = np.clip(np.round(codes), 0, 255).astype(np.uint8)
     assert channel_ceilings(kneed, 255) == [None, None, None]
-    note = knee_note([kneed[:50_000], kneed[50_000:]])
+    (knee,) = channel_knees([kneed[:50_000], kneed[50_000:]])
+    assert knee.channel == 0 and 150 <= knee.level <= 185 and knee.above < knee.below / 2
+    note = knee_note((knee,))
     assert note is not None and note.startswith("R rises 0.") and "--effects knee" in note
-    level = float(note.split(" above ")[1].split(" ")[0])
-    assert 150 <= level <= 185, note
-    assert knee_note([_tissue_samples(rng, 100_000)]) is None
-    assert knee_note([_tissue_samples(rng, 100_000, ceiling=170)]) is None
-    assert knee_note([kneed, kneed.astype(np.uint16) * 257]) is None
-    assert knee_note([]) is None
+    assert channel_knees([_tissue_samples(rng, 100_000)]) == ()
+    assert channel_knees([_tissue_samples(rng, 100_000, ceiling=170)]) == ()
+    assert channel_knees([kneed, kneed.astype(np.uint16) * 257]) == ()
+    assert channel_knees([]) == () and knee_note(()) is None
 
 
 def test_a_channel_that_stops_below_full_scale_reads_as_clipped_there(tmp_path):

@@ -213,3 +213,28 @@ def test_atomic_writes_name_a_folder_in_the_way(tmp_path):
     with pytest.raises(CtjaxError, match=r"afile is not a folder"):
         atomic_write_npy(tmp_path / "afile" / "a.npy", np.zeros(2))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_the_knee_is_fitted_by_default_where_the_frames_show_one(capsys):
+    """`--effects` not given: `knee` where `load_capture` found a channel a knee compressed
+    (with a note), else none; given, as given (`none`: none, and not beside others)."""
+    import argparse
+    import types
+
+    from ctjax._commands._args import chosen_effects
+    from ctjax.io._channel_ceiling import ChannelKnee
+
+    kneed = types.SimpleNamespace(knees=(ChannelKnee(0, 162.0, 1.68, 0.53, 255),))
+    linear = types.SimpleNamespace(knees=())
+
+    def args(effects):
+        return argparse.Namespace(effects=effects, command="evaluate")
+
+    assert chosen_effects(args(None), kneed) == ("knee",)
+    assert "the camera's knee fitted" in capsys.readouterr().err
+    assert chosen_effects(args(None), linear) == ()
+    assert chosen_effects(args(["none"]), kneed) == ()
+    assert chosen_effects(args(["frame_exposure"]), kneed) == ("frame_exposure",)
+    assert capsys.readouterr().err == ""
+    with pytest.raises(CtjaxError, match="--effects none fits no effects"):
+        chosen_effects(args(["none", "knee"]), kneed)

@@ -311,3 +311,28 @@ def test_a_broad_lobe_is_checked_against_the_lights_cone(tmp_path):
     assert Status(estimate.status) == Status.no_lobe
     assert any("is the light's cone" in w for w in estimate.warnings)
     assert estimate.details["spot_check"]["exponent"] == 4.0
+
+
+def test_an_image_effect_at_its_domains_end_without_an_error_flags_nothing():
+    """A knee's slope at 1 (a channel it does not compress: the second sinus video's blue)
+    is held there by its domain and has no standard error: not `no_standard_error`, named in
+    `details["at_domain_end"]`; one inside its domain without an error is flagged."""
+    from ctjax._candidate import with_effect
+    from ctjax._determined import flag_model
+    from ctjax.effects import Knee
+
+    stderrs = {"F_tilde": [0.01] * 3, "sigma": 0.01}
+    for slopes, status in (((0.23, 0.86, 0.999), Status.successful), ((0.23, 0.86, 0.9), None)):
+        model = with_effect(paper_model(1.0, 0.3, 0.2), Knee(0.6, slopes))
+        knee = f"effects[{len(model.effects) - 1}]"
+        errors = {f"{knee}.knee": 0.01, f"{knee}.slope": [0.02, 0.03, None]}
+        estimate = flag_model(Estimate(model, details={"stderr": errors}), stderrs)
+        flagged = [u["parameter"] for u in estimate.details["undetermined"]]
+        if status == Status.successful:
+            assert Status(estimate.status) == status and flagged == []
+            assert (
+                "0.999 at the end of its domain" in estimate.details["at_domain_end"]["knee_slope"]
+            )
+        else:
+            assert flagged == ["knee_slope"] and "at_domain_end" not in estimate.details
+            assert Status(estimate.status) == Status.no_standard_error

@@ -13,6 +13,7 @@ from ._args import (
     add_effects_argument,
     add_falloff_argument,
     add_workers_argument,
+    chosen_effects,
     effects_line,
     field_solver,
     load_observations,
@@ -108,7 +109,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         if args.facets or args.facet_marginal:
             option = "--facets" if args.facets else "--facet-marginal"
             raise CtjaxError(f"{option} is for the near light (--model near)")
-        if args.effects:
+        if args.effects not in (None, ["none"]):
             raise CtjaxError("--effects is for the near light (--model near)")
         if args.offset != "lens-plane":
             raise CtjaxError("--offset is for the near light (--model near)")
@@ -121,6 +122,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         option = "--facets" if args.facets else "--facet-marginal"
         raise CtjaxError(f"{option} needs the albedo map (depth and poses in every frame)")
     falloff = named_falloff(args.falloff, observations)
+    effects = chosen_effects(args, capture)
     result = calibrate_near_light(
         observations,
         calibration=args.calib,
@@ -131,7 +133,7 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         workers=args.workers,
         diffuse=diffuse_lobe_named(args.diffuse),
         offset_axes=args.offset.replace("-", "_"),
-        effects=tuple(args.effects),
+        effects=effects,
     )
     summary = result.to_json()
     if args.facets or args.facet_marginal:

@@ -12,6 +12,7 @@ from ._args import (
     add_diffuse_argument,
     add_effects_argument,
     add_workers_argument,
+    chosen_effects,
     cook_torrance_estimator,
     effects_line,
     load_observations,
@@ -93,7 +94,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             f"--diffuse is for the near light's Cook-Torrance (--light near), not --light "
             f"{args.light} (the paper's fits are Lambertian + Cook-Torrance)"
         )
-    if args.effects and args.light != "near":
+    if args.effects not in (None, ["none"]) and args.light != "near":
         raise CtjaxError(
             f"--effects is for the near light's Cook-Torrance (--light near), not --light "
             f"{args.light}"
@@ -102,6 +103,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise CtjaxError("--facet-marginal is for the facets judged: not with --facets off")
     observations = load_observations(args)
     capture = observations.capture
+    effects = chosen_effects(args, capture) if args.light == "near" else ()
     evaluation = evaluate(
         observations,
         calibration=args.calib,
@@ -114,7 +116,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         diffuse=diffuse_lobe_named(args.diffuse),
         facets={"on": True, "off": False}.get(args.facets, "auto"),
         facet_marginal=args.facet_marginal,
-        effects=tuple(args.effects),
+        effects=effects,
     )
     summary = evaluation.to_json()
     atomic_write_json(args.json, in_length_unit(summary, capture.length_unit))

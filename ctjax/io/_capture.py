@@ -36,9 +36,16 @@ from .._geometry import normals_from_depth
 from .._units import METRIC, unit_of_reconstruction
 from ._atomic import atomic_write_json, atomic_write_npy
 from ._camera_json import AUTO_CEILINGS, read_camera, read_ceilings, read_encoding, read_stereo
-from ._channel_ceiling import channel_ceilings, knee_note, samples_of
+from ._channel_ceiling import (
+    ChannelKnee,
+    ceiling_levels,
+    channel_knees,
+    knee_note,
+    samples_of,
+    saturation_of,
+)
 from ._desaturated import desaturated
-from ._encoding import LINEAR, SRGB, decode, default_encoding, encode, srgb_to_linear
+from ._encoding import LINEAR, SRGB, decode, default_encoding, encode
 from ._excluded import always_excluded, check_excluded_names, excluded_path, read_excluded
 from ._field_of_view import visible_masks
 from ._images import IMAGE_SUFFIXES, read_recorded, write_rgb
@@ -120,6 +127,8 @@ class Capture:
     # The code values of the recorded images those levels come from (None: full scale), as
     # camera.json's "ceilings" takes them: what `reconstruct` keeps in reconstruction.json.
     ceilings: tuple[int | None, int | None, int | None] = (None, None, None)
+    # The channels a camera's knee compressed, found on the frames (`channel_knees`).
+    knees: tuple[ChannelKnee, ...] = ()
 
     def right_image(self, name: str) -> np.ndarray | None:
         """Frame `name`'s right image as recorded (encoded, float in [0, 1], the right
@@ -153,7 +162,7 @@ class Capture:
             if path is not None:
                 raw = read_recorded(path)
                 samples.append(samples_of(raw, desaturated(raw)))
-        return _ceiling_levels(samples, self.encoding)[0] if samples else (1.0, 1.0, 1.0)
+        return ceiling_levels(samples, self.encoding)[0] if samples else (1.0, 1.0, 1.0)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -396,8 +405,9 @@ def load_capture(
             f"{share:.2%} of the frames' pixels are near-white that the camera turned grey (its "
             "channels within one code value, in frames of coloured tissue): read as clipped",
         )
-    saturation, ceilings, said = _saturation(frames, samples, encoding, declared_ceilings, source)
-    notes = (*notes, *filter(None, (said, knee_note(samples))))
+    saturation, ceilings, said = saturation_of(frames, samples, encoding, declared_ceilings, source)
+    knees = channel_knees(samples)
+    notes = (*notes, *filter(None, (said, knee_note(knees))))
     if facing_notes:
         notes = (
             *notes,
@@ -422,58 +432,17 @@ def load_capture(
         if not BASELINE_MM[0] <= stereo.baseline_mm <= BASELINE_MM[1]:
             notes = (*notes, unlikely_baseline(root, stereo.baseline_mm))
     return Capture(
-        root, camera, tuple(frames), truth, unit, encoding, notes, stereo, saturation, ceilings
-    )
-
-
-def _ceiling_levels(
-    samples, encoding, declared=AUTO_CEILINGS
-) -> tuple[tuple[float, ...], list[int | None], int]:
-    """Per channel, the decoded level from which its values read as clipped (half a code
-    below its ceiling's code, so that every decoding of that code is at or above it; 1.0
-    where it has none), the ceilings' codes and full scale. The ceilings are camera.json's
-    `declared` ones (`read_ceilings`: "none", or codes) or found on the `samples`
-    (`ctjax.io._channel_ceiling`); none found where the images mix bit depths."""
-    if len({part.dtype for part in samples}) != 1:
-        return (1.0,) * 3, [None] * 3, 0
-    top = int(np.iinfo(samples[0].dtype).max)
-    if declared == AUTO_CEILINGS:
-        ceilings = channel_ceilings(np.concatenate(samples), top)
-    else:
-        ceilings = [None] * 3 if isinstance(declared, str) else list(declared)
-        ceilings = [None if code is None or code >= top else code for code in ceilings]
-    levels = tuple(
-        1.0 if code is None else float(_decoded((code - 0.5) / top, encoding)) for code in ceilings
-    )
-    return levels, ceilings, top
-
-
-def _decoded(recorded: float, encoding: str) -> float:
-    return float(srgb_to_linear(np.float64(recorded))) if encoding == SRGB else recorded
-
-
-def _saturation(frames, samples, encoding, declared, source) -> tuple[tuple, tuple, str | None]:
-    """`Capture.saturation` of the frames, `Capture.ceilings` and a note naming them (None
-    without); `source`: where `declared` ceilings come from."""
-    levels, ceilings, top = _ceiling_levels(samples, encoding, declared)
-    if all(code is None for code in ceilings):
-        return levels, (None, None, None), None
-    values = len(frames) * frames[0].image[..., 0].size
-    described = []
-    for c, code in enumerate(ceilings):
-        if code is not None:
-            read = sum(int(np.count_nonzero(f.image[..., c] >= levels[c])) for f in frames)
-            described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
-    found = "found on the frames" if declared == AUTO_CEILINGS else source
-    return (
-        levels,
-        tuple(ceilings),
-        (
-            "a channel of the frames stops below full scale (the camera's ceiling, where it stops "
-            f"following the others or the camera's white, {found}): read as clipped there, "
-            f'{"; ".join(described)}; camera.json\'s "ceilings": "none" reads every channel to '
-            "full scale"
-        ),
+        root,
+        camera,
+        tuple(frames),
+        truth,
+        unit,
+        encoding,
+        notes,
+        stereo,
+        saturation,
+        ceilings,
+        knees,
     )
 
 

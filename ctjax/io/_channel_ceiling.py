@@ -53,7 +53,12 @@ values stay light; `knee_note` names it and the effect that models it
 (`ctjax.effects.Knee`).
 """
 
+from typing import NamedTuple
+
 import numpy as np
+
+from ._camera_json import AUTO_CEILINGS
+from ._encoding import SRGB, srgb_to_linear
 
 # Every STEP-th pixel of each frame, in both directions, is sampled...
 STEP = 4
@@ -96,6 +101,58 @@ PILE_RISE = 2.0
 # many codes below its peak (the noise and the resampling about the camera's white).
 PILE_AGREE = 3
 PILE_WIDTH = 12
+
+
+def ceiling_levels(
+    samples, encoding, declared=AUTO_CEILINGS
+) -> tuple[tuple[float, ...], list[int | None], int]:
+    """Per channel, the decoded level from which its values read as clipped (half a code
+    below its ceiling's code, so that every decoding of that code is at or above it; 1.0
+    where it has none), the ceilings' codes and full scale. The ceilings are camera.json's
+    `declared` ones (`read_ceilings`: "none", or codes) or found on the `samples`
+    (`ctjax.io._channel_ceiling`); none found where the images mix bit depths."""
+    if len({part.dtype for part in samples}) != 1:
+        return (1.0,) * 3, [None] * 3, 0
+    top = int(np.iinfo(samples[0].dtype).max)
+    if declared == AUTO_CEILINGS:
+        ceilings = channel_ceilings(np.concatenate(samples), top)
+    else:
+        ceilings = [None] * 3 if isinstance(declared, str) else list(declared)
+        ceilings = [None if code is None or code >= top else code for code in ceilings]
+    levels = tuple(
+        1.0 if code is None else float(decoded_level((code - 0.5) / top, encoding))
+        for code in ceilings
+    )
+    return levels, ceilings, top
+
+
+def decoded_level(recorded: float, encoding: str) -> float:
+    return float(srgb_to_linear(np.float64(recorded))) if encoding == SRGB else recorded
+
+
+def saturation_of(frames, samples, encoding, declared, source) -> tuple[tuple, tuple, str | None]:
+    """`Capture.saturation` of the frames, `Capture.ceilings` and a note naming them (None
+    without); `source`: where `declared` ceilings come from."""
+    levels, ceilings, top = ceiling_levels(samples, encoding, declared)
+    if all(code is None for code in ceilings):
+        return levels, (None, None, None), None
+    values = len(frames) * frames[0].image[..., 0].size
+    described = []
+    for c, code in enumerate(ceilings):
+        if code is not None:
+            read = sum(int(np.count_nonzero(f.image[..., c] >= levels[c])) for f in frames)
+            described.append(f"{'RGB'[c]} from {code} of {top} ({read / values:.1%} of its values)")
+    found = "found on the frames" if declared == AUTO_CEILINGS else source
+    return (
+        levels,
+        tuple(ceilings),
+        (
+            "a channel of the frames stops below full scale (the camera's ceiling, where it stops "
+            f"following the others or the camera's white, {found}): read as clipped there, "
+            f'{"; ".join(described)}; camera.json\'s "ceilings": "none" reads every channel to '
+            "full scale"
+        ),
+    )
 
 
 def samples_of(raw: np.ndarray, clipped: np.ndarray) -> np.ndarray:
@@ -226,27 +283,47 @@ def _ceiling(centres, medians, weights, top: int) -> int | None:
     return None
 
 
-def knee_note(samples: list[np.ndarray]) -> str | None:
-    """A note naming the channels that rise markedly slower above a bright knot than below
-    it, though not to a plateau (`SOFT_KNEE_RATIO`; a camera's knee: a second sinus video's
-    red, 1.68 codes per code of green and blue's mean below 162 of 255 and 0.53 above,
-    where the shared sinus's has a ceiling, the cholecystectomy video's bends 1.22 -> 0.87
-    and a synthetic capture's not at all), or None. `samples`: each frame's (N, 3) codes."""
+class ChannelKnee(NamedTuple):
+    """A channel a camera's knee compressed (`channel_knees`): its index (0 red), the level
+    of the knot in codes of the other channels' mean, its slopes below and above the knot
+    (codes per code of that mean) and the images' full scale."""
+
+    channel: int
+    level: float
+    below: float
+    above: float
+    top: int
+
+
+def channel_knees(samples: list[np.ndarray]) -> tuple[ChannelKnee, ...]:
+    """The channels that rise markedly slower above a bright knot than below it, though not
+    to a plateau (`SOFT_KNEE_RATIO`; a camera's knee: a second sinus video's red, 1.68
+    codes per code of green and blue's mean below 162 of 255 and 0.53 above, where the
+    shared sinus's has a ceiling, the cholecystectomy video's bends 1.22 -> 0.87 and a
+    synthetic capture's not at all); none where the images mix bit depths. `samples`: each
+    frame's (N, 3) codes."""
     if not samples or len({part.dtype for part in samples}) != 1:
-        return None
+        return ()
     codes, top = np.concatenate(samples), int(np.iinfo(samples[0].dtype).max)
     found = []
     for channel in range(codes.shape[-1]):
         bend = _bright_bend(*channel_profile(codes, top, channel), top)
         if bend is not None and PLATEAU_SLOPE < bend[2] <= bend[1] / SOFT_KNEE_RATIO:
-            level, slope, above = bend
-            found.append(
-                f"{'RGB'[channel]} rises {above:.2f} codes per code of the other channels' mean "
-                f"above {level:.0f} of {top}, {slope:.2f} below"
-            )
-    if not found:
+            found.append(ChannelKnee(channel, *bend, top))
+    return tuple(found)
+
+
+def knee_note(knees: tuple[ChannelKnee, ...]) -> str | None:
+    """A note naming the channels a knee compressed (`channel_knees`), or None."""
+    if not knees:
         return None
+    found = [
+        f"{'RGB'[k.channel]} rises {k.above:.2f} codes per code of the other channels' mean "
+        f"above {k.level:.0f} of {k.top}, {k.below:.2f} below"
+        for k in knees
+    ]
     return (
         f"{'; '.join(found)}: the camera compressed it there (a knee; not clipped, it still "
-        "rises): `--effects knee` fits it with the model (evaluate, calibrate-light)"
+        "rises): evaluate and calibrate-light fit it with the model (`--effects knee`, their "
+        "default on such frames; `--effects none` fits none)"
     )
