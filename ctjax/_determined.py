@@ -403,29 +403,42 @@ def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=Non
 
 
 def effects_at_domain_end(model, stderr: dict) -> dict[str, str]:
-    """The image effects' parameters (dotted names) whose standard error could not be
-    computed only where they sit at an end of their domain (within `EDGE` of its width), with
-    why: an effect at its limit (a knee's slope at 1, a channel it does not compress) is
-    held there by its domain, a flat direction of the fit that says nothing about the
-    rest, so it flags nothing."""
+    """The image effects' parameters (dotted names) whose standard errors could not be
+    computed because the effect sits at its limit, with why: one at an end of its domain
+    (within `EDGE` of its width; a knee's slope at 1, a channel it does not compress) is
+    held there by the domain, and the same effect's other parameters without an error are
+    left open by it (a knee's level, where no channel is compressed). A flat direction of
+    the fit that says nothing about the rest: it flags nothing."""
     from .fitting._parameters import free_parameters
 
-    out = {}
+    held, open_, reasons = set(), {}, {}
     for p in free_parameters(model):
-        error = _array(stderr.get(p.name))
-        if not p.name.startswith("effects[") or error is None or np.all(np.isfinite(error)):
+        if not p.name.startswith("effects[") or p.name not in stderr:
             continue
+        error = _array(stderr[p.name])
+        error = np.array([np.nan]) if error is None else error  # None: not computed
+        if np.all(np.isfinite(error)):
+            continue
+        effect = p.name.split(".")[0]
+        open_.setdefault(effect, []).append(p.name)
         value = np.asarray(p.get(model), float).reshape(-1)
         lo, hi = p.domain
-        if not (math.isfinite(lo) or math.isfinite(hi)) or value.shape != error.shape:
-            continue
-        edge = EDGE * (hi - lo) if math.isfinite(hi - lo) else EDGE * max(abs(lo), abs(hi), 1)
         ends = [end for end in (lo, hi) if math.isfinite(end)]
+        if not ends or value.shape != error.shape:
+            continue
+        edge = EDGE * ((hi - lo) if len(ends) == 2 else max(abs(ends[0]), 1.0))
         lost = value[~np.isfinite(error)]
         if all(min(abs(v - end) for end in ends) <= edge for v in lost):
-            out[p.name] = (
+            held.add(effect)
+            reasons[p.name] = (
                 f"{', '.join(f'{v:.4g}' for v in lost)} at the end of its domain ({lo:g}, "
                 f"{hi:g}): held there, no standard error (the effect at its limit)"
+            )
+    out = {}
+    for effect in held:
+        for name in open_[effect]:
+            out[name] = reasons.get(
+                name, "no standard error where the same effect is at its limit (above)"
             )
     return out
 

@@ -216,22 +216,24 @@ def test_atomic_writes_name_a_folder_in_the_way(tmp_path):
 
 
 def test_the_knee_is_fitted_by_default_where_the_frames_show_one(capsys):
-    """`--effects` not given: `knee` where `load_capture` found a channel a knee compressed
-    (with a note), else none; given, as given (`none`: none, and not beside others)."""
+    """`--effects` not given: the knee `load_capture` found, in its channels only (with a
+    note), else none; given, as given (`none`: none, and not beside others)."""
     import argparse
     import types
 
     from ctjax._commands._args import chosen_effects
+    from ctjax.effects import Knee
     from ctjax.io._channel_ceiling import ChannelKnee
 
-    kneed = types.SimpleNamespace(knees=(ChannelKnee(0, 162.0, 1.68, 0.53, 255),))
-    linear = types.SimpleNamespace(knees=())
+    kneed = types.SimpleNamespace(knees=(ChannelKnee(0, 162.0, 1.68, 0.53, 255),), encoding="srgb")
+    linear = types.SimpleNamespace(knees=(), encoding="srgb")
 
     def args(effects):
         return argparse.Namespace(effects=effects, command="evaluate")
 
-    assert chosen_effects(args(None), kneed) == ("knee",)
-    assert "the camera's knee fitted" in capsys.readouterr().err
+    (knee,) = chosen_effects(args(None), kneed)
+    assert isinstance(knee, Knee) and knee.compressed == (True, False, False)
+    assert "the camera's knee in R (the note above) is fitted" in capsys.readouterr().err
     assert chosen_effects(args(None), linear) == ()
     assert chosen_effects(args(["none"]), kneed) == ()
     assert chosen_effects(args(["frame_exposure"]), kneed) == ("frame_exposure",)

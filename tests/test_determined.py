@@ -336,3 +336,10 @@ def test_an_image_effect_at_its_domains_end_without_an_error_flags_nothing():
         else:
             assert flagged == ["knee_slope"] and "at_domain_end" not in estimate.details
             assert Status(estimate.status) == Status.no_standard_error
+    # No channel compressed (every slope at 1): the knee's level is left open by it.
+    model = with_effect(paper_model(1.0, 0.3, 0.2), Knee(0.08, (1.0, 1.0, 1.0)))
+    knee = f"effects[{len(model.effects) - 1}]"
+    errors = {f"{knee}.knee": None, f"{knee}.slope": [None, None, None]}
+    estimate = flag_model(Estimate(model, details={"stderr": errors}), stderrs)
+    assert Status(estimate.status) == Status.successful
+    assert set(estimate.details["at_domain_end"]) == {"knee", "knee_slope"}

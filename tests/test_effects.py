@@ -385,6 +385,21 @@ def test_the_knee_compresses_each_channel_above_it_and_is_undone():
     with pytest.raises(CtjaxError, match=r"Knee.knee must be in \(0, 1\]"):
         Knee(1.5, 0.5)
     assert "knee" in image_effect_names()
+    # Only the channels it compresses: the others rise as the radiance, whatever their slope.
+    red = Knee(0.6, (0.5, 0.8, 1.0), compressed=(True, False, False))
+    np.testing.assert_allclose(red(rgb), [0.75, 0.9, 0.9])
+    np.testing.assert_allclose(red.inverse(red(rgb)), rgb)
+    with pytest.raises(CtjaxError, match=r"Knee\.compressed must name the channels"):
+        Knee(0.6, 0.5, compressed=(False, False, False))
+    # Started for what `load_capture` found: the candidate's start, in those channels only.
+    from ctjax.effects._knee import knee_of
+    from ctjax.io._channel_ceiling import ChannelKnee
+
+    found = (ChannelKnee(0, 162.0, 1.68, 0.53, 255),)
+    started = knee_of(argparse.Namespace(knees=found, encoding="srgb"))
+    assert started.compressed == (True, False, False) and float(started.knee) == 0.5
+    np.testing.assert_allclose(started.slope, [0.5, 1.0, 1.0])
+    assert knee_of(argparse.Namespace(knees=(), encoding="srgb")) is None
     # `ctjax synth --knee KNEE SLOPE [SLOPE_G SLOPE_B]`
     from ctjax.effects._knee import KneeCandidate
 

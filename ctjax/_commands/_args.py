@@ -93,24 +93,29 @@ def add_effects_argument(parser: argparse.ArgumentParser, prefix: str = "") -> N
     )
 
 
-def chosen_effects(args: argparse.Namespace, capture) -> tuple[str, ...]:
+def chosen_effects(args: argparse.Namespace, capture) -> tuple:
     """`--effects` as given (`none`: no effects), or, not given, the effects the frames show:
-    `knee` where `load_capture` found a channel a camera's knee compressed (`Capture.knees`;
-    on a second sinus video's 28 frames `evaluate --no-sfs` 11.61 -> 9.84 levels on the test
-    frames), with a note on stderr."""
+    the knee `load_capture` found where it found one (`Capture.knees`), started there and
+    compressing those channels only (`ctjax.effects._knee.knee_of`), with a note on stderr.
+    On a second sinus video's 28 frames `evaluate --no-sfs` 11.61 -> 9.84 levels on the test
+    frames."""
+    from ..effects._knee import knee_of
+
     if args.effects is not None:
         if "none" in args.effects and len(args.effects) > 1:
             raise CtjaxError(f"--effects none fits no effects: not with others ({args.effects})")
         return tuple(e for e in args.effects if e != "none")
-    if not capture.knees:
+    knee = knee_of(capture)
+    if knee is None:
         return ()
-    channels = "".join("RGB"[knee.channel] for knee in capture.knees)
+    channels = "".join("RGB"[c] for c, on in enumerate(knee.compressed) if on)
     print(
-        f"ctjax {args.command}: note: the camera's knee fitted with the model (--effects knee: "
-        f"{channels} compressed above a bright level, the note above); --effects none fits none",
+        f"ctjax {args.command}: note: the camera's knee in {channels} (the note above) is fitted "
+        "with the model, the other channels not compressed; --effects knee fits it in all three, "
+        "--effects none fits none",
         file=sys.stderr,
     )
-    return ("knee",)
+    return (knee,)
 
 
 def effects_line(model) -> str | None:

@@ -463,11 +463,13 @@ def _where_lobes_show(family, params, shading: TrackShading, per_point: int):
     weighted residuals (C, M, P), for `rgb_rmse_recorded`."""
     columns = track_columns(family, params, shading)
     _, weights, residual = projected_residuals(columns, shading.values, shading.weight, per_point)
-    lobes = sum(
-        (c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point),
-        jnp.zeros_like(shading.values),
-    )
-    shows = (jnp.max(lobes, axis=0) >= LOBE_SHOWS) & (shading.weight > 0)
+    others = [c[None] * weights[k][:, None, None] for k, c in enumerate(columns) if k != per_point]
+    if others:
+        lobes = sum(others[1:], others[0])
+        shows = (jnp.max(lobes, axis=0) >= LOBE_SHOWS) & (shading.weight > 0)
+    else:  # the diffuse lobe alone (a Lambertian fit's brightness): no max over a constant 0,
+        # which XLA folds at compile time (1.9 s and an alarm on stderr at 28 x 640 px frames)
+        lobes, shows = 0.0, jnp.zeros(shading.weight.shape, bool)
     _, _, plain_residual = projected_residuals(
         (columns[per_point],), shading.values, shading.weight, 0
     )

@@ -324,6 +324,6 @@ def knee_note(knees: tuple[ChannelKnee, ...]) -> str | None:
     ]
     return (
         f"{'; '.join(found)}: the camera compressed it there (a knee; not clipped, it still "
-        "rises): evaluate and calibrate-light fit it with the model (`--effects knee`, their "
-        "default on such frames; `--effects none` fits none)"
+        "rises): evaluate and calibrate-light fit a knee there with the model by default "
+        "(`--effects knee` in every channel, `--effects none` none)"
     )
