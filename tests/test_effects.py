@@ -399,6 +399,16 @@ def test_the_knee_compresses_each_channel_above_it_and_is_undone():
     started = knee_of(argparse.Namespace(knees=found, encoding="srgb"))
     assert started.compressed == (True, False, False) and float(started.knee) == 0.5
     np.testing.assert_allclose(started.slope, [0.5, 1.0, 1.0])
+    # A fitted knee far below where the frames bend stands in for something else.
+    from ctjax._candidate import with_effect
+    from ctjax.effects._knee import knee_below_the_bend
+
+    bulge = argparse.Namespace(knees=(ChannelKnee(0, 201.0, 1.34, 0.31, 255),), encoding="srgb")
+    low = with_effect(paper_model(), Knee(0.109, (0.72, 1.0, 1.0), (True, False, False)))
+    assert "far below where the frames bend (0.584" in knee_below_the_bend(low, bulge)
+    high = with_effect(paper_model(), Knee(0.645, (0.22, 1.0, 1.0), (True, False, False)))
+    assert knee_below_the_bend(high, bulge) is None
+    assert knee_below_the_bend(low, argparse.Namespace(knees=(), encoding="srgb")) is None
     assert knee_of(argparse.Namespace(knees=(), encoding="srgb")) is None
     # `ctjax synth --knee KNEE SLOPE [SLOPE_G SLOPE_B]`
     from ctjax.effects._knee import KneeCandidate

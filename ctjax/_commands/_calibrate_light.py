@@ -135,6 +135,9 @@ def run_calibrate_light(args: argparse.Namespace) -> int:
         offset_axes=args.offset.replace("-", "_"),
         effects=effects,
     )
+    from ..effects._knee import knee_below_the_bend
+
+    result.warnings.extend(filter(None, [knee_below_the_bend(result.model, capture)]))
     summary = result.to_json()
     if args.facets or args.facet_marginal:
         from ..heldout import HeldOutTracks

@@ -132,6 +132,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     )
     if effects_line(evaluation.cook_torrance.model):
         print(f"Cook-Torrance's {effects_line(evaluation.cook_torrance.model)}")
+        from ..effects._knee import knee_below_the_bend
+
+        below = knee_below_the_bend(evaluation.cook_torrance.model, capture)
+        if below:
+            print(f"ctjax evaluate: warning: {below}", file=sys.stderr)
     gain = summary["gain"]
     if "lobe_levels" in gain:
         parts = []
