@@ -439,3 +439,25 @@ def test_a_knee_the_fit_lacks_takes_the_lobe_from_the_channel_it_compresses(tmp_
     knee = having.model.effects[-1]
     assert isinstance(knee, Knee) and float(knee.knee) == pytest.approx(0.5, abs=0.02)
     np.testing.assert_allclose(knee.slope, [0.3, 0.6, 0.9], atol=0.05)
+
+
+def test_undone_values_weigh_a_view_by_its_channels_noise_as_recorded():
+    """A knee's red at slope 0.25 above 0.6: a bright view's values undone divide red's
+    noise by 0.25, so its weight for judging on them (`in_radiance`) is the harmonic mean of
+    the squared slopes, 3 / (16 + 1 + 1); the fits' elimination keeps the arithmetic mean
+    (their residuals are the image's). A dark view keeps its weight either way."""
+    import types
+
+    from ctjax._candidate import with_effect
+    from ctjax.fitting._map_least_squares import _linear
+
+    model = with_effect(paper_model(), Knee(0.6, (0.25, 1.0, 1.0), (True, False, False)))
+    values = jnp.asarray([[0.9, 0.3], [0.9, 0.3], [0.9, 0.3]])[:, :, None]  # (C, M, P)
+    zeros = jnp.zeros((2, 1))
+    samples = types.SimpleNamespace(
+        values=values, weight=jnp.ones((2, 1)), channels=3, site=((zeros, zeros), zeros.astype(int))
+    )
+    linear, harmonic = _linear(model, samples, harmonic=True)
+    np.testing.assert_allclose(linear[:, 0, 0], [0.6 + 0.3 / 0.25, 0.9, 0.9])
+    np.testing.assert_allclose(harmonic[:, 0], [3 / 18, 1.0])
+    np.testing.assert_allclose(_linear(model, samples)[1][:, 0], [(0.0625 + 2) / 3, 1.0])
