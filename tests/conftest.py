@@ -59,10 +59,17 @@ jax.config.update(
 # And no parallel code generation: XLA splits each program's LLVM module to compile the parts
 # on threads, but the workers already keep both cores busy, and splitting costs: a cold
 # `diagnose` (128x96 x 5, 108 programs) compiles in 12.8-13.2 s instead of 15.7-16.3 s.
+# And each program run on one thread: the two workers each started a thread pool of both
+# cores for programs that run for milliseconds, and the pools' threads competed (warm cache,
+# test_calibration.py beside test_diagnostics.py, two processes on 2 cores: 58-63 s, 105-114
+# CPU-s -> 50-55 s, 89-98 CPU-s; the suite at 9dbbb11, cold, fresh clone, 2 cores, one run
+# each: 612.2 s / 1165 CPU-s -> 566.2 s / 1076 CPU-s, the same 907 passed).
 _TEST_FLAGS = {
     "--xla_cpu_use_fusion_emitters": "false",
     "--xla_backend_optimization_level": "0",
     "--xla_cpu_parallel_codegen_split_count": "1",
+    "--xla_cpu_multi_thread_eigen": "false",
+    "intra_op_parallelism_threads": "1",
 }
 for _flag, _value in _TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
