@@ -142,9 +142,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
         parts = []
         if "light_levels" in gain:
             same = summary["lambertian_same_light_rgb_rmse_test"]
+            effects = (
+                " and image effects" if summary["models"]["cook_torrance"].get("effects") else ""
+            )
             parts.append(
-                f"{gain['light_levels']:.2f} from its light (Lambertian under the same light: "
-                f"{same:.2f})"
+                f"{gain['light_levels']:.2f} from its light{effects} (Lambertian under the "
+                f"same light{effects}: {same:.2f})"
             )
         if "diffuse_levels" in gain:
             alone = summary["diffuse_same_light_rgb_rmse_test"]

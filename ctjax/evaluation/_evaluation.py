@@ -103,7 +103,8 @@ class Evaluation:
 
     def gain(self) -> dict:
         """Cook-Torrance's gain over the paper's Lambertian on the test frames, split into its
-        light's (Lambertian at the camera -> Lambertian under Cook-Torrance's light), its
+        light's (Lambertian at the camera -> Lambertian under Cook-Torrance's light and image
+        effects), its
         diffuse term's where that is not Lambert's (-> that term alone under the same light)
         and its lobe's (-> Cook-Torrance), in levels."""
         test = {n: getattr(self, n).rmse["test"] for n in MODELS if getattr(self, n) is not None}
@@ -118,10 +119,10 @@ class Evaluation:
             out["lobe_levels"] = lit - test["cook_torrance"]
         out["note"] = (
             "test-frame RGB RMSE: Lambertian (light at the camera) minus Cook-Torrance; "
-            "light_levels: what Cook-Torrance's light (offset, falloff) brings to the Lambertian "
-            "model alone; diffuse_levels: what Cook-Torrance's diffuse term (when not "
-            "Lambert's) brings under that light; lobe_levels: what the specular lobe brings "
-            "under that same light and diffuse term"
+            "light_levels: what Cook-Torrance's light (offset, falloff) and its fitted image "
+            "effects (held) bring to the Lambertian model alone; diffuse_levels: what "
+            "Cook-Torrance's diffuse term (when not Lambert's) brings under that light; "
+            "lobe_levels: what the specular lobe brings under that same light and diffuse term"
         )
         return out
 
