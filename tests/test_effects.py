@@ -272,10 +272,15 @@ def test_evaluate_fits_the_exposure_in_both_models_and_judges_the_facets_in_radi
     light holds Cook-Torrance's; the facets are judged on the views with it undone."""
     truth = np.asarray(exposed.truth["effects"]["frame_exposure"]["effects[0].log_exposure"])
     near = functools.partial(calibrate_near_light, falloff=[()], max_samples=3000)
+    said = []
     summary = evaluate(
         exposed, calibration=3, cook_torrance=near, sfs=False, facets=True,
-        effects=("frame_exposure",),
+        effects=("frame_exposure",), progress=said.append,
     ).to_json()  # fmt: skip
+    # The near light's own steps (minutes on a real capture), under evaluate's.
+    fitting = said.index(next(m for m in said if m.startswith("fitting Cook-Torrance")))
+    assert said[fitting + 1].startswith("  tracking surface points")
+    assert any(m.startswith("  fitting the light's offset with 1 falloff set") for m in said)
     cook_torrance = summary["models"]["cook_torrance"]
     np.testing.assert_allclose(cook_torrance["effects"]["log_exposure"], truth, atol=0.01)
     assert cook_torrance["sigma"] == pytest.approx(0.2, rel=0.1)

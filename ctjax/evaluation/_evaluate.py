@@ -104,9 +104,11 @@ def fit_colocated(capture: Capture, calibration: int, albedo: str | None = None)
     return fit
 
 
-def _cook_torrance(cook_torrance, albedo, diffuse, effects) -> Callable[..., Estimate]:
+def _cook_torrance(cook_torrance, albedo, diffuse, effects, progress) -> Callable[..., Estimate]:
     """Cook-Torrance's fit as a function of (capture, calibration), its options checked
-    here: before any fit, so that a wrong one is refused in a second, not after two fits."""
+    here: before any fit, so that a wrong one is refused in a second, not after two fits.
+    An estimator that reports its progress (`calibrate_near_light`: minutes on a real
+    capture) reports it through `progress`, indented under evaluate's own steps."""
     if effects and isinstance(cook_torrance, Estimate | ShadingModel):
         raise CtjaxError(
             "effects are fitted by Cook-Torrance's estimator: a fitted model is used as it is "
@@ -138,6 +140,8 @@ def _cook_torrance(cook_torrance, albedo, diffuse, effects) -> Callable[..., Est
                     "(calibrate_near_light does)"
                 )
             options["effects"] = effects
+        if "progress" in parameters:
+            options["progress"] = lambda message: progress(f"  {message}")
         return lambda capture, calibration: cook_torrance(
             capture, calibration=calibration, **options
         )
@@ -292,7 +296,7 @@ def evaluate(
     if sfs:  # before any fit: a capture SfS cannot be scored on fails in a second
         for index in test:
             _check_sfs_reference((reference or capture).frames[index], capture.camera)
-    fit_cook_torrance = _cook_torrance(cook_torrance, albedo, diffuse, effects)
+    fit_cook_torrance = _cook_torrance(cook_torrance, albedo, diffuse, effects, progress)
     tracks = HeldOutTracks.split(capture, len(calib)) if albedo == "map" else None
     timings, notes = {}, [unmapped] if unmapped else []
     tic = time.perf_counter()
