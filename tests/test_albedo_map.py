@@ -501,6 +501,31 @@ def test_a_held_parameter_stays_at_its_start_and_the_rest_fit_as_if_frozen(
     assert alone.converged and alone.to_json()["sigma"] == pytest.approx(0.3, rel=1e-12)
 
 
+def test_a_start_given_twice_is_fitted_once(textured, monkeypatch):
+    """LM from a start equal to one already run ends where that one did: each distinct
+    start runs once (`paper_model`'s sigma 0.2 is one of `ROUGHNESS_STARTS` too)."""
+    from ctjax.fitting import _map_least_squares, fit_model_map, paper_model, roughness_variants
+    from ctjax.observations import Observations
+
+    tracks = Observations.of(load_capture(textured[(2, 0.5)])).tracks(max_points=4000)
+    started = []
+    least_squares = _map_least_squares._least_squares
+
+    def counted(start, *args):
+        started.append(float(start.brdf.lobes[1].distribution.sigma))
+        return least_squares(start, *args)
+
+    monkeypatch.setattr(_map_least_squares, "_least_squares", counted)
+    sigma = "brdf.lobes[1].distribution.sigma"
+    variants = roughness_variants(paper_model())
+    fit = fit_model_map(variants, tracks, hold=(sigma,), standard_errors=False)
+    assert len(variants) == 4 and sorted(started) == pytest.approx([0.1, 0.2, 0.35])
+    started.clear()
+    best = fit_model_map(variants, tracks, hold=(sigma,), refine=2, standard_errors=False)
+    assert len(started) in (1, 2) and len(set(started)) == len(started)
+    assert best.cost >= fit.cost
+
+
 def test_the_maps_do_not_depend_on_how_the_pixels_are_batched(tmp_path, monkeypatch):
     # Frames are estimated in batches of at most `_MAP_CHUNK` pixels: a frame split into
     # pieces, and pieces of several frames in one batch, give the same maps and summary.

@@ -35,7 +35,7 @@ from ..estimation._variable_projection import (
 from ..lobes import Lambertian
 from ..solvers import JacobianBlocks, Solver, least_squares
 from ..solvers._gram import gram
-from ._fit import LEVENBERG_MARQUARDT, named_errors
+from ._fit import LEVENBERG_MARQUARDT, distinct, named_errors
 from ._parameters import as_vector, constrained, free_parameters, strongly_typed, unconstrained
 
 
@@ -475,7 +475,7 @@ def fit_model_map(
         freeze = (*freeze, *hold)
         free = lambda n: n in freeze or _weights_frozen(n)  # noqa: E731
         held = np.zeros(len(free_parameters(starts[0], free)), bool)
-    for start in starts:
+    for start in distinct(starts):
         fitted, albedo, weights, cost, result, steps = _least_squares(
             start, samples, tuple(freeze), per_point, solver, max_steps, held
         )
