@@ -49,6 +49,23 @@ def test_dense_lm_reaches_the_minimum_optimistix_reaches(dtype):
     np.testing.assert_allclose(jnp.append(y[0], y[1]), _TRUTH, rtol=2e-3)
 
 
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_an_unknown_at_its_domains_end_does_not_stop_the_solve(dtype):
+    """An unconstrained unknown that is infinite (a parameter at its domain's end: a knee's
+    slope of 1 is 1 - 1e-9 in float64 and 1 in float32) counts in no step's size: the
+    other unknowns reach the same minimum as without it. (It passed every step as small,
+    so the solve stopped at its first rejected trial: the near light's map fits in float32
+    after 1-3 steps on a real capture.)"""
+    solver = DenseLM()
+    plain, _, _ = least_squares(_residuals, solver, _start(dtype), 100)
+    at_end = (_start(dtype), jnp.asarray(jnp.inf, dtype))
+    y, status, steps = least_squares(lambda y: _residuals(y[0]), solver, at_end, 100)
+    assert Status(int(status)) is Status.successful and int(steps) > 3
+    assert float(y[1]) == np.inf
+    np.testing.assert_allclose(y[0][0], plain[0], rtol=1e-6)
+    np.testing.assert_allclose(y[0][1], plain[1], rtol=1e-6, atol=1e-6)
+
+
 def test_dense_lm_never_raises_the_cost_and_reports_what_stopped_it():
     solver = DenseLM()
     cost = lambda y: float(jnp.sum(_residuals(y) ** 2))  # noqa: E731

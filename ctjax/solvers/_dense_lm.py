@@ -206,7 +206,11 @@ def _judged(solver, y, dy, solved, predicted, cost, trial_cost, damping, grow, p
     the cost by more than the test's tolerance."""
     dtype = y.dtype
     better = solved & jnp.isfinite(trial_cost) & (trial_cost < cost)
-    small = jnp.max(jnp.abs(dy)) <= solver.atol + solver.rtol * jnp.max(jnp.abs(y))
+    # |y| over the finite unknowns: one at its domain's end (a knee's slope of 1 in a
+    # channel it does not compress, 1 - 1e-9 in float64 but 1 in float32) is infinite
+    # unconstrained, and would pass every step as small.
+    size = jnp.max(jnp.where(jnp.isfinite(y), jnp.abs(y), 0))
+    small = jnp.max(jnp.abs(dy)) <= solver.atol + solver.rtol * size
     slight = cost - trial_cost <= solver.atol + solver.rtol * cost
     passed = solved & small & (~better | slight)
     damped = damping >= _PROBE_FROM
