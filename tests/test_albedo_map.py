@@ -524,6 +524,13 @@ def test_a_start_given_twice_is_fitted_once(textured, monkeypatch):
     best = fit_model_map(variants, tracks, hold=(sigma,), refine=2, standard_errors=False)
     assert len(started) in (1, 2) and len(set(started)) == len(started)
     assert best.cost >= fit.cost
+    # The LM in float32 (the near light's), the result in the samples' float64.
+    single = fit_model_map(
+        variants, tracks, hold=(sigma,), standard_errors=False, dtype=jnp.float32
+    )
+    assert single.cost == pytest.approx(fit.cost, rel=1e-5)
+    assert single.model.brdf.weights.dtype == jnp.float64
+    assert single.arrays["track_albedo"].dtype == np.float64
 
 
 def test_the_maps_do_not_depend_on_how_the_pixels_are_batched(tmp_path, monkeypatch):

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._buckets import bucket
-from .._convert import on_device
+from .._convert import cast_floating, on_device
 from .._errors import ParameterError
 from .._paired import SampleErrors
 from .._programs import persistent_jit
@@ -425,6 +425,7 @@ def fit_model_map(
     max_steps: int = 100,
     refine: int | None = None,
     standard_errors: bool = True,
+    dtype=None,
 ) -> Estimate:
     """Fit `ShadingModel`s (one or several starts of the same structure) to tracked surface
     points with one albedo per point (the diffuse lobe's weight) and the other lobes' weights
@@ -447,6 +448,9 @@ def fit_model_map(
     global block of the joint covariance is). With `refine`, LM runs from the `refine`
     starts of lowest projected cost only (each costs one closed-form projection).
     `standard_errors=False` skips them (one compilation less per model structure).
+    `dtype`: the LM's precision where it is not the samples' (float32, the near light's:
+    `calibration._near_light.NEAR_LIGHT_DTYPE`); the result in the samples' and the
+    starts' own.
     """
     starts = [starts] if isinstance(starts, eqx.Module) else list(starts)
     for start in starts:
@@ -463,6 +467,10 @@ def fit_model_map(
     views = np.sum(np.asarray(samples.weight) > 0, axis=0)
     per_point = diffuse_lobe(starts[0])
     starts = [strongly_typed(start) for start in starts]
+    own, fitted_in = starts[0], samples  # what the result is reported in
+    if dtype is not None:
+        samples = cast_floating(samples, dtype)
+        starts = [cast_floating(start, dtype) for start in starts]
     if refine is not None and len(starts) > refine:
         costs = [float(projected_cost(m, samples, per_point)) for m in starts]
         starts = [starts[i] for i in np.argsort(costs)[:refine]]
@@ -483,10 +491,16 @@ def fit_model_map(
         if np.isfinite(cost) and (best is None or cost < best[3]):
             best = (fitted, albedo, weights, cost, result, int(steps))
     if best is None:
-        return Estimate(starts[0], {"calibration": math.inf}, Status.failed, cost=math.inf)
+        return Estimate(own, {"calibration": math.inf}, Status.failed, cost=math.inf)
     fitted, albedo, weights, cost, result, steps = best
-    albedo = np.asarray(albedo)
-    weights = np.asarray(weights).copy()
+    fitted = jax.tree_util.tree_map(
+        lambda x, like: jnp.asarray(x, like.dtype) if isinstance(like, jax.Array) else x,
+        fitted,
+        own,
+    )
+    samples = fitted_in
+    albedo = np.asarray(albedo, samples.values.dtype)
+    weights = np.asarray(weights, samples.values.dtype).copy()
     seen = views > 1
     weights[per_point] = np.median(albedo[seen], axis=0) if seen.any() else 0.0
     brdf = fitted.brdf.with_weights(jnp.asarray(weights, fitted.brdf.weights.dtype))
