@@ -29,6 +29,7 @@ from .fitting._facet_lobe import facet_lobe
 from .fitting._facet_marginal import facet_marginal
 from .fitting._fit import fit_model, pixel_predict, rmse_levels, squared_errors
 from .fitting._map_least_squares import (
+    MAP_LM_DTYPE,
     TrackSamples,
     fit_model_map,
     heldout_map_errors,
@@ -333,6 +334,7 @@ class HeldOutTracks:
                 freeze=freeze,
                 max_steps=_PER_FRAME_STEPS,
                 standard_errors=False,
+                dtype=MAP_LM_DTYPE,
             ),
         )
 

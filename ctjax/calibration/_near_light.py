@@ -24,6 +24,7 @@ from ..effects import image_effects
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
     LEVENBERG_MARQUARDT,
+    MAP_LM_DTYPE,
     ShadingModel,
     fit_model_map,
     free_parameters,
@@ -262,14 +263,6 @@ def _light_parameters(model) -> list[str]:
     return [p.name for p in free_parameters(model) if p.name.startswith("light.")]
 
 
-# The map fits' LM in float32 (8-bit measurements; residuals in levels): 3-4x faster a
-# step. The standard errors, held-out figures and the reported model stay in float64. The
-# second sinus video's turbinate (24 frames at 640 px, warm): `calibrate-light` 80 s against
-# 136-192 s, sigma 0.16318 against 0.16316, the offset to 1e-6, every falloff set's held-out
-# figure within 0.03 levels; SCARED 61-84: every figure within 1e-5 (docs/measurements.md).
-NEAR_LIGHT_DTYPE = np.float32
-
-
 def near_light_map(
     capture: "Capture | Observations",
     *,
@@ -341,7 +334,7 @@ def near_light_map(
             max_steps=max_steps,
             refine=refine,
             standard_errors=False,  # the chosen fit's only, below
-            dtype=NEAR_LIGHT_DTYPE,
+            dtype=MAP_LM_DTYPE,
             **fixed,
         )
 
@@ -494,7 +487,9 @@ def _lobe_gain(result, every, tracks) -> float | None:
     diffuse = result.model.brdf.lobes[diffuse_lobe(result.model)]
     lambertian = ShadingModel(BRDF(diffuse), light, result.model.effects)
     held = [p.name for p in free_parameters(lambertian) if not p.name.startswith("brdf")]
-    plain = fit_model_map(lambertian, tracks, freeze=held, standard_errors=False)
+    plain = fit_model_map(
+        lambertian, tracks, freeze=held, standard_errors=False, dtype=MAP_LM_DTYPE
+    )
     if not np.isfinite(plain.cost) or plain.cost <= 0:
         return None
     gain, shows = lobe_gain_where_it_shows(every.model, plain.model, tracks)

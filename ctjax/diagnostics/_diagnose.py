@@ -20,6 +20,7 @@ from .._result import Estimate
 from .._threads import checked_workers, in_order
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
+    MAP_LM_DTYPE,
     ShadingModel,
     fit_model,
     fit_model_map,
@@ -150,6 +151,7 @@ def _fit(starts, heldout, max_steps, freeze=()) -> Estimate:
             max_steps=max_steps,
             refine=REFINE,
             standard_errors=False,
+            dtype=MAP_LM_DTYPE,
         )
     return fit_model(
         starts,
@@ -196,7 +198,12 @@ def _per_frame_on_calibration(base: Estimate, heldout, max_steps) -> Estimate:
         return base
     held = [p.name for p in free_parameters(base.model) if not p.per_frame]
     refit = fit_model_map(
-        base.model, heldout.train, freeze=held, max_steps=max_steps, standard_errors=False
+        base.model,
+        heldout.train,
+        freeze=held,
+        max_steps=max_steps,
+        standard_errors=False,
+        dtype=MAP_LM_DTYPE,
     )
     if not np.isfinite(refit.cost):
         return base

@@ -25,6 +25,7 @@ from .._units import METRIC, length_unit_of
 from ..effects import image_effects
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..fitting import (
+    MAP_LM_DTYPE,
     ShadingModel,
     facets_suggestion,
     fit_model,
@@ -83,7 +84,7 @@ def fit_lambertian(
     held_parts = ("light", "effects") if hold_effects else ("light",)
     held = [p.name for p in free_parameters(start) if p.name.startswith(held_parts)]
     if tracks is not None:
-        return fit_model_map(start, tracks.train, freeze=held)
+        return fit_model_map(start, tracks.train, freeze=held, dtype=MAP_LM_DTYPE)
     samples = Observations.of(capture).pixels(frames, max_samples=max_samples)
     return fit_model(
         start, samples, pixel_predict, columns=pixel_columns, max_steps=20, freeze=held

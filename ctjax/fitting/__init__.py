@@ -24,6 +24,7 @@ from ._fit import predictions as predictions
 from ._fit import rmse_levels as rmse_levels
 from ._fit import roughness_variants as roughness_variants
 from ._fit import standard_errors as standard_errors
+from ._map_least_squares import MAP_LM_DTYPE as MAP_LM_DTYPE
 from ._map_least_squares import TrackSamples as TrackSamples
 from ._map_least_squares import fit_model_map as fit_model_map
 from ._map_least_squares import lobe_gain_where_it_shows as lobe_gain_where_it_shows
