@@ -630,3 +630,30 @@ def test_a_frame_sharing_no_point_is_named_and_its_half_not_fitted(textured):
         for w in estimate.warnings
     )
     assert "halves" not in estimate.details
+
+
+@pytest.mark.parametrize("dtype", [None, jnp.float32])
+def test_the_best_start_of_another_structure_is_reported_as_itself(textured, dtype):
+    """Starts may differ in static structure (Schlick's Fresnel at V.H or N.V, the
+    fresnel_schlick candidate's two): the result is the start that won, in its own
+    structure and dtypes, whichever start came first (the shared sinus's diagnose stopped
+    here when the N.V start won, the LM in float32)."""
+    from ctjax._candidate import with_factor
+    from ctjax.fitting import fit_model_map, paper_model
+    from ctjax.lobes import SchlickFresnel
+    from ctjax.observations import Observations
+
+    tracks = Observations.of(load_capture(textured[(2, 0.5)])).tracks(max_points=2000)
+    sigma = "brdf.lobes[1].distribution.sigma"
+    far = with_factor(paper_model(sigma=0.95), SchlickFresnel(0.05, "normal"))
+    near = with_factor(paper_model(), SchlickFresnel(0.05, "half"))
+    fits = [
+        fit_model_map(starts, tracks, hold=(sigma,), standard_errors=False, dtype=dtype)
+        for starts in ([far], [near], [far, near])
+    ]
+    assert fits[1].cost < fits[0].cost
+    assert fits[2].cost == pytest.approx(fits[1].cost, rel=1e-6)
+    fresnel = fits[2].model.brdf.lobes[1].factors[0]
+    assert fresnel.cosine == "half"
+    assert fits[2].model.brdf.weights.dtype == jnp.float64
+    assert jnp.asarray(fresnel.f0).dtype == jnp.float64

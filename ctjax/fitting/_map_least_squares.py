@@ -474,10 +474,13 @@ def fit_model_map(
     views = np.sum(np.asarray(samples.weight) > 0, axis=0)
     per_point = diffuse_lobe(starts[0])
     starts = [strongly_typed(start) for start in starts]
-    own, fitted_in = starts[0], samples  # what the result is reported in
+    # The result is reported in the samples' dtype and in its start's own dtypes: by start,
+    # for starts may differ in structure (the Fresnel factor's "half" and "normal").
+    fitted_in, given = samples, starts
     if dtype is not None:
         samples = cast_floating(samples, dtype)
         starts = [cast_floating(start, dtype) for start in starts]
+    own = {id(start): like for start, like in zip(starts, given, strict=True)}
     if refine is not None and len(starts) > refine:
         costs = [float(projected_cost(m, samples, per_point)) for m in starts]
         starts = [starts[i] for i in np.argsort(costs)[:refine]]
@@ -496,14 +499,14 @@ def fit_model_map(
         )
         cost = float(cost)
         if np.isfinite(cost) and (best is None or cost < best[3]):
-            best = (fitted, albedo, weights, cost, result, int(steps))
+            best = (fitted, albedo, weights, cost, result, int(steps), own[id(start)])
     if best is None:
-        return Estimate(own, {"calibration": math.inf}, Status.failed, cost=math.inf)
-    fitted, albedo, weights, cost, result, steps = best
+        return Estimate(given[0], {"calibration": math.inf}, Status.failed, cost=math.inf)
+    fitted, albedo, weights, cost, result, steps, like = best
     fitted = jax.tree_util.tree_map(
         lambda x, like: jnp.asarray(x, like.dtype) if isinstance(like, jax.Array) else x,
         fitted,
-        own,
+        like,
     )
     samples = fitted_in
     albedo = np.asarray(albedo, samples.values.dtype)
