@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import finite_difference, random_hemisphere, vec3
+from helpers import cast, finite_difference, random_hemisphere, vec3
 
 import ctjax
 from ctjax import (
@@ -240,3 +240,31 @@ def test_a_parameter_driven_past_its_domain_stays_inside_it():
     values[index] = jnp.asarray(-1000.0)
     alpha = constrained(model, parameters, values).brdf[1].distribution.alpha
     assert 0 < float(alpha) < 1e-300
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_a_parameter_at_its_domains_end_is_a_finite_unknown(dtype):
+    """A knee's slope of 1 (a channel it leaves alone: the end of (0, 1]) is a finite
+    unconstrained value in either precision (float32 read 1 - 1e-9 as 1, an infinite logit),
+    and maps back to within 1e-9 of 1, or the dtype's resolution where that is coarser."""
+    from ctjax import ShadingModel
+    from ctjax.effects import Knee
+    from ctjax.fitting import free_parameters
+    from ctjax.fitting._parameters import constrained, unconstrained
+    from ctjax.lights import PointLight
+
+    model = cast(
+        ShadingModel(
+            (Lambertian(jnp.ones(3)), Specular(jnp.ones(3), GGX(0.3))),
+            PointLight((0.0, 0.0, 0.0)),
+            (Knee(0.6, (0.5, 1.0, 1.0), compressed=(True, False, False)),),
+        ),
+        dtype,
+    )
+    parameters = free_parameters(model)
+    values = unconstrained(model, parameters)
+    assert all(bool(jnp.all(jnp.isfinite(v))) for v in values)
+    slope = constrained(model, parameters, values).effects[0].slope
+    assert slope.dtype == dtype
+    within = 2 * max(1e-9, float(jnp.finfo(dtype).eps))  # 1e-9 inside it, or the dtype's step
+    np.testing.assert_allclose(slope, [0.5, 1.0, 1.0], rtol=within)

@@ -18,7 +18,15 @@ import jax.numpy as jnp
 
 from .._convert import strongly_typed as strongly_typed
 
+# How far inside its domain an unknown at the domain's end is taken (its unconstrained
+# value then finite): 1e-9, or the dtype's resolution where that is coarser (float32:
+# 1 - 1e-9 is 1, whose logit is infinite; a knee's slope at 1 was, and DenseLM's small-step
+# test read every step as small, 2026-12-06).
 _EPS = 1e-9
+
+
+def _eps(value) -> float:
+    return max(_EPS, float(jnp.finfo(jnp.result_type(value, float)).eps))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +78,8 @@ def per_frame_names(model) -> list[str]:
 def _to_unconstrained(value, domain):
     lo, hi = domain
     if math.isfinite(lo) and math.isfinite(hi):
-        p = jnp.clip((value - lo) / (hi - lo), _EPS, 1 - _EPS)
+        eps = _eps(value)
+        p = jnp.clip((value - lo) / (hi - lo), eps, 1 - eps)
         return jnp.log(p) - jnp.log1p(-p)
     if math.isfinite(lo):
         excess = jnp.maximum(value - lo, _EPS)
