@@ -58,6 +58,7 @@ from .._status import Status
 from ..estimation import ALBEDO_CHOICES, default_albedo, why_no_albedo_map
 from ..estimation._dense_maps import albedo_maps
 from ..fitting import (
+    MAP_LM_DTYPE,
     TrackSamples,
     fit_model,
     fit_model_map,
@@ -97,7 +98,8 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
     """The BRDF (rho~, F~, sigma) under `model`'s light on `samples`: pixel samples (one
-    albedo) or `TrackSamples` (an albedo per surface point, eliminated in closed form)."""
+    albedo) or `TrackSamples` (an albedo per surface point, eliminated in closed form; its
+    LM in `MAP_LM_DTYPE`, as the other commands' map fits)."""
     if isinstance(samples, TrackSamples):
         return fit_model_map(
             roughness_variants(model),
@@ -105,6 +107,7 @@ def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
             max_steps=max_steps,
             refine=3,
             standard_errors=False,
+            dtype=MAP_LM_DTYPE,
         )
     return fit_model(
         roughness_variants(model),
