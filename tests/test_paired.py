@@ -96,6 +96,53 @@ def test_the_comparison_in_words():
     assert "4.0% lower, 1.2 standard errors" in line
 
 
+def test_a_candidate_judged_on_other_samples_is_not_paired():
+    """Under one albedo the `albedo_texture` candidate is judged on the map's tracked views,
+    the base and the others on pixels: it is not paired with them (on the shared sinus,
+    paired on the pixels, the map's model read 10 standard errors behind the base while its
+    held-out RMSE was 74% lower on its own samples: `not_determined`, and every other
+    candidate "as good")."""
+    from ctjax._result import Estimate
+    from ctjax.diagnostics import Diagnosis
+    from ctjax.diagnostics._compared import compared
+
+    rng = np.random.default_rng(1)
+    n = 4 * 64 * 64
+    errors = {"base": _errors(rng.chisquare(3, n) + 1.0)}
+    errors["spot_falloff"] = _errors(errors["base"].squared - 0.5)
+    errors["vignetting"] = _errors(errors["spot_falloff"].squared + rng.normal(0, 0.01, n))
+
+    class Split:  # what `compared` asks of a held-out split
+        def heldout_errors(self, model):
+            if model == "albedo_texture":
+                raise AssertionError("a candidate judged on other samples was paired")
+            return errors[model]
+
+    def judged(effect, improvement, **more):
+        return Estimate(effect, details={"effect": effect, "improvement": improvement, **more})
+
+    texture = judged("albedo_texture", 0.74, judged_on="map")
+    others = [judged("spot_falloff", 0.14), judged("vignetting", 0.12)]
+    leading, close = compared(Split(), Estimate("base"), [texture, *others])
+    assert leading == {
+        "effect": "albedo_texture",
+        "improvement": 0.74,
+        "z": None,
+        "judged_on": "map",
+    }
+    assert close == []
+    diagnosis = Diagnosis(None, 2.5, [], "albedo_texture", 1.0, None, [], leading, close)
+    assert diagnosis.verdict_status == "not_paired"
+    (line,) = diagnosis.comparison()
+    assert line.startswith("the verdict is not paired with the base: albedo_texture")
+    assert "74.0% lower" in line and "--albedo map" in line
+    # Behind a paired best, it is left out of the candidates compared with it.
+    texture.details["improvement"] = 0.01
+    leading, close = compared(Split(), Estimate("base"), [*others, texture])
+    assert leading["effect"] == "spot_falloff" and leading["z"] > 2
+    assert [c["effect"] for c in close] == ["vignetting"] and abs(close[0]["z"]) < 2
+
+
 def test_no_samples_have_no_errors_and_no_rmse():
     from ctjax._vector import Vec3
     from ctjax.fitting import paper_model, rmse_levels

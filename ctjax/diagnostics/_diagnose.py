@@ -266,7 +266,7 @@ def _candidate_fit(effect, starts, base, heldout, prepared, max_steps) -> Estima
             return None
         steps = fit.details.get("steps")
         fit = tracks.judge(fit, noise_floor=False)
-        fit.details = {"frozen": list(freeze), "steps": steps}
+        fit.details = {"frozen": list(freeze), "steps": steps, "judged_on": "map"}
         return fit
     try:
         fit = _fit(starts, heldout, max_steps, freeze)
@@ -310,6 +310,7 @@ def _candidates(
             return None
         seconds = time.perf_counter() - started
         improvement = (base.heldout_rmse - fit.heldout_rmse) / base.heldout_rmse
+        judged = fit.details
         fit.details = {
             "effect": effect.name,
             "improvement": improvement,
@@ -318,6 +319,8 @@ def _candidates(
             "steps": fit.details["steps"],
             "seconds": round(seconds, 2),
         }
+        if "judged_on" in judged:  # another split's samples than the base's (`compared`)
+            fit.details["judged_on"] = judged["judged_on"]
         return fit
 
     todo = [effect for effect in candidates if effect.name not in added]

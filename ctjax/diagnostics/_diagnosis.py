@@ -88,10 +88,13 @@ class Diagnosis:
         """How far the held-out samples determine the verdict: `determined` (its gain over
         the base at least `TOLD_APART_Z` standard errors, and no other candidate within that
         of it), `ambiguous` (ahead of the base, and the candidates in `close` as good),
-        `not_determined` (its gain within the spread other samples could give); None where
-        the verdict is none."""
+        `not_determined` (its gain within the spread other samples could give), `not_paired`
+        (judged on other samples than the base's: the `albedo_texture` candidate of a
+        one-albedo diagnosis, on the map's tracked views); None where the verdict is none."""
         if self.verdict == "none" or self.leading is None:
             return None
+        if "judged_on" in self.leading:
+            return "not_paired"
         z = self.leading["z"]
         if z is None or z < TOLD_APART_Z:
             return "not_determined"
@@ -106,6 +109,13 @@ class Diagnosis:
                 f"leading candidate: {leading['effect']}, held-out RMSE "
                 f"{100 * leading['improvement']:.1f}% lower ({_in_errors(leading['z'])}), "
                 f"under the {100 * MATERIAL_IMPROVEMENT:g}% a verdict needs"
+            )
+        if self.verdict_status == "not_paired":
+            lines.append(
+                f"the verdict is not paired with the base: {self.verdict} is judged on the "
+                f"{leading['judged_on']}'s tracked views, the base on its own samples, so its "
+                f"{100 * leading['improvement']:.1f}% lower held-out RMSE is not tested sample "
+                f"by sample (--albedo {leading['judged_on']} diagnoses every candidate that way)"
             )
         if self.verdict_status == "not_determined":
             lines.append(
