@@ -219,13 +219,15 @@ def _jobs(captures, out: Path, steps, effects=()) -> list[CaptureJob]:
     missing = [str(c) for c in captures if not Path(c).is_dir()]
     if missing:  # before any work, not as a failed row after the others ran
         raise CtjaxError(f"not a capture folder: {', '.join(missing)}")
-    jobs = [CaptureJob(Path(c).resolve(), out.resolve(), steps, effects) for c in captures]
+    # Absolute, not resolved: a capture given as a link keeps the link's name (two
+    # reconstructions both named `reconstructed`, linked under their sequences' names).
+    jobs = [CaptureJob(Path(c).absolute(), out.resolve(), steps, effects) for c in captures]
     names = [job.name for job in jobs]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise CtjaxError(
             f"captures with the same folder name ({', '.join(repeated)}) would share a result "
-            "folder: rename them"
+            "folder: rename them, or give them as links of distinct names"
         )
     return jobs
 

@@ -90,6 +90,30 @@ def test_bad_batch_options_are_one_line(captures, tmp_path, capsys, extra, messa
     assert not (tmp_path / "o" / good.name).exists()  # refused before any work
 
 
+def test_captures_of_one_name_are_refused_and_links_keep_their_names(tmp_path, capsys):
+    """Two captures named alike (`SEQUENCE/reconstructed`, as benchmarks/real_video.py
+    writes them) would share a result folder: refused in one line; given as links of
+    distinct names, each link's name is its result folder's."""
+    from ctjax.batch import _jobs
+
+    folders = [tmp_path / sequence / "reconstructed" for sequence in ("sinus", "chole")]
+    for folder in folders:
+        folder.mkdir(parents=True)
+    out = tmp_path / "o"
+    assert main(["batch", *map(str, folders), "--out", str(out), "--steps", "fit"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "same folder name (reconstructed)" in line and "links of distinct names" in line
+    links = []
+    for folder in folders:
+        links.append(tmp_path / "links" / folder.parent.name)
+        links[-1].parent.mkdir(exist_ok=True)
+        links[-1].symlink_to(folder, target_is_directory=True)
+    jobs = _jobs(links, out, ("fit",))
+    assert [job.name for job in jobs] == ["sinus", "chole"]
+    assert [job.folder for job in jobs] == [out.resolve() / "sinus", out.resolve() / "chole"]
+    assert [job.capture.resolve() for job in jobs] == [f.resolve() for f in folders]
+
+
 def test_without_dask_one_line_names_the_extra_and_exit_2(captures, tmp_path, capsys, monkeypatch):
     import sys
 
