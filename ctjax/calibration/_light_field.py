@@ -62,6 +62,8 @@ from ..fitting import (
     TrackSamples,
     fit_model,
     fit_model_map,
+    free_parameters,
+    lobe_gain_where_it_shows,
     paper_model,
     pixel_columns,
     pixel_predict,
@@ -219,7 +221,30 @@ def _result(heldout, final, field, pixel_directions, todo, status, boundary, vie
         "boundary": boundary,
         "view": view.astype(np.float32),
     }
-    return flag_model(fit)  # the field's BRDF: a lobe the data show, a roughness in range
+    # The field's BRDF: a lobe the data show (where it shows, against the diffuse term
+    # alone under the same field), a roughness in range.
+    return flag_model(fit, lobe_gain=_lobe_gain(fit, heldout.train))
+
+
+def _lobe_gain(fit: Estimate, samples) -> float | None:
+    """What the lobes bring under the field where they show (at least one 8-bit level): 1 -
+    RMSE / RMSE of the diffuse term alone refitted under the same field (held) on the
+    calibration tracks, each point's albedo eliminated (`lobe_gain_where_it_shows`, as the
+    near light's); also in `fit.details`. None with one albedo (pixel samples) or where that
+    refit does not give a finite cost."""
+    if not isinstance(samples, TrackSamples):
+        return None
+    model = fit.model
+    lambertian = ShadingModel(BRDF(model.brdf.lobes[diffuse_lobe(model)]), model.light)
+    held = [p.name for p in free_parameters(lambertian) if not p.name.startswith("brdf")]
+    plain = fit_model_map(
+        lambertian, samples, freeze=held, standard_errors=False, dtype=MAP_LM_DTYPE
+    )
+    if not np.isfinite(plain.cost) or plain.cost <= 0:
+        return None
+    gain, shows = lobe_gain_where_it_shows(model, plain.model, samples)
+    fit.details["lobe_gain"], fit.details["lobe_shows_observations"] = gain, shows
+    return gain
 
 
 def _warn_unless_better(result: Estimate, albedo: str) -> None:
