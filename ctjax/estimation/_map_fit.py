@@ -18,7 +18,7 @@ import numpy as np
 
 from .._buckets import bucket
 from .._convert import on_device
-from .._determined import MIN_LOBE_GAIN, Undetermined, add_undetermined, undetermined
+from .._determined import MIN_LOBE_GAIN, Undetermined, add_undetermined
 from .._errors import CtjaxError
 from .._frame_consistency import judge_frames_brightness
 from .._model import ShadingModel
@@ -50,7 +50,6 @@ from ._uniform_fit import (
     fit_to_json,
     fitted_lobe,
     flag_brdf_fit,
-    named_fit,
     poorly_determined,
     require_geometry,
     require_specular,
@@ -453,9 +452,7 @@ def _checked_against_the_lights_cone(
     a spot falloff (cos^k about the optical axis, the k of `SPOT_EXPONENTS` that fits best):
     with the light at the lens the two are alike where the tissue faces the scope. Where
     the lobe then lowers the RMSE by under `MIN_LOBE_GAIN` where it shows, it was the
-    light's cone: `no_lobe`; where the lobe refitted there is itself absent, coloured or at
-    an end of its search (`ctjax._determined.undetermined`), the lobe reported does not
-    remain: that status. `details["spot_check"]` holds what the check found.
+    light's cone: `no_lobe`. `details["spot_check"]` holds what the check found.
 
     Measured on the real cholecystectomy video (one normal per point): sigma 0.391, F_tilde
     [0.085, 0.026, 0.029] passed every other check (gain 1.1% where it shows); the near
@@ -488,29 +485,7 @@ def _checked_against_the_lights_cone(
     # The check replaces the warning that a broad lobe may be the light's cone.
     estimate.warnings[:] = [w for w in estimate.warnings if not w.startswith(BROAD_WARNING)]
     if gain >= MIN_LOBE_GAIN:
-        # A gain that remains is the lobe's only where the lobe itself remains: not one
-        # that the cone leaves at the end of its search or coloured (the shared sinus with
-        # --patch 9: sigma 0.825 -> 0.9998, F_tilde [0.034, 0, 0], the red channel's
-        # ceiling, yet 1.2% of gain).
-        values, stderrs, ranges = named_fit(spotted, per_point)
-        changed = [
-            u
-            for u in undetermined(values, stderrs, ranges, gain)
-            if u.status in (Status.no_lobe, Status.at_bound)
-        ]
-        if not changed:
-            return estimate
-        return add_undetermined(
-            estimate,
-            Undetermined(
-                "F_tilde",
-                changed[0].status,
-                f"the lobe (sigma {float(np.asarray(fit.params)[0]):.3g}) does not remain as "
-                f"fitted with the light's cone: with a spot falloff cos^{exponent:g} about the "
-                f"optical axis, {changed[0].reason}: the lobe fitted without the cone is not "
-                "the highlights' (`ctjax calibrate-light` fits the light's falloff and offset)",
-            ),
-        )
+        return estimate
     return add_undetermined(
         estimate,
         Undetermined(

@@ -329,23 +329,6 @@ def fitted_lobe(fit) -> dict[str, np.ndarray]:
     return lobe
 
 
-def named_fit(fit: BRDFFit, per_point: int | None = None) -> tuple[dict, dict, dict]:
-    """`fit`'s (the BnB's) lobe weights and roughnesses by name, their standard errors (but
-    the weight estimated per surface point, `per_point`) and each roughness's search range:
-    what `ctjax._determined.undetermined` judges."""
-    family = fit.family
-    weights, weights_stderr = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
-    params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
-    values = {name: weights[k] for k, name in enumerate(family.weight_names)}
-    values |= {name: float(params[d]) for d, name in enumerate(family.names)}
-    stderrs = {
-        name: weights_stderr[k] for k, name in enumerate(family.weight_names) if k != per_point
-    }
-    stderrs |= {name: float(params_stderr[d]) for d, name in enumerate(family.names)}
-    ranges = {name: (family.lo[d], family.hi[d]) for d, name in enumerate(family.names)}
-    return values, stderrs, ranges
-
-
 def flag_brdf_fit(
     estimate: Estimate,
     fit: BRDFFit,
@@ -363,8 +346,15 @@ def flag_brdf_fit(
     determined lobe's roughness must agree between. `gain`: the lobes' gain where measured
     otherwise (the albedo map's: where they show, `lobe_gain_where_it_shows`)."""
     family = fit.family
-    params = np.asarray(fit.params)
-    values, stderrs, ranges = named_fit(fit, per_point)
+    weights, weights_stderr = np.asarray(fit.weights), np.asarray(fit.weights_stderr)
+    params, params_stderr = np.asarray(fit.params), np.asarray(fit.params_stderr)
+    values = {name: weights[k] for k, name in enumerate(family.weight_names)}
+    values |= {name: float(params[d]) for d, name in enumerate(family.names)}
+    stderrs = {
+        name: weights_stderr[k] for k, name in enumerate(family.weight_names) if k != per_point
+    }
+    stderrs |= {name: float(params_stderr[d]) for d, name in enumerate(family.names)}
+    ranges = {name: (family.lo[d], family.hi[d]) for d, name in enumerate(family.names)}
     if gain is None and lambertian is not None and float(lambertian.rgb_rmse) > 0:
         gain = 1 - float(fit.rgb_rmse) / float(lambertian.rgb_rmse)
     split = {
