@@ -248,6 +248,13 @@ def _at_bounds(values: dict, ranges: dict, absent: set[str]) -> list[Undetermine
     return out
 
 
+def roughness_at_an_end(values: dict, ranges: dict) -> list[Undetermined]:
+    """The roughnesses of `values` at an end of their search range (`ranges` by name; the
+    paper's (0, 1] where missing), whatever their lobes' weights: `at_bound` each."""
+    roughnesses = {n: v for n, v in values.items() if _suffix_of(n) is not None}
+    return _at_bounds(roughnesses, ranges, set())
+
+
 def halves_apart(values: dict, halves: dict, flagged: set[str]) -> list[Undetermined]:
     out = []
     for name, parts in halves.items():

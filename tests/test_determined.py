@@ -281,7 +281,8 @@ def test_a_broad_lobe_is_checked_against_the_lights_cone(tmp_path):
     """A determined lobe of sigma >= 0.3 is fitted again under a spot falloff about the
     optical axis: a lobe that the light's cone explains becomes `no_lobe` (the real
     cholecystectomy's 0.391: gain 1.1% -> 0.02%); a true broad lobe stays (sigma 0.4 under
-    cos^4: recovered with k = 4 and sigma within 1%)."""
+    cos^4: recovered with k = 4 and sigma within 1%); one whose refit under the cone goes to
+    the top of its search is `at_bound` (the shared sinus with --patch 9)."""
     import equinox as eqx
 
     from ctjax._buckets import bucket
@@ -311,6 +312,23 @@ def test_a_broad_lobe_is_checked_against_the_lights_cone(tmp_path):
     assert Status(estimate.status) == Status.no_lobe
     assert any("is the light's cone" in w for w in estimate.warnings)
     assert estimate.details["spot_check"]["exponent"] == 4.0
+    # A gain that remains with the cone, but a lobe that does not: refitted there it goes to
+    # the top of its search, an angular trend (the shared sinus with --patch 9: sigma 0.825
+    # -> 0.9998 and 1.2% of gain, the red channel's ceiling). Here a lobe of sigma 1 under
+    # the cone, which a fit reported at 0.5.
+    trend = SynthOptions(**size, sigma=1.0, F_tilde=(0.1,) * 3, effects={"spot_falloff": 4.0})
+    tracks = Observations.of(load_capture(synthesize(tmp_path / "trend", trend))).tracks()
+    tracks = tracks.padded(bucket(len(tracks)))
+    fit = fit_brdf_map(track_shading(tracks), PAPER)
+    fit = eqx.tree_at(lambda f: f.params, fit, jnp.asarray([0.5], fit.params.dtype))
+    estimate = Estimate(ctjax.ShadingModel(fit.brdf, ctjax.ColocatedLight()))
+    estimate = _checked_against_the_lights_cone(estimate, fit, tracks, 1e-3)
+    check = estimate.details["spot_check"]
+    assert check["lobe_gain"] >= 0.005 and check["sigma"] >= 0.98
+    assert Status(estimate.status) == Status.at_bound
+    assert any(
+        "does not remain as fitted" in w and "top of its search" in w for w in estimate.warnings
+    )
 
 
 def test_an_image_effect_at_its_domains_end_without_an_error_flags_nothing():
