@@ -388,10 +388,10 @@ def add_undetermined(estimate, found: Undetermined):
     return estimate
 
 
-def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=None):
+def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=None, halves=None):
     """`flag` for an estimate whose standard errors are in `details["stderr"]` by dotted
-    field name (the LM fitters'), plus `stderrs` by paper name; `lobe_gain` as in
-    `undetermined`. A per-frame parameter (`PER_FRAME`: a frame's exposure) is a nuisance,
+    field name (the LM fitters'), plus `stderrs` by paper name; `lobe_gain` and `halves` as
+    in `undetermined`. A per-frame parameter (`PER_FRAME`: a frame's exposure) is a nuisance,
     as a point's albedo is, and flags nothing: a held-out frame's is fitted on that frame
     when it is judged, and has no standard error from the calibration frames."""
     from ._json import paper_names
@@ -406,7 +406,7 @@ def flag_model(estimate, stderrs: dict | None = None, ranges=None, lobe_gain=Non
     nuisance |= set(held)
     by_name = {names[k]: v for k, v in stderr.items() if k in names and k not in nuisance}
     ranges = _diffuse_shape_ranges(estimate.model, names) | (ranges or {})
-    return flag(estimate, by_name | (stderrs or {}), ranges, lobe_gain=lobe_gain)
+    return flag(estimate, by_name | (stderrs or {}), ranges, lobe_gain=lobe_gain, halves=halves)
 
 
 def effects_at_domain_end(model, stderr: dict) -> dict[str, str]:

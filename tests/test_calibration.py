@@ -146,6 +146,11 @@ def test_near_light_with_the_albedo_map_finds_the_offset(independent_near):
     np.testing.assert_allclose(fit["offset_halves_stderr_mm"], spread)
     assert np.all(spread <= 3 * np.asarray(fit["offset_stderr_mm"]))
     assert not any("the light's offset moves" in w for w in result.warnings)
+    # The lobe too, refitted on each half with the light held: a determined one agrees.
+    lobe = fit["sigma_halves"]["sigma"]
+    for part in ("even_frames", "odd_frames"):
+        assert lobe[part] == pytest.approx(fit["sigma"], rel=0.01)
+    assert fit["status"] == "successful"
 
 
 def _turned(normals: np.ndarray, degrees: float) -> np.ndarray:

@@ -277,6 +277,22 @@ def test_an_lm_fits_diffuse_shape_at_its_domains_end_is_flagged():
         assert flagged == ([] if status == Status.successful else ["oren_nayar_roughness"])
 
 
+def test_an_lm_fits_lobe_apart_between_the_halves_is_unstable():
+    """`flag_model` with the lobe refitted on the even and on the odd frames (the near
+    light's `calibrate-light`): the second sinus video's turbinate gave sigma 0.160 on all
+    frames, 0.182 and 0.141 on the halves (25% apart): `unstable`; 0.349 and 0.355 (SCARED
+    91-102) pass."""
+    from ctjax._determined import flag_model
+
+    stderrs = {"F_tilde": [0.001] * 3, "sigma": 0.001}
+    for halves, status in (((0.182, 0.141), Status.unstable), ((0.349, 0.355), Status.successful)):
+        model = paper_model(1.0, 0.03, 0.16)
+        estimate = flag_model(Estimate(model), stderrs, halves={"sigma": halves})
+        assert Status(estimate.status) == status
+        if status == Status.unstable:
+            assert any("on the even frames" in w for w in estimate.warnings)
+
+
 def test_a_broad_lobe_is_checked_against_the_lights_cone(tmp_path):
     """A determined lobe of sigma >= 0.3 is fitted again under a spot falloff about the
     optical axis: a lobe that the light's cone explains becomes `no_lobe` (the real

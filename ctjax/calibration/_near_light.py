@@ -18,6 +18,7 @@ from .._errors import CtjaxError
 from .._json import falloff_json, paper_names
 from .._result import Estimate
 from .._right_views import with_right_views
+from .._status import Status
 from .._threads import checked_workers, in_order
 from .._units import length_unit_of
 from ..effects import image_effects
@@ -46,6 +47,7 @@ from ..observations import Observations
 from ..solvers import Solver
 from ..specular import flag_misoriented
 from ._frames_brightness import check_frames_brightness
+from ._lobe_halves import lobe_halves
 from ._near_light_models import (
     OFFSET_AXES,
     at_the_lens,
@@ -461,6 +463,18 @@ def near_light_map(
     name = paper_names(result.model).get(position_name(result.model), "offset_mm")
     bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
     result = flag_model(result, None if detected else {name: bound}, lobe_gain=gain)
+    if Status(result.status) == Status.successful and np.isfinite(every.cost):
+        # A lobe that passed: its roughness on the even and on the odd frames apart.
+        say("the lobe on the even and on the odd frames apart")
+        halves = lobe_halves(result.model, tracks, fit)
+        if halves:
+            result.details["sigma_halves"] = {
+                n: dict(zip(("even_frames", "odd_frames"), v, strict=True))
+                for n, v in halves.items()
+            }
+            result = flag_model(
+                result, None if detected else {name: bound}, lobe_gain=gain, halves=halves
+            )
     if np.isfinite(every.cost):
         say("each frame's brightness against the other frames'")
         check_frames_brightness(
