@@ -508,6 +508,38 @@ def test_lambertian_gets_cook_torrances_light_and_the_gain_is_split(tmp_path):
     held = evaluation.lambertian_same_light.model.light
     assert np.allclose(np.asarray(held.position_mm), [5.0, 0.0, 0.0])  # held, not refitted
     assert "median depths" not in summary["units"] and ", mm, test frames" in summary["units"]
+    # An estimator is given the calibration frames alone, to choose among them as it will:
+    # nothing it chooses or fits sees a test frame (`calibrate_near_light` chose its falloff
+    # on them and refitted on every frame, before 2026-12-07).
+    from ctjax._result import Estimate
+
+    seen = []
+
+    def estimator(given, calibration=None):
+        seen.append(([f.name for f in given.frames], calibration))
+        return Estimate(model)
+
+    evaluate(capture, calibration=2, cook_torrance=estimator, albedo="uniform", sfs=False)
+    assert seen == [([f.name for f in capture.frames[:2]], None)]
+
+
+def test_a_models_per_frame_values_are_padded_for_the_test_frames():
+    """An estimator's model with an exposure for each calibration frame but the first: the
+    test frames get theirs at 0 (as the first frame's), fitted later on their own views."""
+    import ctjax
+    from ctjax.effects import FrameExposure
+    from ctjax.evaluation._evaluate import _padded_per_frame
+
+    model = ctjax.ShadingModel(
+        paper_model().brdf, ctjax.ColocatedLight(), (FrameExposure(jnp.asarray([0.1, -0.2])),)
+    )
+    padded = _padded_per_frame(model, 5)  # 3 calibration frames, 2 test frames
+    np.testing.assert_array_equal(np.asarray(padded.effects[0].log_exposure), [0.1, -0.2, 0, 0])
+    # Made for the whole capture already (as evaluate builds the effects): as it is.
+    again = _padded_per_frame(padded, 5)
+    np.testing.assert_array_equal(np.asarray(again.effects[0].log_exposure), [0.1, -0.2, 0, 0])
+    plain = paper_model()
+    assert _padded_per_frame(plain, 5) is plain  # nothing per frame: unchanged
 
 
 def test_the_lobes_judged_side_by_side_name_the_best_determined_one():
