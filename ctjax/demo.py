@@ -8,6 +8,7 @@ calibrate-light (the near-light model and the paper's light field; section 5) ->
 """
 
 import base64
+import functools
 import html
 import json
 import shutil
@@ -433,12 +434,20 @@ def run_demo(out: Path, options: SynthOptions | None = None, *, falloff: str = "
         brdf_rounds=1,
         solver=ClosedFormLM(iterations=10),
     )
+    # Judged on the test frames, Cook-Torrance is fitted again on the calibration frames
+    # alone (`near` above saw every frame: its falloff chosen on the last ones, its model
+    # refitted on all of them), as the Lambertian model is.
     evaluation = step(
         "evaluate",
         "evaluation: Lambertian vs Cook-Torrance, RGB error and shape from shading...",
         evaluate,
         capture,
-        cook_torrance=near,
+        cook_torrance=functools.partial(
+            calibrate_near_light,
+            falloff=named_falloff(falloff, capture),
+            max_samples=8000,
+            heldout_samples=20_000,
+        ),
         reference=truth,
         progress=lambda m: _log(f"  {m}"),
     )
