@@ -286,6 +286,15 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     assert status == "unstable" and "standard error of 30%" in reasons[0]["reason"]
     status, reasons = facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
+    # F_tilde, a lower bound, is held to a weight told from none: its standard error at
+    # most half of it (the second sinus video's turbinate: 0.0156 +- 0.0115).
+    halves = ((0.25, 0.037), (0.28, 0.038))
+    status, reasons = facet_status(0.24, 0.0156, *grid, 0.1, halves, 0.007, F_tilde_stderr=0.0115)
+    assert status == "unstable" and reasons[0]["parameter"] == "F_tilde"
+    assert "standard error of 74%" in reasons[0]["reason"]
+    assert "within two standard errors of none" in reasons[0]["reason"]
+    ok = facet_status(0.24, 0.0156, *grid, 0.1, halves, 0.007, F_tilde_stderr=0.0075)
+    assert ok == ("successful", ())
     # Halves that agree with each other on a width away from the whole's (SCARED's frames
     # 61-84: 0.139 / 0.141 against 0.086): the width depends on how many views choose each
     # point's facet (fewer: broader); within 20% of it, nothing is said.

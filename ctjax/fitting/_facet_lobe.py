@@ -114,7 +114,8 @@ class FacetLobe(eqx.Module):
     (`candidate_rmse`), by which it was chosen. Against synthetic truth
     (`benchmarks/facet_truth.py`) sigma reads within 20% and F_tilde 30-80% low: choosing
     the lobe that best predicts each view from the others hedges where the facets are
-    uncertain, so `F_tilde` and `peak` are lower bounds, and the status speaks for sigma.
+    uncertain, so `F_tilde` and `peak` are lower bounds: the status holds sigma to its
+    precision and F_tilde only to a weight told from none (`facet_status`).
 
     Whether the data determine it: `halves` ((sigma, F_tilde) chosen on the even
     calibration frames alone, then on the odd; None with fewer than 6, and the status then
@@ -330,7 +331,7 @@ def facet_lobe(
     gain = 1 - best / own_normal.rmse if own_normal.rmse > 0 else math.nan
     step = views_step(train, rotations)
     status, reasons = facet_status(
-        sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked, step
+        sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked, step, stderr[1]
     )
     lobe = facet_heldout(
         facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
