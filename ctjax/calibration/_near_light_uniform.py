@@ -18,6 +18,7 @@ from .._determined import flag_model
 from .._errors import CtjaxError
 from .._json import falloff_json, paper_names
 from .._result import Estimate
+from .._status import Status
 from .._threads import in_order
 from .._units import length_unit_of
 from ..fitting import fit_model, pixel_columns, pixel_predict, standard_errors
@@ -27,6 +28,7 @@ from ..lobes import Lambertian
 from ..observations import Observations
 from ..solvers import Solver
 from ._frames_brightness import check_pixel_brightness
+from ._lobe_halves import pixel_lobe_halves
 from ._near_light_models import (
     at_the_lens,
     falloff_name,
@@ -143,14 +145,29 @@ def near_light_uniform(
     result.seconds = {"total": time.perf_counter() - started}
     if not result.converged:
         result.warnings.append(f"the solver did not converge: {result.status.message}")
-    if detected:
-        result = flag_model(result)
-    else:
+    bounds = None
+    if not detected:
         # The bound by the light's own parameter (in the lens plane: x and y).
         name = paper_names(result.model).get(position_name(result.model), "offset_mm")
         bound = reported[:2] if isinstance(result.model.light, LensPlaneLight) else reported
-        result = flag_model(result, {name: bound})
+        bounds = {name: bound}
+    result = flag_model(result, bounds)
     calibrated = fits[chosen][0 if detected else 1].model
+    if Status(result.status) == Status.successful:
+        # A lobe that passed: its roughness on the even and on the odd calibration frames.
+        say("the lobe on the even and on the odd calibration frames apart")
+        halves = pixel_lobe_halves(
+            calibrated, heldout.train, lambda starts, samples, **fixed: fit_model(
+                starts, samples, pixel_predict, columns=pixel_columns, solver=solver,
+                max_steps=max_steps, **fixed,
+            ),
+        )  # fmt: skip
+        if halves:
+            result.details["sigma_halves"] = {
+                n: dict(zip(("even_frames", "odd_frames"), v, strict=True))
+                for n, v in halves.items()
+            }
+            result = flag_model(result, bounds, halves=halves)
     say("each calibration frame's brightness against the model's")
     check_pixel_brightness(
         result,
