@@ -196,6 +196,13 @@ def test_light_field_on_textured_tissue_points_along_v_with_the_albedo_map(tmp_p
     # (as the near light's; with one albedo none is measured). Measured 0.94, 22227 views.
     assert textured.details["lobe_gain"] > 0.3 and textured.details["lobe_shows_observations"]
     assert "lobe_gain" not in uniform.details
+    # The lobe refitted on the even and on the odd calibration frames apart under the same
+    # field: the scene's sigma on both (measured 0.2498 / 0.2499 about 0.25).
+    halves = textured.details["sigma_halves"]["sigma"]
+    assert [halves["even_frames"], halves["odd_frames"]] == pytest.approx(
+        [Scene.sigma] * 2, rel=0.01
+    )
+    assert textured.status.name == "successful"
     # The field is not better than L = V here, and says so (the simpler model will do).
     assert any("does not explain the held-out frames better" in w for w in textured.warnings)
 

@@ -87,6 +87,7 @@ from ..solvers import ClosedFormLM
 from ..specular import MaskOptions
 from ._field_problem import paper_angles, solve_pixels
 from ._field_propagation import field_observations, propagate, solve_batches
+from ._lobe_halves import sample_lobe_halves
 from ._spline import spline_field
 
 # The reference per-pixel solver (optimistix's LM) and its step limit.
@@ -98,10 +99,10 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(cosine))
 
 
-def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
+def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int, freeze=()) -> Estimate:
     """The BRDF (rho~, F~, sigma) under `model`'s light on `samples`: pixel samples (one
     albedo) or `TrackSamples` (an albedo per surface point, eliminated in closed form; its
-    LM in `MAP_LM_DTYPE`, as the other commands' map fits)."""
+    LM in `MAP_LM_DTYPE`, as the other commands' map fits). `freeze`: parameters held."""
     if isinstance(samples, TrackSamples):
         return fit_model_map(
             roughness_variants(model),
@@ -110,6 +111,7 @@ def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
             refine=3,
             standard_errors=False,
             dtype=MAP_LM_DTYPE,
+            freeze=freeze,
         )
     return fit_model(
         roughness_variants(model),
@@ -118,6 +120,7 @@ def fit_field_brdf(model: ShadingModel, samples, *, max_steps: int) -> Estimate:
         columns=pixel_columns,
         max_steps=max_steps,
         refine=3,
+        freeze=freeze,
     )
 
 
@@ -222,8 +225,25 @@ def _result(heldout, final, field, pixel_directions, todo, status, boundary, vie
         "view": view.astype(np.float32),
     }
     # The field's BRDF: a lobe the data show (where it shows, against the diffuse term
-    # alone under the same field), a roughness in range.
-    return flag_model(fit, lobe_gain=_lobe_gain(fit, heldout.train))
+    # alone under the same field), a roughness in range, the same on the even and on the
+    # odd calibration frames.
+    gain = _lobe_gain(fit, heldout.train)
+    fit = flag_model(fit, lobe_gain=gain)
+    if Status(fit.status) == Status.successful:
+        halves = sample_lobe_halves(
+            final,
+            heldout.train,
+            lambda starts, samples, freeze: fit_field_brdf(
+                starts[0], samples, max_steps=50, freeze=freeze
+            ),
+        )
+        if halves:
+            fit.details["sigma_halves"] = {
+                n: dict(zip(("even_frames", "odd_frames"), v, strict=True))
+                for n, v in halves.items()
+            }
+            fit = flag_model(fit, lobe_gain=gain, halves=halves)
+    return fit
 
 
 def _lobe_gain(fit: Estimate, samples) -> float | None:

@@ -6,16 +6,20 @@ comes out of both alike; on real video the even and odd frames of one segment ga
 with the light: here the chosen model's BRDF is refitted on the views of the even and of the
 odd frames alone, the light and the image effects held where the fit put them, and each
 roughness's two values go to `ctjax._determined.halves_apart`: on tracks with the albedo
-map (`lobe_halves`), on pixel samples with one albedo (`pixel_lobe_halves`).
+map (`lobe_halves`), on pixel samples with one albedo (`pixel_lobe_halves`), on either as
+the light field's fit takes them (`sample_lobe_halves`).
 """
 
 import dataclasses
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._determined import ROUGHNESS
 from .._json import named_parameters
+from ..fitting._map_least_squares import TrackSamples
 from ..fitting._parameters import free_parameters
 
 # Two frames per half at least, as `fit`'s and the offset's halves.
@@ -51,6 +55,22 @@ def pixel_lobe_halves(model, samples, fit) -> dict[str, tuple[float, float]]:
         return jax.tree_util.tree_map(lambda leaf: leaf[index], samples)
 
     return _refitted(model, np.unique(frame), half, fit) if count else {}
+
+
+def sample_lobe_halves(model, samples, fit) -> dict[str, tuple[float, float]]:
+    """`lobe_halves` on the fitters' samples: `TrackSamples` (the albedo map; the other
+    half's observations weighted 0) or pixel samples (`pixel_lobe_halves`)."""
+    if not isinstance(samples, TrackSamples):
+        return pixel_lobe_halves(model, samples, fit)
+    frame = np.asarray(samples.site.frame)
+    seen = (frame >= 0) & (np.asarray(samples.weight) > 0)
+
+    def half(parity):
+        keep = seen & (frame % 2 == parity)
+        weight = jnp.where(jnp.asarray(keep), samples.weight, 0)
+        return eqx.tree_at(lambda s: s.weight, samples, weight)
+
+    return _refitted(model, np.unique(frame[seen]), half, fit)
 
 
 def _refitted(model, frames, half, fit) -> dict[str, tuple[float, float]]:
