@@ -387,6 +387,24 @@ def test_the_grids_choice_is_refined_between_its_points():
     assert chosen_on_grid(grid(0.12, 0.015)) == pytest.approx((0.12, 0.015))
     assert chosen_on_grid(grid(0.01, 0.015)) == pytest.approx((FACET_SIGMAS[0], 0.015))
 
+    def valley(sigma, f, power=2.0):
+        """A valley along F_tilde ~ sigma^power, as the facet lobe's grids show."""
+        return {
+            (a, b): math.sqrt(
+                1 + math.log(a / sigma) ** 2 + 3 * math.log(b / f / (a / sigma) ** power) ** 2
+            )
+            for a in FACET_SIGMAS
+            for b in FACET_F_TILDES
+        }
+
+    # F_tilde on the valley at the refined sigma (measured 0.1165 and 0.249: the profile
+    # over a discrete F_tilde grid is not quite quadratic), not at the grid's nearest sigma
+    # (0.1 and 0.3: F_tilde 0.0104 and 0.0457).
+    for sigma, f, power in ((0.12, 0.015, 2.0), (0.24, 0.025, 2.7)):
+        chosen, F_tilde = chosen_on_grid(valley(sigma, f, power))
+        assert chosen == pytest.approx(sigma, rel=0.05)
+        assert F_tilde == pytest.approx(f * (chosen / sigma) ** power, rel=0.01)
+
 
 def test_where_the_highlights_carry_the_residual_the_facets_are_suggested():
     """`fit` and `evaluate` name `--facets` where the frames point at finer relief (the real
