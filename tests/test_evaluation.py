@@ -619,3 +619,25 @@ def test_a_lobe_no_better_than_lambert_on_the_test_frames_is_no_lobe():
     assert _seen_in_new_frames(better, lambert) is better
     unstable = dataclasses.replace(fitted, status=Status.unstable)
     assert _seen_in_new_frames(unstable, lambert) is unstable
+
+
+def test_a_light_that_does_not_carry_to_the_test_frames_is_noted():
+    """Lambert under Cook-Torrance's light more than 2% worse on the test frames than under a
+    light at the lens: a note (SCARED's frames 179-190: 28.76 against 20.13 levels), naming
+    the test frames whose brightness the model does not follow; none within 2%."""
+    from ctjax import Estimate
+    from ctjax.evaluation._evaluate import light_not_carried
+
+    at_lens = Estimate(paper_model(), rmse={"calibration": 12.0, "test": 20.13})
+    lit = Estimate(paper_model(), rmse={"calibration": 10.0, "test": 28.76})
+    frames = {"brightness_off": ["frame_00004", "frame_00189", "frame_00190"]}
+    note = light_not_carried(at_lens, lit, frames, ["frame_00189", "frame_00190"])
+    assert "1.429x as far off as a light at the lens" in note
+    assert "28.76 against 20.13 levels" in note
+    assert "test frame(s) frame_00189, frame_00190 (a scope's auto-exposure" in note
+    assert "frame_00004" not in note
+    close = Estimate(paper_model(), rmse={"calibration": 10.0, "test": 20.5})
+    assert light_not_carried(at_lens, close, frames, ["frame_00189"]) is None
+    assert light_not_carried(at_lens, None, frames, []) is None
+    plain = light_not_carried(at_lens, lit, None, ["frame_00189"])
+    assert plain.endswith("over a worse base")

@@ -55,6 +55,9 @@ Estimator = Callable[..., Estimate]
 SFS_MAX_WIDTH = 160
 # "Near highlights": within this many full-resolution pixels of the specular set S.
 HIGHLIGHT_RADIUS_PX = 12
+# Lambert under Cook-Torrance's light this much worse on the test frames than under a
+# light at the lens: the light fitted on the calibration frames does not carry to them.
+LIGHT_CARRIES_WITHIN = 0.02
 
 
 def fit_lambertian(
@@ -380,6 +383,9 @@ def evaluate(
         models = {"lambertian": lambertian.model, "cook_torrance": fitted.model}
         frames_rmse = frame_consistency(tracks, models)
     timings["rgb_error"] = time.perf_counter() - tic
+    names = [capture.frames[index].name for index in test]
+    note = light_not_carried(lambertian, same_light, frames_rmse, names)
+    notes += [note] if note else []
     facet, why = None, None
     if facets == "auto" and budgets is not None:
         left = budgets["cook_torrance"].get("highlight_share")
@@ -517,6 +523,34 @@ def _seen_in_new_frames(fitted: Estimate, same_light: Estimate) -> Estimate:
         details={**fitted.details, "undetermined": undetermined},
         warnings=[*fitted.warnings, why],
     )
+
+
+def light_not_carried(lambertian, same_light, frames_rmse, test_names) -> str | None:
+    """A note where Lambert's model under Cook-Torrance's light (fitted on the calibration
+    frames) predicts the test frames more than `LIGHT_CARRIES_WITHIN` worse than under the
+    light at the lens (`lambertian`): that light does not carry to new frames, and the
+    lobe's ratio is then over a worse base. With the test frames whose brightness the model
+    does not follow (`frame_consistency`'s `brightness_off`), where any. SCARED's frames
+    179-190 (2026-12-07): 28.76 against 20.13 levels, frames 189 and 190 at 0.79 and 0.68 of
+    the brightness predicted."""
+    if same_light is None:
+        return None
+    at_lens, lit = lambertian.rmse["test"], same_light.rmse["test"]
+    if not (at_lens > 0 and lit > (1 + LIGHT_CARRIES_WITHIN) * at_lens):
+        return None
+    note = (
+        f"Cook-Torrance's light, fitted on the calibration frames, predicts the test frames "
+        f"{lit / at_lens:.3f}x as far off as a light at the lens (Lambert's model under each: "
+        f"{lit:.2f} against {at_lens:.2f} levels): it does not carry to new frames, and the "
+        "lobe's ratio to Lambert's model under it is over a worse base"
+    )
+    off = [n for n in (frames_rmse or {}).get("brightness_off", []) if n in test_names]
+    if off:
+        note += (
+            f"; the model does not follow the brightness of test frame(s) {', '.join(off)} "
+            "(a scope's auto-exposure: --effects frame_exposure)"
+        )
+    return note
 
 
 def _judged(capture: Observations, fit: Estimate, calib, test, tracks) -> Estimate:
