@@ -287,7 +287,8 @@ def test_the_facet_lobes_status_names_what_the_data_do_not_determine():
     status, reasons = facet_status(0.1, 0.01, *grid, 0.06, ((0.1, 0.01), (0.11, 0.002)))
     assert status == "unstable" and "the odd calibration frames alone" in reasons[0]["reason"]
     # F_tilde, a lower bound, is held to a weight told from none: its standard error at
-    # most half of it (the second sinus video's turbinate: 0.0156 +- 0.0115).
+    # most half of it (the second sinus video's turbinate read 0.0156 +- 0.0115 when
+    # F_tilde was read at the nearest grid sigma).
     halves = ((0.25, 0.037), (0.28, 0.038))
     status, reasons = facet_status(0.24, 0.0156, *grid, 0.1, halves, 0.007, F_tilde_stderr=0.0115)
     assert status == "unstable" and reasons[0]["parameter"] == "F_tilde"

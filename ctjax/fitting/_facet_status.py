@@ -31,8 +31,10 @@ MAX_RELATIVE_STDERR = 0.25
 # F_tilde is a lower bound here (`FacetLobe`: 30-80% low on synthetic sparkles), so it is
 # not held to sigma's precision, only to a weight told from none: its bootstrap standard
 # error at most half of it (zero at least two standard errors below it). The second sinus
-# video's turbinate (24 frames, 2026-12-07): F_tilde 0.0156 +- 0.0115 (74%), its halves
-# 0.037 / 0.038, read `successful` before this; SCARED's frames 91-102: 0.0070 +- 0.00046.
+# video's turbinate (24 frames, 2026-12-07) read `successful` with F_tilde 0.0156 +- 0.0115
+# (74%), though that spread was the grid's: F_tilde read at the nearest grid sigma jumped
+# between two valleys (`chosen_on_grid` reads it at the refined sigma since: 0.0239 +-
+# 0.0018); SCARED's frames 91-102: 0.0070 +- 0.00046.
 MAX_F_TILDE_RELATIVE_STDERR = 0.5
 
 
