@@ -268,13 +268,16 @@ class HeldOutTracks:
         rotations = np.stack([np.asarray(f.pose, float)[:3, :3] for f in frames])
         return facet_marginal(self.train, rotations, light, **options)
 
-    def facet_blocks(self, light, *, lobe: bool = True, marginal: bool = False) -> dict:
+    def facet_blocks(
+        self, light, *, lobe: bool = True, marginal: bool = False, unsteady=()
+    ) -> dict:
         """The facet estimators' JSON under `light`, by the name a command writes each
-        under: `facets` (`facet_lobe`), `facet_marginal`, and with both
-        `facets_at_the_marginal_width` (`facet_lobe_at_the_marginal_width`)."""
+        under: `facets` (`facet_lobe`, judged again without the `unsteady` frames, see
+        there), `facet_marginal`, and with both `facets_at_the_marginal_width`
+        (`facet_lobe_at_the_marginal_width`)."""
         blocks = {}
         if lobe:
-            blocks["facets"] = self.facet_lobe(light).to_json()
+            blocks["facets"] = self.facet_lobe(light, unsteady=unsteady).to_json()
         if marginal:
             blocks["facet_marginal"] = self.facet_marginal(light).to_json()
         if lobe and marginal:
@@ -286,7 +289,7 @@ class HeldOutTracks:
     def model_facet_blocks(self, model, **which) -> dict:
         """`facet_blocks` under `model`'s light; a model with image effects on the views
         with its effects undone (`in_radiance`), their names in the facets' JSON
-        (`effects_undone`). `which`: `facet_blocks`' `lobe` and `marginal`."""
+        (`effects_undone`). `which`: `facet_blocks`' `lobe`, `marginal` and `unsteady`."""
         effects = [type(effect).__name__ for effect in getattr(model, "effects", ())]
         tracks, model = self.in_radiance(model)
         blocks = tracks.facet_blocks(model.light, **which)

@@ -425,7 +425,7 @@ def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path, monkeypatch
     asked = []
     monkeypatch.setattr(module, "facets_suggestion", lambda *a: asked.append(a) or "a reason")
     lobe = types.SimpleNamespace(to_json=lambda: {"sigma": 0.1})
-    monkeypatch.setattr(HeldOutTracks, "facet_lobe", lambda self, light: lobe)
+    monkeypatch.setattr(HeldOutTracks, "facet_lobe", lambda self, light, **options: lobe)
     mapped = evaluate(capture, cook_torrance=fit_colocated, sfs=False, facets="auto").to_json()
     assert asked == [
         (

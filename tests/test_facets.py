@@ -29,6 +29,7 @@ from ctjax.fitting._facet_lobe import (
     FACET_F_TILDES,
     FACET_SIGMAS,
     chosen_on_grid,
+    facet_lobe_line,
 )
 from ctjax.fitting._facet_marginal import FACET_PRIOR_SIGMAS, _observed_points
 from ctjax.fitting._facet_status import F_tilde_reasons, facet_status, judged_status
@@ -46,7 +47,7 @@ def _rotations(capture):
     return np.stack([np.asarray(f.pose, float)[:3, :3] for f in capture.frames])
 
 
-def _lobe(path, **options):
+def _lobe(path, unsteady=(), **options):
     synthesize(path, SynthOptions(**{**SMALL, **options}))
     capture = load_capture(path)
     tracks = HeldOutTracks.split(capture)
@@ -61,6 +62,7 @@ def _lobe(path, **options):
             ColocatedLight(),
             sigmas=(0.1, 0.2, 0.3),
             F_tildes=(0.005, 0.01, 0.02),
+            unsteady=unsteady,
         ),
     )
 
@@ -70,7 +72,10 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     reconstruction's normal as the facet, the grid picks the true sigma and F_tilde's
     nearest values on the calibration frames, and the held-out views are predicted better
     than by Lambert under the same light (measured: 1.27 against 1.37 levels)."""
-    tracks, capture, lobe = _lobe(tmp_path / "c", F_tilde=(0.012,) * 3, sigma=0.2, frames=9)
+    # (Frame 8, a test frame, given as one whose brightness the model does not follow.)
+    tracks, capture, lobe = _lobe(
+        tmp_path / "c", unsteady=(8,), F_tilde=(0.012,) * 3, sigma=0.2, frames=9
+    )
     # The grid's choice (0.2, 0.01) refined between its points (measured 0.209, 0.0094).
     assert lobe.sigma == pytest.approx(0.2, rel=0.05)
     assert 0.005 < lobe.F_tilde < 0.02
@@ -92,6 +97,12 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     assert 0 < lobe.stderr[0] < 0.25 * lobe.sigma and 0 < lobe.stderr[1] < lobe.F_tilde
     assert out["peak"] == pytest.approx(lobe.F_tilde / lobe.sigma**2)
     assert out["undetermined"] == []
+    # Judged again without the test frame off in brightness: a lobe the frames show is
+    # seen there too, and the status stands.
+    steady = out["steady_frames"]
+    assert steady["left_out"] == [8] and steady["ratio"] < 0.97
+    assert steady["heldout_rgb_rmse"] < steady["lambertian_turned_normals_rgb_rmse"]
+    assert "without test frames 8 (by index), off in brightness" in facet_lobe_line(out)
     # Each set of candidate facets gets its grid; the one predicting the calibration views
     # best is used, and named.
     assert set(lobe.candidate_rmse) == set(FACET_CANDIDATES)
@@ -453,6 +464,13 @@ def test_a_facet_lobe_that_lambert_with_turned_normals_beats_is_no_lobe():
     assert "0.929x" in reasons[0]["reason"] and "normal turned" in reasons[0]["reason"]
     assert judged_status("successful", (), 9.22, 13.47, 12.78) == ("successful", ())
     assert judged_status("successful", (), 9.22, 13.47, float("nan")) == ("successful", ())
+    # Judged again on the frames whose brightness the model follows: the reason says where.
+    where = "on the held-out frames whose brightness the model follows (all but frames 22)"
+    status, reasons = judged_status(
+        "successful", (), 14.0, 14.1, 13.9, where=where, then="; an exposure change"
+    )
+    assert status == "no_lobe" and reasons[0]["reason"].startswith(where)
+    assert reasons[0]["reason"].endswith("not a specular lobe; an exposure change")
 
 
 def test_the_views_step_is_the_angle_between_a_points_consecutive_views():

@@ -394,7 +394,9 @@ def evaluate(
         tic = time.perf_counter()
         marginal = ", and integrated out: minutes" if facet_marginal else ""
         progress(f"the lobe about every point's own facet (a grid of sigma, F_tilde{marginal})...")
-        facet = _facet_lobe(tracks, fitted.model, why, facet_marginal)
+        off = set((frames_rmse or {}).get("brightness_off", []))
+        unsteady = [index for index in test if capture.frames[index].name in off]
+        facet = _facet_lobe(tracks, fitted.model, why, facet_marginal, unsteady)
         timings["facets"] = time.perf_counter() - tic
     right_views = None
     if albedo == "map" and capture.capture.stereo is not None:
@@ -443,12 +445,13 @@ def evaluate(
     )  # fmt: skip
 
 
-def _facet_lobe(tracks, model, why=None, marginal=False) -> dict:
+def _facet_lobe(tracks, model, why=None, marginal=False, unsteady=()) -> dict:
     """`facet_lobe`'s JSON under `model`'s light, why it was judged (`why`, None: asked) and
     with `marginal` the other `HeldOutTracks.facet_blocks` in it. A model with image
-    effects: on the views with its effects undone (`in_radiance`)."""
+    effects: on the views with its effects undone (`in_radiance`). `unsteady`: the test
+    frames whose brightness the model does not follow, judged again without (`facet_lobe`)."""
     judged = "asked (facets=True)" if why is None else f"by itself: {why}"
-    blocks = tracks.model_facet_blocks(model, marginal=marginal)
+    blocks = tracks.model_facet_blocks(model, marginal=marginal, unsteady=unsteady)
     return blocks.pop("facets") | {"judged": judged} | blocks
 
 

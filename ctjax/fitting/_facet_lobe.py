@@ -127,7 +127,9 @@ class FacetLobe(eqx.Module):
     `undetermined` (each reason, as `Estimate.details`); and `no_lobe` where the lobe
     predicts the held-out views no better than Lambert's model under the same light.
     `views_step`: how finely the calibration views sample the lobe (`views_step`: rad on
-    all the frames, on the even and on the odd ones)."""
+    all the frames, on the even and on the odd ones). `steady`: the judgement again without
+    the held-out frames whose brightness the model does not follow (`facet_lobe`'s
+    `unsteady`; None where none is left out): the frames left out and the three RMSEs."""
 
     sigma: float
     F_tilde: float
@@ -146,6 +148,7 @@ class FacetLobe(eqx.Module):
     candidate_rmse: dict = eqx.field(default_factory=dict)
     views_step: tuple = (math.nan, math.nan, math.nan)
     control_rmse: float = math.nan
+    steady: dict | None = None
 
     @property
     def ratio(self) -> float:
@@ -191,6 +194,7 @@ class FacetLobe(eqx.Module):
             "calibration_rgb_rmse": {
                 f"sigma={s:g},F_tilde={f:g}": r for (s, f), r in self.calibration_rmse.items()
             },
+            "steady_frames": self.steady,
         }
 
 
@@ -300,6 +304,7 @@ def facet_lobe(
     refine_steps: int = FACET_REFINE_STEPS,
     halves: bool = True,
     candidates: Mapping[str, Sequence[float]] | None = None,
+    unsteady: Sequence[int] = (),
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
@@ -313,7 +318,10 @@ def facet_lobe(
     other half's views weighted 0), whose sigmas a determined lobe's agree between
     (`FacetLobe.status`). `candidates`: the candidate facet sets to compare, by name
     (`facet_heldout`'s `across`; default `FACET_CANDIDATES`): the grid on each, and the
-    one whose least calibration RMSE is lower used throughout."""
+    one whose least calibration RMSE is lower used throughout. `unsteady`: frames whose
+    brightness the model does not follow (`ctjax.heldout.frame_consistency`'s
+    `brightness_off`, by index): the held-out views are judged again without them
+    (`FacetLobe.steady`), and a lobe no better there is `no_lobe` (`judged_status`)."""
     if not sigmas or not F_tildes:
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
     candidates = FACET_CANDIDATES if candidates is None else dict(candidates)
@@ -355,6 +363,43 @@ def facet_lobe(
         refine_steps=refine_steps, across=across,
     )  # fmt: skip
     status, reasons = judged_status(status, reasons, lobe.rmse, plain.rmse, turned.rmse)
+    steady = None
+    keep = np.asarray(judged, bool) & ~np.isin(np.asarray(test.site.frame), list(unsteady))
+    if keep.any() and keep.sum() < np.sum(judged):
+        # Judged again without the test frames whose brightness the model does not follow:
+        # each facet adds light where a view is brighter than its point's others.
+        parts = (
+            facet_heldout(
+                facet_model(light, sigma, f), test, keep, rotations, penalty=penalty,
+                shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
+            ),
+            facet_heldout(lambertian, test, keep, rotations, penalty=penalty, across=(0.0,)),
+            facet_heldout(
+                lambertian, test, keep, rotations, penalty=penalty, turned="diffuse",
+                refine_steps=refine_steps, across=across,
+            ),
+        )  # fmt: skip
+        rmse, plain_rmse, turned_rmse = (part.rmse for part in parts)
+        left_out = sorted({int(i) for i in unsteady})
+        steady = {
+            "left_out": left_out,
+            "heldout_rgb_rmse": rmse,
+            "lambertian_same_light_rgb_rmse": plain_rmse,
+            "lambertian_turned_normals_rgb_rmse": turned_rmse,
+            "ratio": rmse / plain_rmse if plain_rmse > 0 else math.nan,
+        }
+        status, reasons = judged_status(
+            status, reasons, rmse, plain_rmse, turned_rmse,
+            where=(
+                "on the held-out frames whose brightness the model follows (all but frames "
+                f"{', '.join(map(str, left_out))}, by index)"
+            ),
+            then=(
+                "; its gain on all of them lies on frames off in brightness, which a facet "
+                "absorbs (a scope's auto-exposure: --effects frame_exposure fits a gain per "
+                "frame)"
+            ),
+        )  # fmt: skip
     control = math.nan  # the same lobe with every point's candidates another point's
     if shuffle_seed is None:
         control = facet_heldout(
@@ -379,6 +424,7 @@ def facet_lobe(
         candidate_rmse,
         step,
         control,
+        steady,
     )
 
 
@@ -387,6 +433,19 @@ def _undone(summary: dict) -> str:
     the levels are the radiance's (the first frame's exposure)."""
     effects = summary.get("effects_undone")
     return f" of the radiance ({' and '.join(effects)} undone)" if effects else ""
+
+
+def _steady_part(steady: dict | None) -> str:
+    """The judgement without the frames whose brightness the model does not follow."""
+    if not steady:
+        return ""
+    frames = ", ".join(map(str, steady["left_out"]))
+    return (
+        f"; without test frames {frames} (by index), off in brightness: "
+        f"{steady['ratio']:.3f}x, with its "
+        f"own normal {steady['lambertian_turned_normals_rgb_rmse']:.2f} against "
+        f"{steady['lambertian_same_light_rgb_rmse']:.2f}"
+    )
 
 
 def facet_lobe_line(summary: dict) -> str:
@@ -406,6 +465,7 @@ def facet_lobe_line(summary: dict) -> str:
             if summary.get("control_ratio") is None
             else f"; with another point's facets {summary['control_ratio']:.3f}x"
         )
+        + _steady_part(summary.get("steady_frames"))
         + f"); {100 * summary['views_with_a_facet']:.0f}% of the views took a facet (candidates: "
         f"{summary['candidates']}); status "
         f"{summary['status']}" + "".join(f"; {u['reason']}" for u in summary["undetermined"][:1])

@@ -187,7 +187,13 @@ def facet_status(
 
 
 def judged_status(
-    status: str, reasons: tuple, rmse: float, lambertian: float, turned: float = math.nan
+    status: str,
+    reasons: tuple,
+    rmse: float,
+    lambertian: float,
+    turned: float = math.nan,
+    where: str = "on the held-out frames",
+    then: str = "",
 ):
     """The status once the held-out views are judged: a lobe that predicts them no better
     than Lambert's model under the same light is not seen in new frames (`no_lobe`), however
@@ -196,21 +202,22 @@ def judged_status(
     with its own normal chosen the same way (`turned`, RMSE): what it takes off new frames
     is then the freedom of each point's normal, not a lobe's (the second sinus video at
     every 3rd frame: 0.992x Lambert's, `successful` on the calibration frames, where Lambert
-    with its own normal read 0.929x)."""
+    with its own normal read 0.929x).
+    `where`: the views judged, as the reason names them; `then`: what the reason adds."""
     if not (math.isfinite(rmse) and lambertian > 0):
         return status, reasons
     if rmse >= lambertian:
         why = (
-            f"on the held-out frames the facet lobe predicts the views {rmse / lambertian:.3f}x "
+            f"{where} the facet lobe predicts the views {rmse / lambertian:.3f}x "
             "as far off as Lambert's model under the same light (no better): no specular "
-            "lobe is seen in new frames"
+            f"lobe is seen in new frames{then}"
         )
     elif math.isfinite(turned) and rmse >= turned:
         why = (
-            f"on the held-out frames the facet lobe predicts the views {rmse / lambertian:.3f}x "
+            f"{where} the facet lobe predicts the views {rmse / lambertian:.3f}x "
             f"as far off as Lambert's model under the same light, and Lambert's with its own "
             f"normal chosen the same way {turned / lambertian:.3f}x: what the facets take off "
-            "new frames is each point's normal turned, not a specular lobe"
+            f"new frames is each point's normal turned, not a specular lobe{then}"
         )
     else:
         return status, reasons
