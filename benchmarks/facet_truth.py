@@ -26,6 +26,15 @@ ratio 0.666 (before: sigma 0.103, `unstable`, 0.851); `successful` then, `unstab
 2026-12-01 (run again that day, 144 s for both captures, the same figures): the halves
 agree with each other but sit 32% above the width of all the frames, which itself reads
 the micro-lobe's 0.06 42% wide. See docs/real-video.md, "Facets".
+Again 2026-12-07 (session 93), F_tilde read at the refined sigma (interpolated between the
+two grid sigmas about it) instead of at the nearest grid sigma, alternating with the commit
+before (dd6de98, `PYTHONPATH` on a worktree): `--sparkle-px 6` sigma 0.067 (the same),
+F_tilde 0.0084 -> 0.0074 +- 0.0012 (30% -> 38% low), ratio 0.376 -> 0.422; `--sparkle-px
+1.5` sigma 0.091, F_tilde 0.0127 +- 0.0047, ratio 0.638, `unstable` (132 s for both). On
+the real captures the held-out ratios moved both ways (docs/real-video.md, "Every stretch
+again under the fixed protocol"): the pair reported is now one point of the calibration
+grid's valley, and the bootstrap's F_tilde no longer jumps between its rows, but it is no
+nearer the truth here.
 
 `--marginal`: also `facet_marginal` (the facets integrated out, on the calibration tracks;
 sigma's grid 0.035-0.15).
