@@ -286,12 +286,17 @@ class HeldOutTracks:
             )
         return blocks
 
-    def model_facet_blocks(self, model, **which) -> dict:
+    def model_facet_blocks(self, model, *, unsteady=None, **which) -> dict:
         """`facet_blocks` under `model`'s light; a model with image effects on the views
         with its effects undone (`in_radiance`), their names in the facets' JSON
-        (`effects_undone`). `which`: `facet_blocks`' `lobe`, `marginal` and `unsteady`."""
+        (`effects_undone`). `which`: `facet_blocks`' `lobe` and `marginal`; `unsteady`:
+        the held-out frames judged again without (default: those whose brightness `model`
+        does not follow, `frames_off_in_brightness`)."""
+        if unsteady is None and which.get("lobe", True):
+            unsteady = self.frames_off_in_brightness(model)
         effects = [type(effect).__name__ for effect in getattr(model, "effects", ())]
         tracks, model = self.in_radiance(model)
+        which["unsteady"] = unsteady or ()
         blocks = tracks.facet_blocks(model.light, **which)
         for block in blocks.values() if effects else ():
             block["effects_undone"] = effects
@@ -367,6 +372,17 @@ class HeldOutTracks:
                 total = float(np.sum(weight[here])) * residual.shape[0]
                 out[f] = math.sqrt(float(np.sum(squared[here])) / total) if total else math.nan
         return out
+
+    def frames_off_in_brightness(self, model) -> list[int]:
+        """The held-out frames (indices) whose brightness `model` does not follow: measured
+        over predicted off by more than `BRIGHTNESS_OFF_LOG` in natural log
+        (`frame_brightness`; `frame_consistency`'s `brightness_off`)."""
+        gains = self.frame_brightness(model)
+        return [
+            f
+            for f in self.heldout
+            if gains.get(f, 0) > 0 and abs(math.log(gains[f])) > BRIGHTNESS_OFF_LOG
+        ]
 
     def frame_brightness(self, model) -> dict[int, float]:
         """Each frame's measured over predicted brightness under `model`, by frame index:

@@ -517,3 +517,28 @@ def test_the_views_step_is_the_angle_between_a_points_consecutive_views():
         (expected([0, 1, 2, 3]), expected([0, 2]), expected([1, 3])), rel=1e-9
     )
     assert found[1] == pytest.approx(2 * found[0], rel=0.05)  # every other frame: twice as far
+
+
+def test_the_commands_judge_the_facets_without_the_frames_off_in_brightness(monkeypatch):
+    """`HeldOutTracks.model_facet_blocks` (fit's, calibrate-light's and evaluate's facets):
+    the held-out frames whose brightness the model does not follow are left out of the
+    second judgement by default (`frames_off_in_brightness`); a command that found them
+    already passes its own."""
+    import types
+
+    from ctjax.fitting import paper_model
+
+    asked = {}
+    monkeypatch.setattr(HeldOutTracks, "frames_off_in_brightness", lambda self, model: [7])
+    monkeypatch.setattr(
+        HeldOutTracks,
+        "facet_lobe",
+        lambda self, light, **options: (
+            asked.update(options) or types.SimpleNamespace(to_json=lambda: {"status": "successful"})
+        ),
+    )
+    tracks = object.__new__(HeldOutTracks)  # no fields needed: both calls are replaced
+    assert tracks.model_facet_blocks(paper_model()) == {"facets": {"status": "successful"}}
+    assert asked["unsteady"] == [7]
+    tracks.model_facet_blocks(paper_model(), unsteady=[])
+    assert asked["unsteady"] == ()
