@@ -282,7 +282,7 @@ class HeldOutTracks:
             blocks["facet_marginal"] = self.facet_marginal(light).to_json()
         if lobe and marginal:
             blocks["facets_at_the_marginal_width"] = self.facet_lobe_at_the_marginal_width(
-                light, blocks["facet_marginal"]
+                light, blocks["facet_marginal"], unsteady
             )
         return blocks
 
@@ -302,11 +302,11 @@ class HeldOutTracks:
             block["effects_undone"] = effects
         return blocks
 
-    def facet_lobe_at_the_marginal_width(self, light, marginal: dict) -> dict:
+    def facet_lobe_at_the_marginal_width(self, light, marginal: dict, unsteady=()) -> dict:
         """The facet lobe under `light` with sigma held at the marginal's
-        (`FacetMarginal.to_json()`), its F_tilde chosen and judged as `facet_lobe`'s
-        (`ctjax.fitting.at_the_marginal_width`), as JSON."""
-        lobe = self.facet_lobe(light, sigmas=(float(marginal["sigma"]),))
+        (`FacetMarginal.to_json()`), its F_tilde chosen and judged as `facet_lobe`'s (the
+        `unsteady` frames too; `ctjax.fitting.at_the_marginal_width`), as JSON."""
+        lobe = self.facet_lobe(light, sigmas=(float(marginal["sigma"]),), unsteady=unsteady)
         return at_the_marginal_width(lobe, marginal)
 
     def in_radiance(self, model) -> tuple["HeldOutTracks", object]:
