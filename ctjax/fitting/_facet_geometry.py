@@ -78,12 +78,12 @@ def candidate_facets(h, w, across=FACET_ACROSS_RAD):
 
 def lobe_columns(model, turned, rotations, point, normal, pixel, weight, frame):
     """One tracked point's lobe columns (K, M) about its reconstruction's normals
-    (`smooth`) and `about(facet)`: the same with the turned lobes (`turned`) about one
-    world direction."""
+    (`smooth`) and `about(facet)`: the same with the turned lobes (`turned`: "lobe" the
+    lobes but the diffuse one, "diffuse" that one, "both" all) about one world direction."""
     diffuse = diffuse_lobe(model)
     lobes = len(model.brdf.lobes)
     others = [k for k in range(lobes) if k != diffuse]
-    moved = others if turned == "lobe" else [diffuse]
+    moved = {"lobe": others, "diffuse": [diffuse], "both": list(range(lobes))}[turned]
     corners, views = weight.shape
 
     def columns(normal_at):  # (4, M, 3) normals -> (K, M), bilinear over the corners

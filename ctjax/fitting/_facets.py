@@ -289,15 +289,18 @@ def facet_heldout(
     """Judge `model` (fixed) on the `judged` views (M, P) of `samples`, each predicted with
     the point's facet and albedo chosen from its other views (see the module).
     `rotations` (F, 3, 3): every frame's camera-to-world rotation (`samples.site.frame`
-    indexes it). `turned`: `"lobe"` (the lobes' normal chosen) or `"diffuse"` (the diffuse
-    term's: the same freedom for a model without a lobe). `shuffle_seed`: the control, every
+    indexes it). `turned`: `"lobe"` (the lobes' normal chosen), `"diffuse"` (the diffuse
+    term's: the same freedom for a model without a lobe) or `"both"` (one facet for the
+    lobes and the diffuse term: whether a lobe adds to each point's normal turned; on the
+    second sinus video no, on a SCARED da Vinci stretch yes, docs/real-video.md).
+    `shuffle_seed`: the control, every
     point's candidate facets those of another point (a permutation of that seed): whether a
     point's own views carry what the facets gain. `refine_steps`: each chosen facet then
     turned by two angles (Levenberg-Marquardt, at most that many steps) to fit the other
     views. `across`: the candidate facets, each view's H turned across the views' arc by
     each of these angles (rad; `(0.0,)`: the views' H as they are)."""
-    if turned not in ("lobe", "diffuse"):
-        raise ParameterError(f"turned must be 'lobe' or 'diffuse', got {turned!r}")
+    if turned not in ("lobe", "diffuse", "both"):
+        raise ParameterError(f"turned must be 'lobe', 'diffuse' or 'both', got {turned!r}")
     if tuple(getattr(model, "effects", ())):
         raise ParameterError("facets judge a model without image effects")
     if samples.eye is not None:
