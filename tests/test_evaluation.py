@@ -617,6 +617,9 @@ def test_a_lobe_no_better_than_lambert_on_the_test_frames_is_no_lobe():
     assert second == earlier and judged.warnings == [first["reason"]]
     better = dataclasses.replace(fitted, rmse={"calibration": 5.9, "test": 5.5})
     assert _seen_in_new_frames(better, lambert) is better
+    # Better by less than 0.5% (`MIN_LOBE_GAIN`, the calibration frames' own threshold): none.
+    barely = dataclasses.replace(fitted, rmse={"calibration": 5.9, "test": 5.77})
+    assert _seen_in_new_frames(barely, lambert).status == Status.no_lobe
     unstable = dataclasses.replace(fitted, status=Status.unstable)
     assert _seen_in_new_frames(unstable, lambert) is unstable
 

@@ -108,6 +108,14 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     assert set(lobe.candidate_rmse) == set(FACET_CANDIDATES)
     assert lobe.candidate_rmse[lobe.candidates] == min(lobe.candidate_rmse.values())
     assert out["candidates"] == lobe.candidates
+    # One facet for the lobe and the diffuse term (`turned="both"`), in the grid and the
+    # judging: the surface's own normal is the facet, the lobe the same.
+    both = facet_lobe(
+        tracks.train, tracks.test, tracks.judged, _rotations(capture), ColocatedLight(),
+        sigmas=(0.1, 0.2, 0.3), F_tildes=(0.005, 0.01, 0.02), halves=False, turned="both",
+    )  # fmt: skip
+    assert both.to_json()["turned"] == "both" and out["turned"] == "lobe"
+    assert both.sigma == pytest.approx(0.2, rel=0.1) and both.ratio < 0.97
     # The grid's figures, summed inside the program, are facet_heldout's on the calibration.
     model = facet_model(ColocatedLight(), 0.2, 0.01)
     train = tracks.train
@@ -279,6 +287,11 @@ def test_facets_refuse_what_they_cannot_judge(tmp_path):
     gamma = type(model)(model.brdf, model.light, effects=(CameraGamma(2.2),))
     with pytest.raises(ParameterError, match="image effects"):
         facet_heldout(gamma, tracks.test, tracks.judged, _rotations(capture))
+    with pytest.raises(ParameterError, match="turns 'lobe' or 'both'"):
+        facet_lobe(
+            tracks.train, tracks.test, tracks.judged, _rotations(capture), model.light,
+            turned="diffuse",
+        )  # fmt: skip
     with pytest.raises(ParameterError, match="at least one sigma"):
         facet_lobe(
             tracks.train, tracks.test, tracks.judged, _rotations(capture), model.light, sigmas=()
@@ -474,6 +487,12 @@ def test_a_facet_lobe_that_lambert_with_turned_normals_beats_is_no_lobe():
     assert "0.929x" in reasons[0]["reason"] and "normal turned" in reasons[0]["reason"]
     assert judged_status("successful", (), 9.22, 13.47, 12.78) == ("successful", ())
     assert judged_status("successful", (), 9.22, 13.47, float("nan")) == ("successful", ())
+    # Better by less than 0.5% (`MIN_LOBE_GAIN`) is no better: the second sinus video at every
+    # 5th frame, one facet for both terms, without its frames off in brightness (20.42
+    # against the turned normals' 20.47).
+    status, reasons = judged_status("successful", (), 20.42, 22.08, 20.47)
+    assert status == "no_lobe" and "normal turned" in reasons[0]["reason"]
+    assert judged_status("successful", (), 7.38, 7.41)[0] == "no_lobe"
     # Judged again on the frames whose brightness the model follows: the reason says where.
     where = "on the held-out frames whose brightness the model follows (all but frames 22)"
     status, reasons = judged_status(

@@ -129,7 +129,8 @@ class FacetLobe(eqx.Module):
     `views_step`: how finely the calibration views sample the lobe (`views_step`: rad on
     all the frames, on the even and on the odd ones). `steady`: the judgement again without
     the held-out frames whose brightness the model does not follow (`facet_lobe`'s
-    `unsteady`; None where none is left out): the frames left out and the three RMSEs."""
+    `unsteady`; None where none is left out): the frames left out and the three RMSEs.
+    `turned`: the terms about the facet (`facet_lobe`'s: "lobe" or "both")."""
 
     sigma: float
     F_tilde: float
@@ -149,6 +150,7 @@ class FacetLobe(eqx.Module):
     views_step: tuple = (math.nan, math.nan, math.nan)
     control_rmse: float = math.nan
     steady: dict | None = None
+    turned: str = "lobe"
 
     @property
     def ratio(self) -> float:
@@ -195,12 +197,13 @@ class FacetLobe(eqx.Module):
                 f"sigma={s:g},F_tilde={f:g}": r for (s, f), r in self.calibration_rmse.items()
             },
             "steady_frames": self.steady,
+            "turned": self.turned,
         }
 
 
 def _grid(
     train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets=(None,),
-    candidates=None,
+    candidates=None, turned="lobe",
 ):  # fmt: skip
     """Per set of candidate facets (`candidates`: name -> turns, `facet_heldout`'s
     `across`; default `FACET_CANDIDATES`) and subset of the frames (`subsets`: None all, 0
@@ -208,7 +211,8 @@ def _grid(
     `train` judged from its point's other views of the subset, and per grid point and
     tracked point (G, 2, P) the sum of squares (levels^2) and the count of judged values:
     what the bootstrap over the points resamples. One pass per sigma: the sets (masks over
-    the union of their turns), the subsets and the F_tildes share its columns."""
+    the union of their turns), the subsets and the F_tildes share its columns. `turned`:
+    the terms turned to a point's facet (`facet_heldout`)."""
     candidates = FACET_CANDIDATES if candidates is None else candidates
     union = tuple(sorted({float(a) for turns in candidates.values() for a in turns}))
     out = [[{} for _ in subsets] for _ in candidates]
@@ -216,7 +220,7 @@ def _grid(
     for sigma in sigmas:
         sums = facet_sums(
             facet_model(light, sigma, F_tildes[0]), train, train.weight > 0, rotations,
-            F_tildes, penalty, shuffle_seed, subsets, union, tuple(candidates.values()),
+            F_tildes, penalty, shuffle_seed, subsets, union, tuple(candidates.values()), turned,
         )  # fmt: skip
         for grids, kepts, one_set in zip(out, per_point, sums, strict=True):
             for grid, kept, subset in zip(grids, kepts, one_set, strict=True):
@@ -305,6 +309,7 @@ def facet_lobe(
     halves: bool = True,
     candidates: Mapping[str, Sequence[float]] | None = None,
     unsteady: Sequence[int] = (),
+    turned: str = "lobe",
 ) -> FacetLobe:
     """The lobe about every point's facet: sigma and F_tilde chosen on a grid by the facet
     protocol on `train` (every calibration view judged from the point's other calibration
@@ -321,7 +326,12 @@ def facet_lobe(
     one whose least calibration RMSE is lower used throughout. `unsteady`: frames whose
     brightness the model does not follow (`ctjax.heldout.frame_consistency`'s
     `brightness_off`, by index): the held-out views are judged again without them
-    (`FacetLobe.steady`), and a lobe no better there is `no_lobe` (`judged_status`)."""
+    (`FacetLobe.steady`), and a lobe no better there is `no_lobe` (`judged_status`).
+    `turned`: `"lobe"` (the facet is the lobe's normal, the diffuse term keeps the
+    reconstruction's) or `"both"` (one facet for both terms: the point's normal turned,
+    with a lobe about it), in the grid and the judging alike (`facet_heldout`)."""
+    if turned not in ("lobe", "both"):
+        raise ParameterError(f"facet_lobe turns 'lobe' or 'both', got {turned!r}")
     if not sigmas or not F_tildes:
         raise ParameterError("facet_lobe needs at least one sigma and one F_tilde")
     candidates = FACET_CANDIDATES if candidates is None else dict(candidates)
@@ -331,8 +341,9 @@ def facet_lobe(
     checked = halves and frames >= MIN_FRAMES_FOR_HALVES
     subsets = (None, 0, 1) if checked else (None,)
     grids = _grid(
-        train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets, candidates
-    )
+        train, rotations, light, sigmas, F_tildes, penalty, shuffle_seed, subsets, candidates,
+        turned,
+    )  # fmt: skip
     candidate_rmse = {name: min(grid[0][0].values()) for name, grid in grids.items()}
     name = min(candidate_rmse, key=candidate_rmse.get)
     across = candidates[name]
@@ -354,15 +365,15 @@ def facet_lobe(
         sigma, f, sigmas, F_tildes, gain, split, stderr[0], unchecked, step, stderr[1]
     )
     lobe = facet_heldout(
-        facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
+        facet_model(light, sigma, f), test, judged, rotations, penalty=penalty, turned=turned,
         shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
     )  # fmt: skip
     plain = facet_heldout(lambertian, test, judged, rotations, penalty=penalty, across=(0.0,))
-    turned = facet_heldout(
+    normals = facet_heldout(
         lambertian, test, judged, rotations, penalty=penalty, turned="diffuse",
         refine_steps=refine_steps, across=across,
     )  # fmt: skip
-    status, reasons = judged_status(status, reasons, lobe.rmse, plain.rmse, turned.rmse)
+    status, reasons = judged_status(status, reasons, lobe.rmse, plain.rmse, normals.rmse)
     steady = None
     keep = np.asarray(judged, bool) & ~np.isin(np.asarray(test.site.frame), list(unsteady))
     if keep.any() and keep.sum() < np.sum(judged):
@@ -371,7 +382,8 @@ def facet_lobe(
         parts = (
             facet_heldout(
                 facet_model(light, sigma, f), test, keep, rotations, penalty=penalty,
-                shuffle_seed=shuffle_seed, refine_steps=refine_steps, across=across,
+                turned=turned, shuffle_seed=shuffle_seed, refine_steps=refine_steps,
+                across=across,
             ),
             facet_heldout(lambertian, test, keep, rotations, penalty=penalty, across=(0.0,)),
             facet_heldout(
@@ -403,7 +415,7 @@ def facet_lobe(
     control = math.nan  # the same lobe with every point's candidates another point's
     if shuffle_seed is None:
         control = facet_heldout(
-            facet_model(light, sigma, f), test, judged, rotations, penalty=penalty,
+            facet_model(light, sigma, f), test, judged, rotations, penalty=penalty, turned=turned,
             shuffle_seed=CONTROL_SEED, refine_steps=refine_steps, across=across,
         ).rmse  # fmt: skip
     return FacetLobe(
@@ -413,7 +425,7 @@ def facet_lobe(
         bool(at_bound and len(sigmas) * len(F_tildes) > 1),
         lobe.rmse,
         plain.rmse,
-        turned.rmse,
+        normals.rmse,
         lobe.with_facet,
         split,
         gain,
@@ -425,6 +437,7 @@ def facet_lobe(
         step,
         control,
         steady,
+        turned,
     )
 
 

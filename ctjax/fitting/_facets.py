@@ -371,7 +371,7 @@ def _judgements(
 
 def facet_sums(
     model, samples, judged, rotations, F_tildes, penalty, shuffle_seed=None, subsets=(None,),
-    across=FACET_ACROSS_RAD, choices=None,
+    across=FACET_ACROSS_RAD, choices=None, turned="lobe",
 ):  # fmt: skip
     """Per set of candidates (`choices`: each the turns of `across` a point chooses among;
     None: one, all of them), subset of the frames (`subsets`: None all, 0 the even, 1 the
@@ -380,12 +380,14 @@ def facet_sums(
     and the albedo chosen from the point's other views of the subset (`facet_heldout`'s,
     not turned), summed where they are computed: the grid's figures without its residual
     arrays. The sets and the subsets share the lobes' columns (one pass for all).
-    `across`: the candidate facets (`facet_heldout`)."""
+    `across`: the candidate facets, `turned`: the terms turned to a facet (`facet_heldout`)."""
+    if turned not in ("lobe", "diffuse", "both"):
+        raise ParameterError(f"turned must be 'lobe', 'diffuse' or 'both', got {turned!r}")
     model, judged, rotations, price, candidates, gains = facet_arguments(
         model, samples, judged, rotations, F_tildes, penalty, shuffle_seed, across, choices
     )
     sums = _facet_sums(
-        model, samples, judged, rotations, price, "lobe", candidates, gains, tuple(subsets)
+        model, samples, judged, rotations, price, turned, candidates, gains, tuple(subsets)
     )
     return np.asarray(sums) * np.array([255.0**2, 1.0])[:, None]
 
