@@ -184,6 +184,52 @@ def _textures_kept_on_disk():
 _textures_kept_on_disk()
 
 
+# Two tiers. The README's test command (CI's `.ci/run`) runs the tests not marked `slow`:
+# every module's checks, every command once end to end on a small synthetic capture, every
+# refusal of bad input, and the diagnosis loop naming each hidden effect
+# (tests/test_diagnostics.py). `pytest --slow` runs the slow tier as well (`pytest --slow -m
+# slow` only it): the measurements that take 5 s or more cold, the same commands with every
+# option on larger captures, the fits on real frames, the demo's whole pipeline. A test
+# named on the command line (`pytest tests/test_real.py::test_...`) runs whatever its tier.
+# Why: the whole suite took 589-634 s cold on the 2-core machine in eleven runs on
+# 2026-12-07, twice the 5 minutes the tests have; the tests under 5 s, run apart, 243 s
+# (benchmarks/README.md, "The test suite's time").
+SLOW_TIER = "the slow tier: `pytest --slow` runs it"
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--slow", action="store_true", help="also run the tests marked slow (tests/conftest.py)"
+    )
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "slow: the slow tier, run by `pytest --slow` (tests/conftest.py)"
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--slow") or "slow" in (config.option.markexpr or ""):
+        return
+    named = [arg for arg in config.args if "::" in arg]
+    slow = [
+        item
+        for item in items
+        if item.get_closest_marker("slow")
+        and not any(item.nodeid in a or a in item.nodeid for a in named)
+    ]
+    if slow:
+        kept = set(map(id, slow))
+        items[:] = [item for item in items if id(item) not in kept]
+        config.hook.pytest_deselected(items=slow)
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    if not (config.getoption("--slow") or "slow" in (config.option.markexpr or "")):
+        terminalreporter.write_line(f"tests marked slow not run ({SLOW_TIER})")
+
+
 def _exit_now():
     for stream in (sys.stdout, sys.stderr):
         try:

@@ -219,7 +219,7 @@ def _not_called(*args, **kwargs):
 
 
 def test_map_without_poses_or_with_uniform_is_one_clear_error(
-    textured, tmp_path, capsys, coarse_facets, monkeypatch
+    textured, tmp_path, capsys, monkeypatch
 ):
     root = textured[(2, 0.5)]
     out = tmp_path / "fit.json"
@@ -228,6 +228,30 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
     assert "--albedo-maps needs the albedo map" in capsys.readouterr().err
     assert main([*argv[:6], "--max-tracks", "500"]) == 2
     assert "--max-tracks is for the albedo map" in capsys.readouterr().err
+    (root.parent / "nopose").mkdir()
+    for item in root.iterdir():
+        if item.name != "poses.json":
+            (root.parent / "nopose" / item.name).symlink_to(item)
+    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--albedo", "map"]) == 2
+    assert "no pose" in capsys.readouterr().err
+    # Without poses the default is the paper's uniform albedo.
+    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--ring-px", "10"]) == 0
+    assert json.loads(out.read_text())["albedo"] == "uniform"
+    # The facets refused before any fit (a fit of a 640 px capture takes a minute).
+    monkeypatch.setattr("ctjax.estimation._capture_fit.fit_capture", _not_called)
+    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--facets"]) == 2
+    assert "--facets needs the albedo map" in capsys.readouterr().err
+    nopose = ["fit", str(root.parent / "nopose"), "--json", str(out), "--facet-marginal"]
+    assert main(nopose) == 2
+    assert "--facet-marginal needs the albedo map" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_fit_command_caps_the_tracks_and_writes_the_facets(
+    textured, tmp_path, capsys, coarse_facets
+):
+    root = textured[(2, 0.5)]
+    out = tmp_path / "fit.json"
     # The tracks' cap: at most that many points followed.
     argv = ["fit", str(root), "--json", str(out), "--max-tracks", "500", "--facets"]
     assert main([*argv, "--facet-marginal"]) == 0
@@ -256,22 +280,6 @@ def test_map_without_poses_or_with_uniform_is_one_clear_error(
     assert "a lobe about every point's own facet" in printed
     assert "the facets integrated out" in printed
     assert "the facet lobe at the marginal's width" in printed
-    (root.parent / "nopose").mkdir()
-    for item in root.iterdir():
-        if item.name != "poses.json":
-            (root.parent / "nopose" / item.name).symlink_to(item)
-    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--albedo", "map"]) == 2
-    assert "no pose" in capsys.readouterr().err
-    # Without poses the default is the paper's uniform albedo.
-    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--ring-px", "10"]) == 0
-    assert json.loads(out.read_text())["albedo"] == "uniform"
-    # The facets refused before any fit (a fit of a 640 px capture takes a minute).
-    monkeypatch.setattr("ctjax.estimation._capture_fit.fit_capture", _not_called)
-    assert main(["fit", str(root.parent / "nopose"), "--json", str(out), "--facets"]) == 2
-    assert "--facets needs the albedo map" in capsys.readouterr().err
-    nopose = ["fit", str(root.parent / "nopose"), "--json", str(out), "--facet-marginal"]
-    assert main(nopose) == 2
-    assert "--facet-marginal needs the albedo map" in capsys.readouterr().err
 
 
 def test_a_frame_without_a_pose_falls_back_to_the_uniform_albedo_with_a_warning(tmp_path, capsys):
@@ -377,6 +385,7 @@ class _Clip(__import__("ctjax").effects.AbstractImageEffect):
         return jnp.minimum(rgb, 0.9)
 
 
+@pytest.mark.slow
 def test_the_lm_fitter_with_the_map_undoes_invertible_image_effects(textured):
     import ctjax
     from ctjax.fitting import fit_model_map, paper_model
@@ -394,6 +403,7 @@ def test_the_lm_fitter_with_the_map_undoes_invertible_image_effects(textured):
 
 
 @pytest.mark.parametrize(("depth_noise_mm", "tolerance"), [(0.0, 0.01), (0.005, 0.02)])
+@pytest.mark.slow
 def test_the_map_on_a_capture_from_an_independent_renderer(tmp_path, depth_noise_mm, tolerance):
     """Textured captures from tests/independent.py (plain NumPy, no ctjax code): depth only
     (normals derived on load by a plane fit), exact and with 5 micrometres of depth noise
@@ -444,6 +454,7 @@ def test_the_tilt_changes_the_paper_lobe_as_its_formula_does(theta_deg):
     assert float(after[0]) == pytest.approx(specular(theta + np.radians(1.0)), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp_path):
     """`details["normals"]`: the fitted specular's change per degree of normal error; a
     shape from `ctjax reconstruct` (its report beside the capture) adds a warning."""
@@ -471,6 +482,7 @@ def test_the_fit_says_how_much_the_specular_depends_on_the_normals(textured, tmp
 
 
 @pytest.mark.parametrize("frozen_from", [None, 0])
+@pytest.mark.slow
 def test_a_held_parameter_stays_at_its_start_and_the_rest_fit_as_if_frozen(
     textured, monkeypatch, frozen_from
 ):
@@ -533,6 +545,7 @@ def test_a_start_given_twice_is_fitted_once(textured, monkeypatch):
     assert single.arrays["track_albedo"].dtype == np.float64
 
 
+@pytest.mark.slow
 def test_the_maps_do_not_depend_on_how_the_pixels_are_batched(tmp_path, monkeypatch):
     # Frames are estimated in batches of at most `_MAP_CHUNK` pixels: a frame split into
     # pieces, and pieces of several frames in one batch, give the same maps and summary.
@@ -615,6 +628,7 @@ def test_a_parameter_the_data_leave_alone_does_not_hide_the_others_standard_erro
     assert _variances(0.5, np.zeros((0, 0))).shape == (0,)
 
 
+@pytest.mark.slow
 def test_a_frame_sharing_no_point_is_named_and_its_half_not_fitted(textured):
     """Frame 1's depth a million times too far (a corrupt map): its points meet no other
     frame's, so it adds nothing; the odd frames alone (1 and 3) cannot be fitted. The fit
@@ -633,6 +647,7 @@ def test_a_frame_sharing_no_point_is_named_and_its_half_not_fitted(textured):
 
 
 @pytest.mark.parametrize("dtype", [None, jnp.float32])
+@pytest.mark.slow
 def test_the_best_start_of_another_structure_is_reported_as_itself(textured, dtype):
     """Starts may differ in static structure (Schlick's Fresnel at V.H or N.V, the
     fresnel_schlick candidate's two): the result is the start that won, in its own

@@ -59,6 +59,7 @@ def test_the_effects_reach_the_steps_that_fit_them(captures, tmp_path):
     assert len(fit["log_exposure"]) == 1 and abs(fit["log_exposure"][0]) < 0.01  # none here
 
 
+@pytest.mark.slow
 def test_captures_run_on_dask_workers(captures, tmp_path):
     good, _ = captures
     rows = run_batch([good], tmp_path / "out", ["fit"], workers=1)

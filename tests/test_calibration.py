@@ -14,6 +14,7 @@ SMALL = dict(width=112, height=88, frames=5, texture=False, seed=5)
 NOISE_FLOOR = np.sqrt(1 + 1 / 12)  # 1 level of noise and 8-bit quantisation
 
 
+@pytest.mark.slow
 def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     options = SynthOptions(**SMALL, effects={"light_offset": (6.0, -2.0, 0.0)})
     capture = load_capture(synthesize(tmp_path / "c", options))
@@ -57,6 +58,7 @@ def test_near_light_recovers_the_offset_and_needs_no_falloff(tmp_path):
     assert at_lens.heldout_rmse <= 1.15 * NOISE_FLOOR
 
 
+@pytest.mark.slow
 def test_calibrate_light_command_with_falloffs(tmp_path, capsys, coarse_facets, monkeypatch):
     options = SynthOptions(
         **SMALL,
@@ -120,6 +122,7 @@ def independent_near(tmp_path_factory):
     return scenes, roots
 
 
+@pytest.mark.slow
 def test_near_light_with_the_albedo_map_finds_the_offset(independent_near):
     from ctjax.lights import InverseSquare
 
@@ -207,6 +210,7 @@ def test_near_light_offset_halves_show_a_shape_error_the_standard_error_misses(
     assert error <= 3 * np.linalg.norm(np.maximum(spread, stderr))
 
 
+@pytest.mark.slow
 def test_a_reconstructed_shapes_views_near_the_highlights_do_not_place_the_light(
     independent_near, tmp_path, monkeypatch
 ):
@@ -357,6 +361,7 @@ def test_an_offset_far_from_the_lens_is_said_to_be_no_light_position():
     assert far_offset(np.array([np.nan, 0.0, 0.0]), 70.0, "mm") is None
 
 
+@pytest.mark.slow
 def test_near_light_with_the_albedo_map_reports_no_offset_at_the_lens(independent_near):
     scenes, roots = independent_near
     capture = load_capture(roots["lens"])

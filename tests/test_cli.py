@@ -43,6 +43,7 @@ def test_synth_command_writes_a_capture(tmp_path, capsys):
     assert "wrote synthetic capture" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_demo_command_runs_the_whole_pipeline_from_images(tmp_path):
     """synth -> reconstruct -> masks -> fit -> calibrate-light -> evaluate, from images alone
     (a small, strongly textured capture so that SfM has features at this size)."""

@@ -293,6 +293,7 @@ def test_an_lm_fits_lobe_apart_between_the_halves_is_unstable():
             assert any("on the even frames" in w for w in estimate.warnings)
 
 
+@pytest.mark.slow
 def test_a_broad_lobe_is_checked_against_the_lights_cone(tmp_path):
     """A determined lobe of sigma >= 0.3 is fitted again under a spot falloff about the
     optical axis: a lobe that the light's cone explains becomes `no_lobe` (the real

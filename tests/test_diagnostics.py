@@ -81,6 +81,7 @@ def test_verdict_names_the_hidden_effect(captures, effect):
         assert diagnosis.leading["effect"] == effect and diagnosis.leading["z"] > 2
 
 
+@pytest.mark.slow
 def test_a_judged_bases_per_frame_values_are_its_calibration_fits_again(tmp_path):
     """Judging a model fits its per-frame parameters (a frame's exposure) on the held-out
     tracks, which see the calibration frames too; the base its candidates start from and are
@@ -240,6 +241,7 @@ def test_candidates_on_threads_give_what_one_thread_gives(captures):
         diagnose(captures["ambient"], candidates=few, workers=0)
 
 
+@pytest.mark.slow
 def test_textured_tissue_is_diagnosed_with_the_albedo_map(tmp_path):
     """A textured capture from tests/independent.py (no ctjax code), nothing hidden: the
     paper's one-albedo model misses the texture (verdict albedo_texture), so diagnose goes

@@ -208,6 +208,7 @@ def test_fit_fits_each_frames_exposure_in_the_branch_and_bound(exposed, tmp_path
         fit_capture(exposed, effects=("vignetting",))
 
 
+@pytest.mark.slow
 def test_exposures_are_recovered_and_the_heldout_frames_get_their_own(exposed):
     """On textured tissue with auto-exposure (sd 0.1 in log), the map fit on the calibration
     frames recovers their exposures, and judging fits the held-out frames' on them."""
@@ -264,6 +265,7 @@ def test_image_effects_by_name_start_where_the_diagnostics_would():
         image_effects(("exposure",), paper_model(), context)
 
 
+@pytest.mark.slow
 def test_evaluate_fits_the_exposure_in_both_models_and_judges_the_facets_in_radiance(
     exposed, coarse_facets
 ):
@@ -305,6 +307,7 @@ def test_evaluate_fits_the_exposure_in_both_models_and_judges_the_facets_in_radi
         evaluate(exposed, cook_torrance=fit_colocated, sfs=False, effects=("frame_exposure",))
 
 
+@pytest.mark.slow
 def test_the_near_lights_lobe_that_absorbs_the_exposure_is_flagged(exposed):
     """`calibrate_near_light` without the exposure: the frames' brightness names it, and
     the model refitted with it undone moves its lobe towards the truth: no measurement.
@@ -317,6 +320,7 @@ def test_the_near_lights_lobe_that_absorbs_the_exposure_is_flagged(exposed):
     assert undone["sigma"] == pytest.approx(exposed.truth["sigma"], rel=0.05)
 
 
+@pytest.mark.slow
 def test_the_near_light_with_one_albedo_checks_the_calibration_frames_brightness(tmp_path):
     """`calibrate_near_light(albedo="uniform")`: each calibration frame's brightness against
     the model's prediction follows its exposure about the frames' mean; a frame off is
@@ -367,6 +371,7 @@ def test_the_commands_print_the_fitted_effects_in_one_line():
     assert effects_line(paper_model()) is None
 
 
+@pytest.mark.slow
 def test_the_held_out_frames_exposures_flag_nothing_with_one_albedo(tmp_path):
     """With one albedo (pixels), the standard errors come from the calibration frames, which
     do not see a held-out frame's exposure: a per-frame nuisance, it flags nothing (it is
@@ -433,6 +438,7 @@ def test_the_knee_compresses_each_channel_above_it_and_is_undone():
         value(argparse.Namespace(knee=[0.5, 0.3, 0.6]))
 
 
+@pytest.mark.slow
 def test_a_knee_the_fit_lacks_takes_the_lobe_from_the_channel_it_compresses(tmp_path):
     """A hidden knee (red's slope 0.3 above 0.5): the near light fitted without it drops
     most of red's lobe (the second sinus video's F_tilde [0, 0.008, 0.010]); with `knee`

@@ -201,6 +201,7 @@ def test_brdf_cost_with_two_basins_matches_brute_force(tmp_path):
     assert abs(float(fit.params[0]) - best) < 1e-3 + (dense[1] - dense[0])
 
 
+@pytest.mark.slow
 def test_two_scale_family_recovers_two_lobes(tmp_path):
     # Dim tissue, so that the sharp lobe is not hidden under saturated pixels.
     options = SynthOptions(
@@ -222,6 +223,7 @@ def test_two_scale_family_recovers_two_lobes(tmp_path):
     assert float(fit.rgb_rmse) < float(fit_brdf(samples).rgb_rmse)
 
 
+@pytest.mark.slow
 def test_socp_baseline_and_closed_form_agree(capture):
     from ctjax.baselines import socp_branch_and_bound
 

@@ -115,6 +115,7 @@ def test_tsai_shah_recovers_a_lambertian_surface(capture):
     assert np.median(error) < 0.5 * np.median(np.abs(dome - frame.depth)[mask])
 
 
+@pytest.mark.slow
 def test_cook_torrance_sfs_beats_tsai_shah_around_highlights(capture):
     """The paper's section 7 result on a specular organ: shape from shading under the
     Cook-Torrance model (Tsai-Shah's formulation with its reflectance map, coarse to fine)
@@ -279,31 +280,49 @@ def _not_called(*args, **kwargs):
     raise AssertionError("a fit ran before the options were checked")
 
 
-def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coarse_facets):
-    out = tmp_path / "evaluation.json"
-    plots = tmp_path / "plots"
-    argv = [
-        "evaluate",
-        str(capture.root),
-        "--calib",
-        "2",
-        "--json",
-        str(out),
-        "--plots",
-        str(plots),
-        "--light",
-        "colocated",
-        "--facets",
-    ]
-    assert main([*argv[:-1], "--facets", "off", "--facet-marginal"]) == 2
+def _evaluate_argv(capture, tmp_path) -> list[str]:
+    out, plots = tmp_path / "evaluation.json", tmp_path / "plots"
+    argv = ["evaluate", str(capture.root), "--calib", "2", "--json", str(out)]
+    return [*argv, "--plots", str(plots), "--light", "colocated"]
+
+
+def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys):
+    argv = _evaluate_argv(capture, tmp_path)
+    assert main([*argv, "--facets", "off", "--facet-marginal"]) == 2
     assert "--facet-marginal is for the facets judged" in capsys.readouterr().err
     # The facets asked for without the albedo map: refused before any fit.
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr("ctjax.evaluation._evaluate.fit_lambertian", _not_called)
-        assert main([*argv[:-1], "--facets", "on", "--albedo", "uniform"]) == 2
+        assert main([*argv, "--facets", "on", "--albedo", "uniform"]) == 2
     assert "the facets are judged with the albedo map" in capsys.readouterr().err
-    assert main([*argv, "--facet-marginal"]) == 0
-    summary = json.loads(out.read_text())
+    assert main([*argv, "--facets", "off"]) == 0
+    summary = json.loads((tmp_path / "evaluation.json").read_text())
+    for model in ("lambertian", "cook_torrance"):
+        for key in ("rgb_rmse_calibration", "rgb_rmse_test", "sfs_error_mm"):
+            assert np.isfinite(summary[f"{model}_{key}"]), (model, key)
+    # The paper's result: Cook-Torrance at most half the Lambertian RGB error on test frames.
+    assert summary["cook_torrance_rgb_rmse_test"] <= 0.5 * summary["lambertian_rgb_rmse_test"]
+    assert summary["test_frames"] == [2]
+    # ... and shape from shading under Cook-Torrance better than Tsai-Shah, near highlights too.
+    assert summary["cook_torrance_sfs_error_mm"] < summary["lambertian_sfs_error_mm"]
+    assert (
+        summary["cook_torrance_sfs_error_near_highlights_mm"]
+        < summary["lambertian_sfs_error_near_highlights_mm"]
+    )
+    assert {p.name for p in (tmp_path / "plots").iterdir()} >= {"errors.png", "rgb_residuals.png"}
+    # Cook-Torrance's own status is in the evaluation (a measured lobe here).
+    assert summary["models"]["cook_torrance"]["status"] == "successful"
+    assert summary["models"]["cook_torrance"]["undetermined"] == []
+    assert summary.get("facets") is None
+
+
+@pytest.mark.slow
+def test_evaluate_command_judges_the_facets_beside_the_papers_lobe(
+    capture, tmp_path, capsys, coarse_facets
+):
+    argv = _evaluate_argv(capture, tmp_path)
+    assert main([*argv, "--facets", "--facet-marginal"]) == 0
+    summary = json.loads((tmp_path / "evaluation.json").read_text())
     # The lobe about every point's own facet, under the same light (tests/test_facets.py).
     facets = summary["facets"]
     assert facets["sigma"] > 0 and facets["F_tilde"] > 0
@@ -331,22 +350,6 @@ def test_evaluate_command_writes_the_six_figures(capture, tmp_path, capsys, coar
     )
     assert judged["lobes"][1]["ratio"] == pytest.approx(facets["ratio"])
     assert "the lobes judged on the test frames" in printed
-    for model in ("lambertian", "cook_torrance"):
-        for key in ("rgb_rmse_calibration", "rgb_rmse_test", "sfs_error_mm"):
-            assert np.isfinite(summary[f"{model}_{key}"]), (model, key)
-    # The paper's result: Cook-Torrance at most half the Lambertian RGB error on test frames.
-    assert summary["cook_torrance_rgb_rmse_test"] <= 0.5 * summary["lambertian_rgb_rmse_test"]
-    assert summary["test_frames"] == [2]
-    # ... and shape from shading under Cook-Torrance better than Tsai-Shah, near highlights too.
-    assert summary["cook_torrance_sfs_error_mm"] < summary["lambertian_sfs_error_mm"]
-    assert (
-        summary["cook_torrance_sfs_error_near_highlights_mm"]
-        < summary["lambertian_sfs_error_near_highlights_mm"]
-    )
-    assert {p.name for p in plots.iterdir()} >= {"errors.png", "rgb_residuals.png"}
-    # Cook-Torrance's own status is in the evaluation (a measured lobe here).
-    assert summary["models"]["cook_torrance"]["status"] == "successful"
-    assert summary["models"]["cook_torrance"]["undetermined"] == []
 
 
 def _bump_capture(root, seed=0):
@@ -381,6 +384,7 @@ def _bump_capture(root, seed=0):
     return load_capture(root)
 
 
+@pytest.mark.slow
 def test_evaluation_on_a_capture_from_an_independent_renderer(tmp_path):
     """The paper's two findings on data ctjax did not render: Cook-Torrance at most half the
     Lambertian RGB error on test frames, and a lower SfS error, near highlights too.
@@ -406,6 +410,7 @@ def test_evaluation_on_a_capture_from_an_independent_renderer(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_both_models_get_the_albedo_map_on_textured_tissue(tmp_path, monkeypatch):
     """Textured tissue from tests/independent.py: with the albedo map (the default with
     poses) Lambertian and Cook-Torrance both get one albedo per surface point, each view

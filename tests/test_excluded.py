@@ -54,6 +54,7 @@ def clean(tmp_path_factory):
     return synthesize(tmp_path_factory.mktemp("excluded") / "clean", options)
 
 
+@pytest.mark.slow
 def test_an_instruments_pixels_excluded_leave_the_fit_as_without_it(clean, tmp_path):
     """A metal shaft with its own highlight, moving from frame to frame, is not the tissue:
     fitted as tissue it biases sigma and F_tilde (its stripe taken for the tissue's

@@ -67,6 +67,7 @@ def _lobe(path, unsteady=(), **options):
     )
 
 
+@pytest.mark.slow
 def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_path):
     """A lobe about the surface's own normal (no sparkles): the facet protocol takes the
     reconstruction's normal as the facet, the grid picks the true sigma and F_tilde's
@@ -125,6 +126,7 @@ def test_a_smooth_lobe_is_the_reconstructions_normal_and_the_grid_finds_it(tmp_p
     assert lobe.candidate_rmse[lobe.candidates] == min(lobe.calibration_rmse.values())
 
 
+@pytest.mark.slow
 def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
     """Without a lobe, a facet per point is freedom with nothing to explain: the penalty
     keeps nearly every point at "no lobe" and the held-out error where Lambert's is."""
@@ -149,6 +151,7 @@ def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
     assert np.all(judged.facet[(judged.facet >= 0) & (judged.facet < views)] != view)
 
 
+@pytest.mark.slow
 def test_facets_about_the_views_h_predict_attached_sparkles(tmp_path):
     """Sparkles of the tissue (`--sparkles-attached`, a facet lobe of 0.06): the facets
     about the views' H (turned across their arc) predict the held-out views better than
@@ -188,6 +191,7 @@ def test_facets_about_the_views_h_predict_attached_sparkles(tmp_path):
     assert control - own > 0.5 * (plain - own)
 
 
+@pytest.mark.slow
 def test_the_facets_integrated_out_give_the_sparkles_width_and_spread(tmp_path):
     """Attached sparkles (micro-lobe 0.06, F_tilde 0.012, facets of Beckmann 0.2 about the
     surface): the marginal likelihood, each point's facet integrated over its prior, reads

@@ -26,6 +26,7 @@ def guessed(tmp_path_factory):
     return images, camera["fx"]
 
 
+@pytest.mark.slow
 def test_the_refined_focal_length_is_the_true_one_and_is_written(guessed, tmp_path):
     images, true_fx = guessed
     out, report = tmp_path / "out", tmp_path / "report.json"
@@ -44,6 +45,7 @@ def test_the_refined_focal_length_is_the_true_one_and_is_written(guessed, tmp_pa
     assert json.loads((images / "camera.json").read_text())["fx"] == pytest.approx(0.8 * true_fx)
 
 
+@pytest.mark.slow
 def test_starts_that_disagree_keep_the_given_focal_length(guessed, tmp_path, monkeypatch):
     images, true_fx = guessed
     monkeypatch.setattr(_focal, "AGREEMENT", 0.0)  # no two refinements agree this well

@@ -121,6 +121,7 @@ def test_calibrate_light_field_command(offset_capture, tmp_path):
     assert np.all(arrays["status"][~arrays["solved"]] == -1)
 
 
+@pytest.mark.slow
 def test_closed_form_engine_matches_optimistix(field_by_engine):
     capture, fields = field_by_engine
     truth = true_directions(capture)
@@ -166,6 +167,7 @@ def test_light_field_with_inverse_square_falloff(tmp_path):
     assert error <= 3.0, error  # measured 2.44, optimistix too (2 rounds: 2.38)
 
 
+@pytest.mark.slow
 def test_light_field_on_textured_tissue_points_along_v_with_the_albedo_map(tmp_path):
     """A textured capture from the independent renderer, light at the lens (L = V): with an
     albedo per surface point (the default) the field stays along V; with one albedo the

@@ -43,7 +43,18 @@ CHECKS = {
 }
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+# The diagnosis loop's notebook is the slow tier's (tests/conftest.py): the loop itself is
+# tests/test_diagnostics.py's.
+SLOW = {"02_diagnose.ipynb"}
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        pytest.param(p, id=p.name, marks=[pytest.mark.slow] if p.name in SLOW else [])
+        for p in NOTEBOOKS
+    ],
+)
 def test_notebook_runs(path, tmp_path, monkeypatch):
     monkeypatch.setenv("CTJAX_NOTEBOOK_WIDTH", "96")
     monkeypatch.setenv("CTJAX_NOTEBOOK_SAMPLES", "3000")  # as test_diagnostics' SAMPLES

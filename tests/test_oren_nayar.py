@@ -155,6 +155,7 @@ def rough(tmp_path_factory):
     return synthesize(tmp_path_factory.mktemp("rough") / "c", options), options
 
 
+@pytest.mark.slow
 def test_fit_with_the_oren_nayar_diffuse_recovers_the_lobe_under_flattened_shading(
     rough, tmp_path, capsys
 ):
@@ -184,6 +185,7 @@ def test_fit_with_the_oren_nayar_diffuse_recovers_the_lobe_under_flattened_shadi
     assert result["lambertian"]["rgb_rmse"] > result["diffuse_alone"]["rgb_rmse"]
 
 
+@pytest.mark.slow
 def test_evaluate_splits_the_gain_into_light_diffuse_term_and_lobe(rough, monkeypatch):
     """With an Oren-Nayar diffuse term, evaluate fits that term alone under the same light
     too: the test frames' gain is the light's, the diffuse term's and the lobe's, and the

@@ -43,6 +43,7 @@ def test_patch_average_keeps_the_mean_and_marks_clipped_patches(sparkles):
     assert np.all(excluded[np.minimum(rows + 2, 127), cols] == 1.0)
 
 
+@pytest.mark.slow
 def test_fit_patch_recovers_sigma_of_sparkles(sparkles, tmp_path, capsys):
     out = tmp_path / "fit.json"
     assert main(["fit", str(sparkles), "--json", str(out), "--patch", "9"]) == 0

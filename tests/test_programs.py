@@ -446,6 +446,7 @@ print(json.dumps(report))
 """
 
 
+@pytest.mark.slow
 def test_lapack_is_set_up_only_for_programs_that_call_it(tmp_path):
     """A kept program without LAPACK kernels runs in a new process without JAX's LAPACK
     set-up (which imports scipy.linalg: `ctjax._lapack`); one that calls LAPACK, kept and

@@ -94,6 +94,7 @@ def sinus_fit(tmp_path_factory):
     return fit_capture(load_capture(root)).to_json()
 
 
+@pytest.mark.slow
 def test_a_fit_on_real_sinus_frames_reports_no_lobe_it_cannot_measure(sinus_fit):
     """On these frames (8 at 480x270) the lobe barely lowers the RMSE: with one exposure
     0.3% (4.94 against Lambert's 4.96 levels since the red ceiling reads as clipped) and

@@ -118,6 +118,7 @@ def test_right_views_need_a_stereo_capture_in_millimetres(stereo, tmp_path):
         views.rmse(model)
 
 
+@pytest.mark.slow
 def test_fit_with_the_right_views_uses_them(stereo, tmp_path):
     """`ctjax fit --right-views`: the right views join the albedo map's tracks (the BnB
     with V towards the right camera and L to the left lens) and the lobe stays the true one."""
@@ -155,6 +156,7 @@ def test_the_light_field_has_no_right_views(stereo, tmp_path, capsys):
     assert "near light" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_near_light_fitted_with_the_right_views(stereo):
     """`calibrate-light --right-views`: the right views join the near light's fits (the
     light at the lens, as synthesised: no offset, the true lobe)."""
@@ -249,6 +251,7 @@ def test_a_right_views_excluded_pixels_are_not_observed(stereo, tmp_path):
     np.testing.assert_array_equal(plain.values[kept], masked.values[kept])
 
 
+@pytest.mark.slow
 def test_the_right_views_take_their_instants_exposure(tmp_path):
     """`fit --right-views --effects frame_exposure`: one gain per instant, for both cameras'
     views (the synthetic stereo scope's right images share the left's exposure)."""

@@ -204,6 +204,7 @@ def test_a_texture_refinement_that_parts_the_frames_surfaces_is_not_kept(
         np.testing.assert_allclose(view.surface.coefficients, expected, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_the_texture_refinements_smoothing_is_the_users(reconstructed, points_only, capsys):
     """`texture_smoothing` weights the refinement's thin plate: a stiffer one leaves each
     view's surface smoother (less thin-plate energy, where both refinements are kept); the
@@ -490,6 +491,7 @@ def test_the_height_spline_slopes_are_the_derivatives_of_its_values():
         np.testing.assert_allclose(np.sum(c[index] * weights, -1), finite, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_shape_refined_by_the_shading_gives_the_brdf(reconstructed, tmp_path, monkeypatch):
     """`reconstruct --shading`'s step on the reconstructed capture: one world surface fitted
     with sigma to every frame's shading; the BRDF fitted on the result is then within 2%
@@ -519,6 +521,7 @@ def test_the_shape_refined_by_the_shading_gives_the_brdf(reconstructed, tmp_path
     }
 
 
+@pytest.mark.slow
 def test_fit_on_images_only_refines_the_shape_by_the_shading(small_images, tmp_path, monkeypatch):
     """`ctjax fit` on a capture with images only: SfM, the texture, then the shading (its
     plumbing here, with few points and one iteration; its accuracy is the test above)."""

@@ -411,6 +411,7 @@ def test_a_stereo_import_needs_the_stereo_block(stereo_capture, tmp_path, capsys
     assert "mono.yaml: a stereo import needs the right camera's matrix" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_near_light_fitted_with_the_shape(tmp_path, monkeypatch):
     """The shading refinement with a near light (`reconstruct --shading near`): the shape
     and the light's position fitted jointly, on a capture whose light sits off the lens.
@@ -476,6 +477,7 @@ def test_the_shading_refinement_needs_a_shape(stereo_capture):
         _shading.refine_shape_by_shading(images_only)
 
 
+@pytest.mark.slow
 def test_a_refinement_that_bends_the_shape_is_not_kept(stereo_capture, monkeypatch):
     """Normals turned by more than `MAX_NORMAL_CHANGE_DEG` (median): the model does not
     explain the shading (12 real cholecystectomy frames: 45-53 degrees), the shape is kept."""

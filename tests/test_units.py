@@ -53,6 +53,7 @@ def captures(tmp_path_factory):
     return metric.root, relative
 
 
+@pytest.mark.slow
 def test_the_near_light_says_its_unit(captures, tmp_path):
     metric, relative = captures
     assert load_capture(metric).length_unit == "mm"
