@@ -7,7 +7,8 @@ Runs the README's test command (`pytest -q -n auto --maxprocesses 4 --dist loadf
 tracing, lowering and compiling, per test and per program. Cold by default, as CI runs it:
 the tests' cache folder (`.jax_cache`: XLA's programs, the kept traced programs, the
 synthetic textures) is removed first; `--warm` keeps it. PYTEST_ARGS (after `--`) replace the
-test selection, e.g. `-- tests/test_calibration.py`.
+test selection, e.g. `-- tests/test_calibration.py`; `-- --slow` times both tiers (the
+README's command runs the fast one: tests/conftest.py).
 
 Prints the suite's wall time, the worker-seconds per file, the slowest tests with their
 seconds of compiling, and the programs that compile longest (how many times, how long,
