@@ -164,7 +164,7 @@ def _map_errors(root, estimate):
     return np.concatenate(errors), min(coverage)
 
 
-@pytest.mark.parametrize("key", [(1, 1.0), (2, 0.5)])
+@pytest.mark.parametrize("key", [(1, 1.0), pytest.param((2, 0.5), marks=pytest.mark.slow)])
 def test_the_map_recovers_the_brdf_and_the_texture(textured, key):
     root = textured[key]
     capture = load_capture(root)

@@ -131,6 +131,7 @@ def test_malloc_tuning_is_applied_before_the_first_computation():
     assert result.returncode == 0 and result.stdout.strip() == "True", result.stderr
 
 
+@pytest.mark.slow
 def test_xla_tuning_adds_the_vector_width_once_and_keeps_the_users():
     """`tune_xla` adds 512-bit vectors to XLA_FLAGS on an AVX-512 CPU (and nothing
     elsewhere), keeps a width the user set, and does nothing once the backend runs."""

@@ -302,6 +302,7 @@ def test_colmaps_own_error_lines_are_quiet_without_verbose(capfd):
     assert "MESSAGE-A" not in printed and ("MESSAGE-B" in printed) == (before <= 2)
 
 
+@pytest.mark.slow
 def test_a_frame_that_does_not_register_is_reported_and_skipped(tmp_path):
     capture = synthesize(tmp_path / "c", SynthOptions(width=192, height=160, frames=3, seed=2))
     capture = _images_only(capture, tmp_path / "images-only")
