@@ -193,7 +193,7 @@ _textures_kept_on_disk()
 # named on the command line (`pytest tests/test_real.py::test_...`) runs whatever its tier.
 # Why: the whole suite took 589-634 s cold on the 2-core machine in eleven runs on
 # 2026-12-07, twice the 5 minutes the tests have. The fast tier, cold, from a fresh clone:
-# 865 tests in 280.7 s; the slow tier alone 57 in 453.3 s (docs/design.md, "Two tiers of
+# 866 tests in 265.4 s; the slow tier alone 60 in 488.6 s (docs/design.md, "Two tiers of
 # tests"; benchmarks/README.md, "The test suite's time"). A test belongs in the slow tier
 # when it takes 5 s or more cold and another fast test already runs its command.
 SLOW_TIER = "the slow tier: `pytest --slow` runs it"
