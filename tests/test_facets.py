@@ -151,7 +151,6 @@ def test_lambertian_tissue_gains_nothing_from_a_facet_per_point(tmp_path):
     assert np.all(judged.facet[(judged.facet >= 0) & (judged.facet < views)] != view)
 
 
-@pytest.mark.slow
 def test_facets_about_the_views_h_predict_attached_sparkles(tmp_path):
     """Sparkles of the tissue (`--sparkles-attached`, a facet lobe of 0.06): the facets
     about the views' H (turned across their arc) predict the held-out views better than
