@@ -313,6 +313,7 @@ def test_a_frame_without_a_pose_falls_back_to_the_uniform_albedo_with_a_warning(
     assert why_no_albedo_map(load_capture(root)) is None
 
 
+@pytest.mark.slow
 def test_the_lm_fitter_with_the_map_agrees_with_the_branch_and_bound(textured):
     from ctjax.estimation._branch_and_bound_map import fit_brdf_map, track_shading
     from ctjax.fitting import fit_model_map, paper_model

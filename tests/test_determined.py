@@ -225,6 +225,7 @@ def test_a_lobe_that_is_not_the_lights_colour_is_no_highlight():
     assert undetermined(noisy, {"F_tilde": [0.01] * 3}, lobe_gain=0.05) == []
 
 
+@pytest.mark.slow
 def test_a_lobe_is_judged_where_it_shows(tmp_path):
     """A laparoscope's highlights are few and mostly clipped: with the light 7 mm off the
     lens and inverse-square and spot falloff, the true lobe (F_tilde 0.3) lowers the RMSE of

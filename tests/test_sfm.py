@@ -537,7 +537,7 @@ def test_fit_on_images_only_refines_the_shape_by_the_shading(small_images, tmp_p
     assert shading["refined"] and shading["cost_after"] <= shading["cost_before"]
 
 
-@pytest.mark.parametrize("light", ["camera", "near"])
+@pytest.mark.parametrize("light", ["camera", pytest.param("near", marks=pytest.mark.slow)])
 def test_the_shading_normal_equations_are_the_dense_jacobians(tmp_path, light):
     """The refinement's J^T J and J^T r, assembled from each point's 2x2 blocks, the global
     columns (sigma; with a near light also its position) and the rank-3 part through the
