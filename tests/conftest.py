@@ -193,9 +193,10 @@ _textures_kept_on_disk()
 # named on the command line (`pytest tests/test_real.py::test_...`) runs whatever its tier.
 # Why: the whole suite took 589-634 s cold on the 2-core machine in eleven runs on
 # 2026-12-07, twice the 5 minutes the tests have. The fast tier, cold, from a fresh clone:
-# 866 tests in 265.4 s; the slow tier alone 60 in 488.6 s (docs/design.md, "Two tiers of
-# tests"; benchmarks/README.md, "The test suite's time"). A test belongs in the slow tier
-# when it takes 5 s or more cold and another fast test already runs its command.
+# 864 tests in 287.7 and 279.6 s; the slow tier alone, 60 tests then, 488.6 s
+# (docs/design.md, "Two tiers of tests"; benchmarks/README.md, "The test suite's time").
+# A test belongs in the slow tier when it takes 5 s or more cold and another fast test
+# already runs its command.
 SLOW_TIER = "the slow tier: `pytest --slow` runs it"
 
 
