@@ -28,18 +28,25 @@ def on_device(x, dtype=None) -> Array:
 
 def as_float(x) -> Float[Array, "..."]:
     """`jnp.asarray`, promoting integers and bools to the default float dtype."""
-    # Python scalars without an eager JAX op (`jnp.asarray` of one, or `astype`, compiles a
-    # program: milliseconds each in a new process), with the same dtype and weak type.
+    # Python scalars and host arrays without an eager JAX op (`jnp.asarray` of one, or
+    # `astype`, compiles a program: milliseconds each in a new process), with the same
+    # dtype and weak type.
     if isinstance(x, float):
         return jax.device_put(x)
-    if isinstance(x, int | np.integer | np.bool_):  # bool is an int
-        return jnp.asarray(np.asarray(x, jax.dtypes.canonicalize_dtype(float)))
+    if isinstance(x, np.ndarray | np.generic | int):  # host data (bool is an int)
+        host = np.asarray(x)
+        if not np.issubdtype(host.dtype, np.floating):
+            host = host.astype(jax.dtypes.canonicalize_dtype(float))
+        return on_device(host)
     x = jnp.asarray(x)
     return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(float)
 
 
 def as_rgb(x) -> Float[Array, "3"]:
-    """A per-channel quantity: a scalar is broadcast to the three channels."""
+    """A per-channel quantity: a scalar is broadcast to the three channels (on the host
+    where it is host data: no eager JAX op)."""
+    if isinstance(x, np.ndarray | np.generic | int) and np.ndim(x) == 0:
+        x = np.broadcast_to(x, (3,))
     x = as_float(x)
     return jnp.broadcast_to(x, (3,)) if x.ndim == 0 else x
 

@@ -29,6 +29,11 @@ exported program here, and a later process traces it again. A folder or a file t
 another user can write is neither read nor written (`ctjax._private_files`). A file that
 cannot be read, parsed or checked (damaged, another format, another key's) is a miss: the
 function is traced again and the file replaced.
+
+What the program compiled to is kept beside it too (`<key>.executable`,
+`ctjax._executables`): a later process runs XLA's executable, nothing lowered, hashed or
+compiled, and a command loads ahead, on a thread, those its last run used
+(`loading_ahead`).
 """
 
 import contextlib
@@ -42,6 +47,15 @@ from pathlib import Path
 import equinox as eqx
 import jax
 
+from ctjax._executables import (
+    Executable,
+    executable_blob,
+    keepable,
+    loaded_ahead,
+    read_executable,
+    recorded,
+    remember,
+)
 from ctjax._lapack import exported_calls_lapack, no_lapack_setup
 from ctjax._private_files import private_folder, read_private, write_private
 from ctjax._static_data import (
@@ -61,6 +75,25 @@ _FOLDER: list[Path | None] = [None]
 def keep_programs(folder: Path | None) -> None:
     """Keep exported programs in `folder` (None: off)."""
     _FOLDER[0] = folder
+
+
+_USED: list[str] = []  # the keys of the kept programs loaded in this process, in order
+
+
+@contextlib.contextmanager
+def loading_ahead(command: str):
+    """Run a command (`ctjax fit`, ...) with the executables its last run used loaded ahead
+    on a thread (`ctjax._executables.loaded_ahead`), and write down the ones this run used."""
+    folder = _FOLDER[0]
+    if folder is None or not private_folder(folder):
+        yield
+        return
+    start = len(_USED)
+    try:
+        with loaded_ahead(folder, command):
+            yield
+    finally:
+        remember(folder, command, _USED[start:])
 
 
 # XLA:CPU's loop emitters for the fitters (compiled once per model, run for milliseconds):
@@ -138,28 +171,61 @@ def _aval(leaf) -> str:
 
 
 class _Program:
-    """One exported program: call it on the dynamic leaves, rebuild the output tree."""
+    """One exported program: call it on the dynamic leaves, rebuild the output tree. It
+    runs from its kept executable where there is one (`ctjax._executables`), else as JAX
+    lowers and compiles the exported call. `exported` is a `jax.export.Exported` or its
+    bytes, read when first needed (not where the kept executable runs)."""
 
     def __init__(self, exported, skeleton, options: dict, lapack: bool):
-        self.exported = exported
+        self._exported = exported
         self.skeleton = skeleton
+        self.options = options
         self.lapack = lapack  # whether it calls LAPACK (`ctjax._lapack`)
         self.parts, self.structure = jax.tree.flatten(skeleton)
-        # One jit per program, its inputs placed on the default device: committed and
-        # uncommitted arguments (an exported program's outputs are committed) would
-        # otherwise compile the program twice.
-        device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+        self.outputs = sum(isinstance(part, Array) for part in self.parts)
+        self.compiled = None  # JAX's compiled program (`compile`)
+        self.executable: Executable | None = None  # or the kept one, read back
+
+    @functools.cached_property
+    def exported(self) -> jax.export.Exported:
+        if isinstance(self._exported, bytes | bytearray):
+            return jax.export.deserialize(bytearray(self._exported))
+        return self._exported
+
+    def check(self, leaves) -> None:
+        """Raise where the exported program is not one for arguments like `leaves`."""
+        inputs = [(aval.shape, aval.dtype) for aval in self.exported.in_avals]
+        if inputs != [(leaf.shape, leaf.dtype) for leaf in leaves]:
+            raise ValueError("a program for other arguments")
+        if len(self.exported.out_avals) != self.outputs:
+            raise ValueError("a program for another output")
+
+    def compile(self, leaves) -> bytes | None:
+        """Lower and compile the exported call for `leaves` (JAX's compilation cache); the
+        executable's bytes as XLA serialised them (None where not known: `recorded`)."""
+        exported = self.exported
 
         def run(*leaves):
             return exported.call(*leaves)
 
         # Named as the function kept (`jax_log_compiles`, profiles): not "<lambda>".
         run.__name__ = run.__qualname__ = _plain_name(exported.fun_name)
-        self.run = jax.jit(run, in_shardings=device, compiler_options=options)
+        # Its inputs placed on the default device: committed and uncommitted arguments (an
+        # exported program's outputs are committed) would otherwise compile it twice. Every
+        # argument kept (`keep_unused`): the kept executable takes the leaves as they come.
+        device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+        jitted = jax.jit(run, in_shardings=device, keep_unused=True, compiler_options=self.options)
+        with contextlib.nullcontext() if self.lapack else no_lapack_setup(), recorded() as code:
+            self.compiled = jitted.lower(*leaves).compile()
+        return code[0] if len(code) == 1 else None
 
     def __call__(self, leaves):
-        with contextlib.nullcontext() if self.lapack else no_lapack_setup():
-            outputs = iter(self.run(*leaves))
+        if self.executable is not None:
+            outputs = iter(self.executable(leaves))
+        else:
+            if self.compiled is None:
+                self.compile(leaves)
+            outputs = iter(self.compiled(*leaves))
         return jax.tree.unflatten(
             self.structure, [next(outputs) if isinstance(p, Array) else p for p in self.parts]
         )
@@ -230,6 +296,7 @@ def persistent_jit(fun):
                     loaded[path] = _load(path, key, leaves, options_for(name)) or _save(
                         path, key, fun, treedef, static, leaves
                     )
+                    _USED.append(key)
         program = loaded[path]
         return jitted(*args, **kwargs) if program is None else program(leaves)
 
@@ -252,9 +319,8 @@ def _blob(key: str, program: _Program) -> bytes:
     return _MAGIC + json.dumps(header, separators=(",", ":")).encode() + b"\n" + exported
 
 
-def _program(blob: bytes, key: str, leaves, options: dict) -> _Program:
-    """The program a file's bytes hold; raises (anything) where they are not this key's
-    program for arguments like `leaves`."""
+def _program(blob: bytes, key: str, options: dict) -> _Program:
+    """The program a file's bytes hold; raises (anything) where they are not this key's."""
     if not blob.startswith(_MAGIC):
         raise ValueError("not a program of this format")
     line, _, exported = blob[len(_MAGIC) :].partition(b"\n")
@@ -263,26 +329,49 @@ def _program(blob: bytes, key: str, leaves, options: dict) -> _Program:
         raise ValueError("another key's program, or a damaged one")
     if type(header["lapack"]) is not bool:
         raise ValueError("not a program of this format")
-    exported = jax.export.deserialize(bytearray(exported))
-    program = _Program(exported, read_skeleton(header["skeleton"]), options, header["lapack"])
-    inputs = [(aval.shape, aval.dtype) for aval in program.exported.in_avals]
-    outputs = sum(isinstance(part, Array) for part in program.parts)
-    if inputs != [(leaf.shape, leaf.dtype) for leaf in leaves]:
-        raise ValueError("a program for other arguments")
-    if len(program.exported.out_avals) != outputs:
-        raise ValueError("a program for another output")
-    return program
+    return _Program(exported, read_skeleton(header["skeleton"]), options, header["lapack"])
 
 
 def _load(path: Path, key: str, leaves, options: dict) -> _Program | None:
-    """The program kept for `key`; None where there is none to use (a miss)."""
+    """The program kept for `key`, ready to run; None where there is none to use (a miss)."""
     if not private_folder(path.parent):
         return None
     try:
         blob = read_private(path)
-        return None if blob is None else _program(blob, key, leaves, options)
+        if blob is None:
+            return None
+        program = _program(blob, key, options)
+        program.executable = _kept_executable(path, key, program, leaves)
+        if program.executable is not None:
+            return program
+        program.check(leaves)
     except Exception:
         return None  # unreadable, damaged, another format or another key's: a miss
+    return _compiled(program, path, key, leaves)
+
+
+def _kept_executable(path: Path, key: str, program: _Program, leaves) -> Executable | None:
+    """The executable kept beside the program at `path` (`ctjax._executables`); None where
+    there is none to use: missing, unreadable, damaged, another platform's, or not for
+    `leaves` (the program is then compiled, and the file replaced)."""
+    try:
+        return read_executable(path.with_suffix(".executable"), key, leaves, program.outputs)
+    except Exception:
+        return None
+
+
+def _compiled(program: _Program, path: Path, key: str, leaves, keep: bool = True) -> _Program:
+    """`program` (kept at `path`) lowered and compiled by JAX for `leaves`, and its
+    executable kept beside it where it can be (`keep`: the folder is the user's alone)."""
+    code = program.compile(leaves)
+    try:
+        if keep and code and keepable(program.compiled, program.exported):
+            in_avals = program.exported.in_avals
+            blob = executable_blob(key, code, program.compiled, in_avals)
+            write_private(path.with_suffix(".executable"), blob)
+    except Exception:
+        pass  # not kept: it runs as JAX compiled it
+    return program
 
 
 def _save(path: Path, key: str, fun, treedef, static, leaves) -> _Program | None:
@@ -294,7 +383,8 @@ def _save(path: Path, key: str, fun, treedef, static, leaves) -> _Program | None
         blob = _blob(key, program)
     except Exception:
         return program  # an output the format does not describe: used here, not kept
-    if private_folder(path.parent):
+    private = private_folder(path.parent)
+    if private:
         write_private(path, blob)
     # Run as a later process will, from the bytes read back: a deserialised program
     # lowers to a module that differs from the freshly exported one (its operations in
@@ -302,6 +392,8 @@ def _save(path: Path, key: str, fun, treedef, static, leaves) -> _Program | None
     # the second, which compiled every such program again (a second `ctjax fit` of a
     # 320x256 x 5 capture: 8.7 s, the third 2.9 s).
     try:
-        return _program(blob, key, leaves, options_for(_qualified(fun)))
+        read_back = _program(blob, key, options_for(_qualified(fun)))
+        read_back.check(leaves)
     except Exception:
         return program
+    return _compiled(read_back, path, key, leaves, keep=private)

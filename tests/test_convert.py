@@ -34,3 +34,37 @@ def test_host_data_goes_to_the_device_without_a_compiled_program():
     finally:
         monitoring.unregister_event_duration_listener(listen)
     assert not compiled
+
+
+def test_lobe_weights_from_host_data_compile_no_program():
+    """`as_float` and `as_rgb` of host data (NumPy arrays and scalars, Python ints) give what
+    `jnp.asarray` and `jnp.broadcast_to` give, dtype and weak type included, without an
+    eager JAX operation; a Python float stays weakly typed."""
+    import jax
+    import jax.numpy as jnp
+    from jax._src import monitoring
+
+    from ctjax._convert import as_float, as_rgb
+
+    host = [np.float64(0.3), np.float32(0.5), np.arange(3.0), 2, True, np.int32(4), np.ones(3)]
+    compiled = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(event)
+
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        got = [(as_float(x), as_rgb(x)) for x in host]
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    assert not compiled
+    for x, (scalar, rgb) in zip(host, got, strict=True):
+        want = jnp.asarray(x)
+        want = want if jnp.issubdtype(want.dtype, jnp.floating) else want.astype(float)
+        want_rgb = jnp.broadcast_to(want, (3,))
+        for a, b in ((scalar, want), (rgb, want_rgb)):
+            assert (a.dtype, a.weak_type, a.shape) == (b.dtype, b.weak_type, b.shape), x
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    weak = as_rgb(0.25)
+    assert weak.weak_type and weak.shape == (3,) and isinstance(weak, jax.Array)

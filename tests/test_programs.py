@@ -10,6 +10,7 @@ import re
 import stat
 import subprocess
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -297,7 +298,7 @@ def test_a_cache_another_user_can_write_is_not_used(kept, loads, monkeypatch, wr
         assert len(loads) == 1
     else:  # neither read nor written, and warned about once per process
         assert path.stat().st_mtime_ns == before.st_mtime_ns
-        assert len(list(kept.glob("*"))) == 1
+        assert sorted(p.suffix for p in kept.glob("*")) == [".executable", ".program"]
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             _fresh_call(*arguments)
@@ -404,6 +405,7 @@ def test_programs_are_kept_beside_a_cache_set_through_jax(tmp_path):
 _LAPACK_SCRIPT = """
 import json
 import sys
+import threading
 from pathlib import Path
 
 import jax
@@ -450,7 +452,8 @@ print(json.dumps(report))
 def test_lapack_is_set_up_only_for_programs_that_call_it(tmp_path):
     """A kept program without LAPACK kernels runs in a new process without JAX's LAPACK
     set-up (which imports scipy.linalg: `ctjax._lapack`); one that calls LAPACK, kept and
-    loaded alike, still gets it and gives the right answer."""
+    loaded alike, still gets it and gives the right answer (lowered again: its executable
+    is not kept)."""
     script = tmp_path / "probe.py"
     script.write_text(_LAPACK_SCRIPT)
     reports = []
@@ -468,6 +471,9 @@ def test_lapack_is_set_up_only_for_programs_that_call_it(tmp_path):
         for path in (tmp_path / "programs").glob("*.program")
     ]
     assert sorted(h["lapack"] for h in headers) == [False, True]
+    # Its executable kept for the program without LAPACK only (`ctjax._executables`).
+    kept_executables = {p.stem for p in (tmp_path / "programs").glob("*.executable")}
+    assert kept_executables == {h["key"] for h in headers if not h["lapack"]}
     a = np.array([[2.0, 0.5, 0.0], [0.5, 3.0, 0.1], [0.0, 0.1, 1.0]])
     for report in reports:
         assert not report["before"] and not report["after_columns"] and report["after_solve"]
@@ -536,3 +542,121 @@ def test_whether_a_program_calls_the_linear_algebra_kernels_is_read_from_its_byt
             raise AssertionError("printed a module whose bytes hold no LAPACK prefix")
 
     assert not exported_calls_lapack(Unprinted())
+
+
+def _arguments():
+    camera, normals, depth = _frame()
+    return PAPER.build(jnp.array([0.25])), ColocatedLight(), camera, normals, depth
+
+
+def _no_lowering(monkeypatch):
+    """From here on, a kept program that is lowered and compiled fails the test."""
+
+    def compile(self, leaves):
+        raise AssertionError("a kept program was lowered again")
+
+    monkeypatch.setattr(_programs._Program, "compile", compile)
+
+
+def test_a_kept_program_runs_from_its_executable_without_lowering(kept, monkeypatch):
+    """`ctjax._executables`: beside the exported program, XLA's executable is kept; a new
+    process (a fresh wrapper) runs it on the arguments' buffers, nothing traced, lowered or
+    compiled, with the same result, bit for bit."""
+    arguments = _arguments()
+    first = [np.asarray(a) for a in _frame_columns(*arguments)]
+    (path,) = kept.glob("*.program")
+    executable = path.with_suffix(".executable")
+    magic, header, _ = executable.read_bytes().split(b"\n", 2)
+    header = json.loads(header)
+    assert magic == b"ctjax-executable 1" and header["key"] == path.stem
+    assert header["inputs"][-1] == [[12, 16], "float64"]  # the depth, as the file says
+    assert stat.S_IMODE(executable.stat().st_mode) == 0o600
+    _no_lowering(monkeypatch)
+    reloaded = _programs.persistent_jit(_renamed_stub(_frame_columns.__wrapped__))
+    again = [np.asarray(a) for a in reloaded(*arguments)]
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+
+
+def test_an_executable_jax_read_from_its_cache_is_kept_whole(kept, monkeypatch):
+    """The bytes kept are XLA's as JAX read them from its compilation cache, not the
+    executable serialised again (which loses its kernels and fails when run: "Function
+    ... not found"): the program compiled, its executable file removed, JAX's in-memory
+    caches cleared; the next process compiles from JAX's cache and keeps the executable,
+    the one after runs it."""
+    from jax._src import compilation_cache
+
+    arguments = _arguments()
+    first = [np.asarray(a) for a in _frame_columns(*arguments)]
+    (path,) = kept.glob("*.program")
+    path.with_suffix(".executable").unlink()
+    jax.clear_caches()
+    read = []
+    extract = compilation_cache.extract_executable_and_time
+    monkeypatch.setattr(  # the wrapper `ctjax._executables` installed, counted
+        compilation_cache, "extract_executable_and_time", lambda b: read.append(1) or extract(b)
+    )
+    _fresh_call(*arguments[:1], *arguments[2:])
+    assert read and path.with_suffix(".executable").exists()
+    _no_lowering(monkeypatch)
+    again = _fresh_call(*arguments[:1], *arguments[2:])
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+
+
+@pytest.mark.parametrize("damage", ["payload", "renamed", "platform", "arguments"])
+def test_an_executable_that_is_not_this_programs_is_compiled_again(kept, damage):
+    """A damaged executable (refused before XLA reads it), another key's, another
+    processor's or one for other arguments: the program is compiled again, gives the same
+    result, and its executable is written anew."""
+    arguments = _arguments()
+    first = [np.asarray(a) for a in _frame_columns(*arguments)]
+    (path,) = kept.glob("*.program")
+    executable = path.with_suffix(".executable")
+    blob = executable.read_bytes()
+    magic, header, code = blob.split(b"\n", 2)
+    data = json.loads(header)
+    if damage == "payload":
+        code = code[:-100] + bytes([code[-100] ^ 1]) + code[-99:]
+    elif damage == "renamed":
+        data["key"] = "0" * 64
+    elif damage == "platform":
+        data["cpu"] = "another processor"
+    else:
+        data["inputs"][-1] = [[8, 10], "float64"]
+    planted = magic + b"\n" + json.dumps(data).encode() + b"\n" + code
+    executable.write_bytes(planted)
+    again = _fresh_call(*arguments[:1], *arguments[2:])
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+    assert executable.read_bytes() != planted
+
+
+def test_the_executables_a_command_used_are_loaded_ahead_next_time(kept, monkeypatch):
+    """`loading_ahead`: a command's run writes down the programs it used (`<command>.recent`);
+    the next run of that command deserialises their executables on a thread before it asks
+    for them, and runs them; keys that are not programs' are ignored."""
+    from ctjax import _executables
+
+    arguments = _arguments()
+    with _programs.loading_ahead("probe"):
+        first = [np.asarray(a) for a in _frame_columns(*arguments)]
+    (path,) = kept.glob("*.program")
+    recent = json.loads((kept / "probe.recent").read_bytes())
+    assert recent == [path.stem]
+    (kept / "probe.recent").write_text(json.dumps([path.stem, "../../etc/passwd", 3, "f" * 64]))
+    threads = []
+    deserialised = _executables._deserialised
+    monkeypatch.setattr(
+        _executables,
+        "_deserialised",
+        lambda code: threads.append(threading.current_thread().name) or deserialised(code),
+    )
+    _no_lowering(monkeypatch)
+    with _programs.loading_ahead("probe"):
+        again = _fresh_call(*arguments[:1], *arguments[2:])
+    assert threads == ["ctjax-load-ahead"] and not _executables._AHEAD
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(b, a)
+    with _programs.loading_ahead("other"):  # another command: nothing of this one's
+        assert not _executables._AHEAD

@@ -60,6 +60,7 @@ def execute(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> i
     import jax
 
     from .._performance import enable_compilation_cache, tune_malloc, tune_xla
+    from .._programs import loading_ahead
 
     # Estimation in double precision; renders stay in the dtype of their inputs.
     jax.config.update("jax_enable_x64", True)
@@ -67,7 +68,8 @@ def execute(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> i
     tune_xla()
     enable_compilation_cache()
     try:
-        return args.run(args)
+        with loading_ahead(args.command):
+            return args.run(args)
     except CtjaxError as error:
         print(f"ctjax {args.command}: error: {error}", file=sys.stderr)
         return 2

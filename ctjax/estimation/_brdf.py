@@ -34,18 +34,26 @@ class BRDFFamily(eqx.Module):
     diffuse: type[Lambertian] = eqx.field(static=True, default=Lambertian)
 
 
+# The weights a family's `build` gives its lobes, which `with_weights` replaces (and the
+# columns, unit weight, never read): host data, so that building a fitted BRDF on the host
+# runs no eager JAX op (a Python float would be broadcast to the channels by one).
+_UNIT = np.ones(3)
+
+
 def _paper(params):
-    return cook_torrance_brdf(1.0, 1.0, params[0])
+    return cook_torrance_brdf(_UNIT, _UNIT, params[0])
 
 
 def _lambertian(params):
     del params
-    return BRDF(Lambertian(1.0))
+    return BRDF(Lambertian(_UNIT))
 
 
 def _two_scales(params):
     return BRDF(
-        Lambertian(1.0), Specular(1.0, Beckmann(params[0])), Specular(1.0, Beckmann(params[1]))
+        Lambertian(_UNIT),
+        Specular(_UNIT, Beckmann(params[0])),
+        Specular(_UNIT, Beckmann(params[1])),
     )
 
 
