@@ -27,9 +27,9 @@ chooses what a later process runs, as with JAX's compilation cache beside it, so
 read and written only where the kept programs are, a folder of the user's alone
 (`ctjax._private_files`).
 
-A command loads ahead the executables its last run used (`loaded_ahead`): it writes down
-their keys (`<command>.recent`), and the next run of that command deserialises them on a
-thread while it reads its capture.
+A repeated command loads ahead the executables its last run used (`loaded_ahead`): a run
+writes down their keys (`<command>.recent`), and the next run of the same words
+deserialises them on a thread while it reads its capture.
 
 Only a program of one device, no effects, no custom call (jaxlib's LAPACK kernels, whose
 addresses JAX sets up when it lowers: `ctjax._lapack`) and no weak-typed output (the
@@ -41,6 +41,7 @@ import contextlib
 import functools
 import hashlib
 import json
+import os
 import platform
 import re
 import threading
@@ -210,14 +211,14 @@ def read_executable(path: Path, key: str, leaves, outputs: int) -> Executable | 
     return Executable(loaded or _deserialised(code), header["inputs"])
 
 
-# Loading ahead: a command's kept programs are the same from one run to the next where its
-# input has the same size, and the first of them is called after the capture is read and
-# its tracks followed (a repeated `ctjax fit` of 320x256 x 5 frames: 0.6 s in, then 0.2-0.3
-# s deserialising its executables, most of it the branch and bound's). So the keys a
-# command's run used are written down (`<command>.recent` beside the programs), and the
-# next run of that command deserialises their executables on a thread while it reads its
-# capture (XLA does not hold the GIL there). A key the run does not ask for costs the
-# thread's time and the executable's memory, nothing else.
+# Loading ahead: a repeated command (the same words in the same folder) calls the same kept
+# programs, the first of them after the capture is read and its tracks followed (a
+# repeated `ctjax fit` of 320x256 x 5 frames: 0.6 s in, then 0.2-0.3 s deserialising its
+# executables, most of it the branch and bound's). So a command's run writes down the
+# keys it used (`<command>.recent` beside the programs, with a digest of its words), and
+# the next run of the same words deserialises their executables on a thread while it reads
+# its capture (XLA does not hold the GIL there). Other words load nothing ahead: a key the
+# run does not ask for would cost the thread's time and the executable's memory.
 _AHEAD: dict[str, Future] = {}  # key -> (the file's bytes, XLA's executable or None)
 _KEY = re.compile(r"[0-9a-f]{64}")
 
@@ -226,16 +227,29 @@ def _recent(folder: Path, command: str) -> Path:
     return folder / f"{command}.recent"
 
 
-@contextlib.contextmanager
-def loaded_ahead(folder: Path, command: str):
-    """In this block, deserialise on a thread the executables `command`'s last run used
-    (written down in `folder`, a folder of the user's alone); those not asked for by the
-    block's end are let go then."""
+def _words(words: list[str]) -> str:
+    """A digest of a command's words and the folder they were said in."""
+    return hashlib.sha256(json.dumps([os.getcwd(), list(words)]).encode()).hexdigest()
+
+
+def _recent_keys(folder: Path, command: str, words: list[str]) -> list[str]:
+    """The keys the last run of `command` used, where it had these `words`."""
     try:
-        keys = json.loads(read_private(_recent(folder, command)) or b"[]")
-        keys = [key for key in keys if isinstance(key, str) and _KEY.fullmatch(key)]
-    except (OSError, ValueError):
-        keys = []
+        recent = json.loads(read_private(_recent(folder, command)) or b"{}")
+        if recent.get("words") != _words(words):
+            return []
+        keys = recent["keys"]
+    except (OSError, ValueError, KeyError, AttributeError):
+        return []
+    return [key for key in keys if isinstance(key, str) and _KEY.fullmatch(key)]
+
+
+@contextlib.contextmanager
+def loaded_ahead(folder: Path, command: str, words: list[str]):
+    """In this block, deserialise on a thread the executables the last run of `command`
+    used, where it had the same `words` (written down in `folder`, a folder of the user's
+    alone); those not asked for by the block's end are let go then."""
+    keys = _recent_keys(folder, command, words)
     futures = {key: Future() for key in dict.fromkeys(keys) if key not in _AHEAD}
     if not futures:
         yield
@@ -263,7 +277,9 @@ def loaded_ahead(folder: Path, command: str):
             _AHEAD.pop(key, None)
 
 
-def remember(folder: Path, command: str, keys: list[str]) -> None:
-    """Write down the keys of the programs a run of `command` used, for `loaded_ahead`."""
+def remember(folder: Path, command: str, words: list[str], keys: list[str]) -> None:
+    """Write down the keys of the programs a run of `command` with `words` used, for
+    `loaded_ahead`."""
     if keys:
-        write_private(_recent(folder, command), json.dumps(list(dict.fromkeys(keys))).encode())
+        recent = {"words": _words(words), "keys": list(dict.fromkeys(keys))}
+        write_private(_recent(folder, command), json.dumps(recent).encode())

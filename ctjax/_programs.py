@@ -32,7 +32,7 @@ function is traced again and the file replaced.
 
 What the program compiled to is kept beside it too (`<key>.executable`,
 `ctjax._executables`): a later process runs XLA's executable, nothing lowered, hashed or
-compiled, and a command loads ahead, on a thread, those its last run used
+compiled, and a repeated command loads ahead, on a thread, those its last run used
 (`loading_ahead`).
 """
 
@@ -81,19 +81,20 @@ _USED: list[str] = []  # the keys of the kept programs loaded in this process, i
 
 
 @contextlib.contextmanager
-def loading_ahead(command: str):
-    """Run a command (`ctjax fit`, ...) with the executables its last run used loaded ahead
-    on a thread (`ctjax._executables.loaded_ahead`), and write down the ones this run used."""
+def loading_ahead(command: str, words: list[str]):
+    """Run a command (`ctjax fit`, ...; `words`: its command line) with the executables its
+    last run with the same words used loaded ahead on a thread
+    (`ctjax._executables.loaded_ahead`), and write down the ones this run used."""
     folder = _FOLDER[0]
     if folder is None or not private_folder(folder):
         yield
         return
     start = len(_USED)
     try:
-        with loaded_ahead(folder, command):
+        with loaded_ahead(folder, command, words):
             yield
     finally:
-        remember(folder, command, _USED[start:])
+        remember(folder, command, words, _USED[start:])
 
 
 # XLA:CPU's loop emitters for the fitters (compiled once per model, run for milliseconds):

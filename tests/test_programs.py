@@ -590,7 +590,9 @@ def test_an_executable_jax_read_from_its_cache_is_kept_whole(kept, monkeypatch):
     first = [np.asarray(a) for a in _frame_columns(*arguments)]
     (path,) = kept.glob("*.program")
     path.with_suffix(".executable").unlink()
-    jax.clear_caches()
+    from jax._src.interpreters import pxla
+
+    pxla.clear_in_memory_compilation_cache()  # the next compilation reads JAX's cache
     read = []
     extract = compilation_cache.extract_executable_and_time
     monkeypatch.setattr(  # the wrapper `ctjax._executables` installed, counted
@@ -632,19 +634,22 @@ def test_an_executable_that_is_not_this_programs_is_compiled_again(kept, damage)
     assert executable.read_bytes() != planted
 
 
-def test_the_executables_a_command_used_are_loaded_ahead_next_time(kept, monkeypatch):
-    """`loading_ahead`: a command's run writes down the programs it used (`<command>.recent`);
-    the next run of that command deserialises their executables on a thread before it asks
-    for them, and runs them; keys that are not programs' are ignored."""
+def test_the_executables_a_command_used_are_loaded_ahead_when_it_is_repeated(kept, monkeypatch):
+    """`loading_ahead`: a command's run writes down the programs it used (`<command>.recent`,
+    with a digest of its words); the next run of the same words deserialises their
+    executables on a thread before it asks for them, and runs them. Other words, another
+    command or keys that are not programs' load nothing ahead."""
     from ctjax import _executables
 
     arguments = _arguments()
-    with _programs.loading_ahead("probe"):
+    words = ["probe", "capture", "--json", "out.json"]
+    with _programs.loading_ahead("probe", words):
         first = [np.asarray(a) for a in _frame_columns(*arguments)]
     (path,) = kept.glob("*.program")
     recent = json.loads((kept / "probe.recent").read_bytes())
-    assert recent == [path.stem]
-    (kept / "probe.recent").write_text(json.dumps([path.stem, "../../etc/passwd", 3, "f" * 64]))
+    assert recent["keys"] == [path.stem]
+    recent["keys"] += ["../../etc/passwd", 3, "f" * 64]  # only the program's is loaded
+    (kept / "probe.recent").write_text(json.dumps(recent))
     threads = []
     deserialised = _executables._deserialised
     monkeypatch.setattr(
@@ -653,10 +658,11 @@ def test_the_executables_a_command_used_are_loaded_ahead_next_time(kept, monkeyp
         lambda code: threads.append(threading.current_thread().name) or deserialised(code),
     )
     _no_lowering(monkeypatch)
-    with _programs.loading_ahead("probe"):
+    with _programs.loading_ahead("probe", words):
         again = _fresh_call(*arguments[:1], *arguments[2:])
     assert threads == ["ctjax-load-ahead"] and not _executables._AHEAD
     for a, b in zip(first, again, strict=True):
         np.testing.assert_array_equal(b, a)
-    with _programs.loading_ahead("other"):  # another command: nothing of this one's
-        assert not _executables._AHEAD
+    for command, said in (("probe", [*words[:-1], "other.json"]), ("other", words)):
+        with _programs.loading_ahead(command, said):
+            assert not _executables._AHEAD

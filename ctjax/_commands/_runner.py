@@ -53,6 +53,7 @@ def parser_of(commands: Iterable[AddParser]) -> argparse.ArgumentParser:
 def execute(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Run the command `argv` names (`sys.argv[1:]` when None) with `parser` (`parser_of`);
     returns its exit status: 0, 2 for bad input (one line on stderr), 130 if interrupted."""
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exit:  # bad options (status 2, one line), --help (status 0)
@@ -68,7 +69,7 @@ def execute(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> i
     tune_xla()
     enable_compilation_cache()
     try:
-        with loading_ahead(args.command):
+        with loading_ahead(args.command, argv):
             return args.run(args)
     except CtjaxError as error:
         print(f"ctjax {args.command}: error: {error}", file=sys.stderr)

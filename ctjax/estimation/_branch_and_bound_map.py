@@ -34,7 +34,8 @@ from .._programs import persistent_jit
 from .._tracks import Tracks
 from .._typing import Array, Bool, Float, Scalar
 from .._vector import Vec3
-from ..lights import AbstractLight, ColocatedLight
+from ..lights import AbstractLight
+from ..lights._point import default_light
 from ..observations import ShadingSamples
 from ._branch_and_bound import grid_search
 from ._brdf import PAPER, BRDFFamily, design_geometry
@@ -54,8 +55,6 @@ _GRID_BATCH = 1
 # The BnB's first `_COARSE_LEVELS` levels evaluate every `_COARSE_STEP`-th track (`_fit`).
 _COARSE_STEP = 4
 _COARSE_LEVELS = 2
-# The paper's light: at the camera centre, L = V.
-_PAPER_LIGHT = ColocatedLight()
 
 
 class TrackShading(eqx.Module):
@@ -128,13 +127,13 @@ def _track_shading(
     )
 
 
-def track_shading(tracks: Tracks, light: AbstractLight = _PAPER_LIGHT, dtype=None):
+def track_shading(tracks: Tracks, light: AbstractLight | None = None, dtype=None):
     """`tracks` under `light` (the paper's, L = V, by default) as `TrackShading` (views
     from a stereo scope's right camera, `Tracks.corner_eye`, with their own V)."""
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     as_host = lambda a: np.asarray(a, dtype)  # noqa: E731
     return _track_shading(
-        light,
+        default_light(light),
         *(
             as_host(a)
             for a in (

@@ -28,15 +28,14 @@ from .._tracks import (
     world_points,
 )
 from ..effects._effect import Site, apply_effects, undo_effects
-from ..lights import AbstractLight, ColocatedLight
+from ..lights import AbstractLight
+from ..lights._point import default_light
 
 # Albedo maps are left NaN where the diffuse column is below this (N.L / pi in every view
 # below ~0.05 / pi): the albedo would be noise divided by nearly 0.
 MIN_COSINE = 0.05
 # Pixels whose albedo is estimated at once (bounds memory at 1080p).
 _MAP_CHUNK = 1 << 17
-# The paper's light: at the camera centre, L = V.
-_PAPER_LIGHT = ColocatedLight()
 
 
 @persistent_jit
@@ -130,7 +129,7 @@ def _albedo_of(
 def albedo_maps(
     capture,
     brdf,
-    light: AbstractLight = _PAPER_LIGHT,
+    light: AbstractLight | None = None,
     *,
     per_point: int = 0,
     neighbours: int | None = DEFAULT_NEIGHBOURS,
@@ -181,7 +180,7 @@ def albedo_maps(
 def albedo_samples(
     capture,
     brdf,
-    light: AbstractLight = _PAPER_LIGHT,
+    light: AbstractLight | None = None,
     *,
     stride: int,
     per_point: int = 0,
@@ -247,6 +246,7 @@ def _frames_of(
     on every `stride`-th row and column) and their albedo, view count and own residual
     (`_albedo_of`), in batches of at most `_MAP_CHUNK` pixels (bounded memory at 1080p;
     several frames' at once where they are few, as a summary's)."""
+    light = default_light(light)
     dtype = jax.dtypes.canonicalize_dtype(np.float64 if dtype is None else dtype)
     tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     camera = capture.camera
@@ -319,7 +319,7 @@ def _batched(pieces, chunk: int):
 def map_residuals(
     capture,
     brdf,
-    light: AbstractLight = _PAPER_LIGHT,
+    light: AbstractLight | None = None,
     frames=None,
     *,
     per_point: int = 0,

@@ -84,3 +84,10 @@ def offset_starts(length_unit: str = "mm", median_depth: float = 1.0) -> list[tu
     in the capture's length unit."""
     step = OFFSET_START_MM if length_unit == "mm" else OFFSET_START_RELATIVE * median_depth
     return [(step, 0.0, 0.0), (-step, 0.0, 0.0), (0.0, step, 0.0), (0.0, -step, 0.0)]
+
+
+def default_light(light: AbstractLight | None) -> AbstractLight:
+    """`light`, or the paper's (`ColocatedLight()`: L = V) where it is None, made at the
+    call: a default made at import would hold its intensity in the precision in force then
+    (`jax_enable_x64`), and a kept program's key with it."""
+    return ColocatedLight() if light is None else light
