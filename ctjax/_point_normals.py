@@ -89,7 +89,15 @@ def one_normal_per_point(tracks: Tracks, capture) -> Tracks:
     w = cross(own, target)[:, :, None, :]
     c = np.sum(own * target, axis=-1)[:, :, None, None]
     x = tracks.corner_normal
-    turned = x + cross(w, x) + cross(w, cross(w, x)) / np.maximum(1 + c, 1e-6)
+    # x + w x x + w x (w x x) / (1 + c), w x x once and the rest in place (the same
+    # operations in the same order: the same bits, in less memory).
+    w_x = cross(w, x)
+    turned = x + w_x
+    bend = cross(w, w_x)
+    del w_x
+    bend /= np.maximum(1 + c, 1e-6)
+    turned += bend
+    del bend
     keep = (seen[..., None, None] & (c > 0)) & np.all(np.isfinite(turned), -1, keepdims=True)
-    normals = np.where(keep, turned, x).astype(x.dtype)
+    normals = np.where(keep, turned, x).astype(x.dtype, copy=False)
     return dataclasses.replace(tracks, corner_normal=normals)
