@@ -21,11 +21,11 @@ JAX lowers it.
 A file holds the line `ctjax-executable 1` (the format and its version), one line of JSON,
 then the bytes. The JSON holds the key's digest (a file renamed to another key is refused),
 the sha256 of the bytes (a damaged file is refused before XLA parses it), the platform, its
-version and the host's processor (`_cpu`), and the shape and dtype of every argument and
-output (checked against the program's). Compiled code is code: whoever can write the file
-chooses what a later process runs, as with JAX's compilation cache beside it, so it is
-read and written only where the kept programs are, a folder of the user's alone
-(`ctjax._private_files`).
+version, the host's processor (`_cpu`) and XLA's flags, the compiler options, and the
+shape and dtype of every argument and output (checked against the program's). Compiled
+code is code: whoever can write the file chooses what a later process runs, as with JAX's
+compilation cache beside it, so it is read and written only where the kept programs are,
+a folder of the user's alone (`ctjax._private_files`).
 
 A repeated command loads ahead the executables its last run used (`loaded_ahead`): a run
 writes down their keys (`<command>.recent`), and the next run of the same words
@@ -121,8 +121,20 @@ def _cpu() -> str:
 
 
 def _platform() -> dict:
+    """What an executable was compiled for besides its program: the platform, its version,
+    the host's processor and XLA's flags (`XLA_FLAGS`, as `ctjax._performance.tune_xla`
+    sets them)."""
     backend = jax.devices()[0].client
-    return {"platform": backend.platform, "version": backend.platform_version, "cpu": _cpu()}
+    return {
+        "platform": backend.platform,
+        "version": backend.platform_version,
+        "cpu": _cpu(),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+
+
+def _options(options: dict) -> str:
+    return json.dumps(options, sort_keys=True, default=str)
 
 
 def _avals(avals) -> list:
@@ -162,16 +174,18 @@ def keepable(compiled, exported) -> bool:
     )
 
 
-def executable_blob(key: str, code: bytes, compiled, in_avals) -> bytes:
+def executable_blob(key: str, code: bytes, compiled, in_avals, options: dict) -> bytes:
     """The bytes of the file keeping `code`, XLA's serialised form of `compiled` (a
     `jax.stages.Compiled` of a program whose arguments are `in_avals`, every one kept:
-    `keep_unused`), as `recorded()` noted them."""
+    `keep_unused`; compiled with `options`, `jax.jit`'s `compiler_options`), as
+    `recorded()` noted them."""
     if len(compiled.runtime_executable().get_parameter_layouts()) != len(in_avals):
         raise ValueError("an executable that does not take every argument")
     header = {
         "key": key,
         "sha256": hashlib.sha256(code).hexdigest(),
         **_platform(),
+        "options": _options(options),
         "inputs": _avals(in_avals),
         "outputs": _avals(jax.tree.leaves(compiled.out_info)),
     }
@@ -187,7 +201,7 @@ def _checked(blob: bytes, key: str) -> tuple[dict, bytes]:
     header = json.loads(line)
     if header["key"] != key or header["sha256"] != hashlib.sha256(code).hexdigest():
         raise ValueError("another key's executable, or a damaged one")
-    if {k: header.get(k) for k in ("platform", "version", "cpu")} != _platform():
+    if {k: header.get(k) for k in _platform()} != _platform():
         raise ValueError("an executable for another platform")
     return header, code
 
@@ -197,10 +211,11 @@ def _deserialised(code: bytes):
     return device.client.deserialize_executable(code, [device])
 
 
-def read_executable(path: Path, key: str, leaves, outputs: int) -> Executable | None:
+def read_executable(path: Path, key: str, leaves, outputs: int, options: dict) -> Executable | None:
     """The executable kept at `path` for `key` (loaded ahead where `loaded_ahead` did);
     None where there is none; raises (anything) where the file is not this key's, for
-    arguments like `leaves` and `outputs` outputs, on this platform."""
+    arguments like `leaves` and `outputs` outputs, compiled with `options` on this
+    platform."""
     ahead = _AHEAD.pop(key, None)
     blob, loaded = ahead.result() if ahead is not None else (read_private(path), None)
     if blob is None:
@@ -208,6 +223,8 @@ def read_executable(path: Path, key: str, leaves, outputs: int) -> Executable | 
     header, code = _checked(blob, key)
     if header["inputs"] != _avals(leaves) or len(header["outputs"]) != outputs:
         raise ValueError("an executable for other arguments or outputs")
+    if header["options"] != _options(options):
+        raise ValueError("an executable compiled with other options")
     return Executable(loaded or _deserialised(code), header["inputs"])
 
 

@@ -356,7 +356,8 @@ def _kept_executable(path: Path, key: str, program: _Program, leaves) -> Executa
     there is none to use: missing, unreadable, damaged, another platform's, or not for
     `leaves` (the program is then compiled, and the file replaced)."""
     try:
-        return read_executable(path.with_suffix(".executable"), key, leaves, program.outputs)
+        path = path.with_suffix(".executable")
+        return read_executable(path, key, leaves, program.outputs, program.options)
     except Exception:
         return None
 
@@ -368,7 +369,7 @@ def _compiled(program: _Program, path: Path, key: str, leaves, keep: bool = True
     try:
         if keep and code and keepable(program.compiled, program.exported):
             in_avals = program.exported.in_avals
-            blob = executable_blob(key, code, program.compiled, in_avals)
+            blob = executable_blob(key, code, program.compiled, in_avals, program.options)
             write_private(path.with_suffix(".executable"), blob)
     except Exception:
         pass  # not kept: it runs as JAX compiled it

@@ -606,11 +606,14 @@ def test_an_executable_jax_read_from_its_cache_is_kept_whole(kept, monkeypatch):
         np.testing.assert_array_equal(b, a)
 
 
-@pytest.mark.parametrize("damage", ["payload", "renamed", "platform", "arguments"])
+@pytest.mark.parametrize(
+    "damage", ["payload", "renamed", "platform", "flags", "options", "arguments"]
+)
 def test_an_executable_that_is_not_this_programs_is_compiled_again(kept, damage):
     """A damaged executable (refused before XLA reads it), another key's, another
-    processor's or one for other arguments: the program is compiled again, gives the same
-    result, and its executable is written anew."""
+    processor's, one compiled with other XLA flags or compiler options, or one for other
+    arguments: the program is compiled again, gives the same result, and its executable is
+    written anew."""
     arguments = _arguments()
     first = [np.asarray(a) for a in _frame_columns(*arguments)]
     (path,) = kept.glob("*.program")
@@ -624,6 +627,10 @@ def test_an_executable_that_is_not_this_programs_is_compiled_again(kept, damage)
         data["key"] = "0" * 64
     elif damage == "platform":
         data["cpu"] = "another processor"
+    elif damage == "flags":
+        data["xla_flags"] += " --xla_cpu_enable_fast_math=true"
+    elif damage == "options":
+        data["options"] = json.dumps({"xla_backend_optimization_level": 0})
     else:
         data["inputs"][-1] = [[8, 10], "float64"]
     planted = magic + b"\n" + json.dumps(data).encode() + b"\n" + code
