@@ -50,7 +50,7 @@ from pathlib import Path
 
 import jax
 
-from ctjax._private_files import read_private, write_private
+from ctjax._private_files import keyed_blob, read_keyed, read_private, write_private
 
 _MAGIC = b"ctjax-executable 1\n"  # the format and its version
 
@@ -182,25 +182,18 @@ def executable_blob(key: str, code: bytes, compiled, in_avals, options: dict) ->
     if len(compiled.runtime_executable().get_parameter_layouts()) != len(in_avals):
         raise ValueError("an executable that does not take every argument")
     header = {
-        "key": key,
-        "sha256": hashlib.sha256(code).hexdigest(),
         **_platform(),
         "options": _options(options),
         "inputs": _avals(in_avals),
         "outputs": _avals(jax.tree.leaves(compiled.out_info)),
     }
-    return _MAGIC + json.dumps(header, separators=(",", ":")).encode() + b"\n" + code
+    return keyed_blob(_MAGIC, key, header, code)
 
 
 def _checked(blob: bytes, key: str) -> tuple[dict, bytes]:
     """A file's header and XLA's bytes; raises where they are not this key's, on this
     platform, or damaged (before XLA parses them)."""
-    if not blob.startswith(_MAGIC):
-        raise ValueError("not an executable of this format")
-    line, _, code = blob[len(_MAGIC) :].partition(b"\n")
-    header = json.loads(line)
-    if header["key"] != key or header["sha256"] != hashlib.sha256(code).hexdigest():
-        raise ValueError("another key's executable, or a damaged one")
+    header, code = read_keyed(blob, _MAGIC, key)
     if {k: header.get(k) for k in _platform()} != _platform():
         raise ValueError("an executable for another platform")
     return header, code

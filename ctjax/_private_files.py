@@ -9,6 +9,8 @@ process (`enable_compilation_cache` leaves such a cache folder off altogether). 
 folder and the file are checked: one that another user put in their place is theirs.
 """
 
+import hashlib
+import json
 import os
 import stat
 import tempfile
@@ -81,3 +83,22 @@ def write_private(path: Path, blob: bytes) -> None:
         os.replace(temporary, path)  # atomic: concurrent processes never read half a file
     except OSError:
         Path(temporary).unlink(missing_ok=True)
+
+
+def keyed_blob(magic: bytes, key: str, header: dict, payload: bytes) -> bytes:
+    """A cache file's bytes: the line `magic` (the format and its version), one line of
+    JSON (`header` with the key's digest and the sha256 of `payload`), then `payload`."""
+    header = {"key": key, "sha256": hashlib.sha256(payload).hexdigest(), **header}
+    return magic + json.dumps(header, separators=(",", ":")).encode() + b"\n" + payload
+
+
+def read_keyed(blob: bytes, magic: bytes, key: str) -> tuple[dict, bytes]:
+    """A cache file's header and payload (`keyed_blob`); raises `ValueError` where it is of
+    another format, another key's (renamed) or damaged, before anything reads the payload."""
+    if not blob.startswith(magic):
+        raise ValueError("not a file of this format")
+    line, _, payload = blob[len(magic) :].partition(b"\n")
+    header = json.loads(line)
+    if header["key"] != key or header["sha256"] != hashlib.sha256(payload).hexdigest():
+        raise ValueError("another key's file, or a damaged one")
+    return header, payload

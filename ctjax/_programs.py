@@ -40,7 +40,6 @@ import contextlib
 import functools
 import hashlib
 import importlib.metadata
-import json
 import threading
 from pathlib import Path
 
@@ -57,7 +56,13 @@ from ctjax._executables import (
     remember,
 )
 from ctjax._lapack import exported_calls_lapack, no_lapack_setup
-from ctjax._private_files import private_folder, read_private, write_private
+from ctjax._private_files import (
+    keyed_blob,
+    private_folder,
+    read_keyed,
+    read_private,
+    write_private,
+)
 from ctjax._static_data import (
     PACKAGES,
     Array,
@@ -310,24 +315,13 @@ _MAGIC = b"ctjax-program 2\n"  # the format and its version
 def _blob(key: str, program: _Program) -> bytes:
     """A program file's bytes (see the module doc); raises `Unkeyable` for an output the
     format does not describe."""
-    exported = bytes(program.exported.serialize())
-    header = {
-        "key": key,
-        "sha256": hashlib.sha256(exported).hexdigest(),
-        "skeleton": skeleton_data(program.skeleton),
-        "lapack": program.lapack,
-    }
-    return _MAGIC + json.dumps(header, separators=(",", ":")).encode() + b"\n" + exported
+    header = {"skeleton": skeleton_data(program.skeleton), "lapack": program.lapack}
+    return keyed_blob(_MAGIC, key, header, bytes(program.exported.serialize()))
 
 
 def _program(blob: bytes, key: str, options: dict) -> _Program:
     """The program a file's bytes hold; raises (anything) where they are not this key's."""
-    if not blob.startswith(_MAGIC):
-        raise ValueError("not a program of this format")
-    line, _, exported = blob[len(_MAGIC) :].partition(b"\n")
-    header = json.loads(line)
-    if header["key"] != key or header["sha256"] != hashlib.sha256(exported).hexdigest():
-        raise ValueError("another key's program, or a damaged one")
+    header, exported = read_keyed(blob, _MAGIC, key)
     if type(header["lapack"]) is not bool:
         raise ValueError("not a program of this format")
     return _Program(exported, read_skeleton(header["skeleton"]), options, header["lapack"])

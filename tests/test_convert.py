@@ -3,6 +3,24 @@
 import numpy as np
 
 
+def _compiles(run) -> list:
+    """The programs XLA compiled while `run()` ran (`jax.monitoring`'s compile events)."""
+    from jax._src import monitoring
+
+    compiled = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(event)
+
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        run()
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    return compiled
+
+
 def test_host_data_goes_to_the_device_without_a_compiled_program():
     """`on_device`: host arrays as `jnp.asarray` gives them (dtype canonicalised), without
     the program `jnp.asarray` compiles per shape (`lax.stage`); JAX arrays pass through."""
@@ -20,20 +38,7 @@ def test_host_data_goes_to_the_device_without_a_compiled_program():
     device = jnp.ones(3)
     assert on_device(device) is device
     assert jax.jit(lambda x: on_device(x, jnp.float32))(device).dtype == jnp.float32
-    from jax._src import monitoring
-
-    compiled = []
-
-    def listen(event, duration, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(event)
-
-    monitoring.register_event_duration_secs_listener(listen)
-    try:
-        on_device(np.zeros((7, 11, 13)))
-    finally:
-        monitoring.unregister_event_duration_listener(listen)
-    assert not compiled
+    assert not _compiles(lambda: on_device(np.zeros((7, 11, 13))))
 
 
 def test_lobe_weights_from_host_data_compile_no_program():
@@ -42,23 +47,12 @@ def test_lobe_weights_from_host_data_compile_no_program():
     eager JAX operation; a Python float stays weakly typed."""
     import jax
     import jax.numpy as jnp
-    from jax._src import monitoring
 
     from ctjax._convert import as_float, as_rgb
 
     host = [np.float64(0.3), np.float32(0.5), np.arange(3.0), 2, True, np.int32(4), np.ones(3)]
-    compiled = []
-
-    def listen(event, duration, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiled.append(event)
-
-    monitoring.register_event_duration_secs_listener(listen)
-    try:
-        got = [(as_float(x), as_rgb(x)) for x in host]
-    finally:
-        monitoring.unregister_event_duration_listener(listen)
-    assert not compiled
+    got = []
+    assert not _compiles(lambda: got.extend((as_float(x), as_rgb(x)) for x in host))
     for x, (scalar, rgb) in zip(host, got, strict=True):
         want = jnp.asarray(x)
         want = want if jnp.issubdtype(want.dtype, jnp.floating) else want.astype(float)
