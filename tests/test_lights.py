@@ -72,3 +72,21 @@ def test_a_light_in_the_lens_plane_is_the_point_light_at_z_0():
     assert named_parameters(plane)["lens_plane_offset_mm"] == [4.0, -3.0]
     with pytest.raises(ParameterError, match="offset_mm"):
         LensPlaneLight((4.0, -3.0, 0.0))
+
+
+def test_the_default_light_is_made_in_the_precision_of_the_call():
+    """`default_light(None)`: the paper's light made when asked for, its intensity in the
+    precision then in force; a module-level default made at import held float32 where a
+    user turned `jax_enable_x64` on after importing ctjax (and a kept program's key with
+    it). A light given is returned as it is."""
+    import jax
+
+    from ctjax.lights import ColocatedLight
+    from ctjax.lights._point import default_light
+
+    with jax.enable_x64(False):
+        assert default_light(None).intensity.dtype == jnp.float32
+    with jax.enable_x64(True):
+        assert default_light(None).intensity.dtype == jnp.float64
+    given = ColocatedLight(2.0)
+    assert default_light(given) is given
